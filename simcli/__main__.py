@@ -1,0 +1,4 @@
+from simcli.cli import main
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,80 @@
+"""Taichi initialisation: the only place that imports Taichi for the first time.
+
+Taichi prints banners on stdout; stdout is reserved for machine-readable output, so
+the import and ``ti.init`` run with file descriptor 1 pointed at stderr.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import time
+
+_STATE: dict = {}
+
+
+@contextlib.contextmanager
+def stdout_to_stderr():
+    """Send everything written to fd 1 (Python and C level) to fd 2 for the duration."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def default_cache_dir() -> str:
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "simcli", "taichi")
+
+
+def init_taichi(backend: str = "cpu", precision: str = "f32", threads: int | None = None,
+                debug: bool = False) -> dict:
+    """Initialise Taichi once per process and return facts about it.
+
+    backend: auto | cpu | gpu | cuda | vulkan | metal. ``auto`` tries a GPU and falls back
+    to the CPU. Returns {'arch', 'import_s', 'init_s', 'threads', 'cache'}.
+    """
+    if _STATE:
+        return dict(_STATE)
+    os.environ.setdefault("TI_LOG_LEVEL", "warn")
+    os.environ.setdefault("TI_ENABLE_CUDA_WARNINGS", "0")
+    t0 = time.perf_counter()
+    with stdout_to_stderr():
+        import taichi as ti
+    import_s = time.perf_counter() - t0
+
+    arch_map = {"cpu": ti.cpu, "gpu": ti.gpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "metal": ti.metal, "auto": ti.gpu}
+    fp = ti.f64 if precision == "f64" else ti.f32
+    cache = os.environ.get("SIMCLI_KERNEL_CACHE", default_cache_dir())
+    kwargs = dict(default_fp=fp, default_ip=ti.i32, offline_cache=True, offline_cache_file_path=cache,
+                  log_level=ti.WARN, random_seed=0, debug=debug)
+    if threads is None:
+        env = os.environ.get("SLURM_CPUS_PER_TASK") or os.environ.get("SIMCLI_THREADS")
+        if env:
+            threads = int(env)
+        else:
+            try:
+                threads = len(os.sched_getaffinity(0))
+            except AttributeError:  # pragma: no cover - non-Linux
+                threads = os.cpu_count() or 1
+    t0 = time.perf_counter()
+    with stdout_to_stderr():
+        if backend == "cpu":
+            ti.init(arch=ti.cpu, cpu_max_num_threads=threads, **kwargs)
+        else:
+            ti.init(arch=arch_map[backend], cpu_max_num_threads=threads, **kwargs)
+    init_s = time.perf_counter() - t0
+    arch = ti.lang.impl.current_cfg().arch
+    arch_name = str(arch).split(".")[-1]
+    if backend not in ("auto", "cpu", "gpu") and arch_name != backend:
+        # Taichi falls back to the CPU silently when the requested arch is missing.
+        print(f"simcli: warning: backend '{backend}' not available, running on {arch_name}", file=sys.stderr)
+    _STATE.update(arch=arch_name, import_s=import_s, init_s=init_s, threads=threads if arch_name == "x64" or
+                  arch_name == "arm64" else None, cache=cache, precision=precision, taichi=ti.__version__)
+    return dict(_STATE)

@@ -1,0 +1,245 @@
+"""The scene schema: frozen pydantic models, validated without importing Taichi.
+
+Every field carries a description with its SI unit; the JSON Schema in ``schemas/`` is
+generated from these models (``simcli schema``).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Optional, Union
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from simcli.scene.materials import Material
+from simcli.scene.morphs import Morph, Region
+
+FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
+
+Vec = list[float]
+
+
+class Strict(BaseModel):
+    """Base for every scene model: unknown keys are errors, models are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+# --------------------------------------------------------------------------- sim
+
+
+class Sim(Strict):
+    dim: Literal[2, 3] = Field(3, description="Spatial dimension: 2 or 3.")
+    dt: float = Field(2.0e-3, gt=0, description="Step [s]; frames are written on step boundaries.")
+    substeps: Union[Annotated[int, Field(ge=1)], Literal["auto"]] = Field(
+        10,
+        description="Substeps per step (integer >= 1), or 'auto': the largest stable substep from the "
+        "CFL and elastic wave-speed limits, chosen every frame.",
+    )
+    duration: Optional[float] = Field(
+        None, gt=0, description="Simulated time [s]. Give duration or steps, not both (default 1 s)."
+    )
+    steps: Optional[int] = Field(None, ge=1, description="Number of steps to run. Give duration or steps, not both.")
+    gravity: Optional[Vec] = Field(
+        None,
+        description="Gravitational acceleration [m/s^2], one component per dimension. Default: -9.81 along "
+        "the last axis.",
+    )
+    precision: Literal["f32", "f64"] = Field("f32", description="Floating-point precision of the kernels.")
+    backend: Literal["auto", "cpu", "gpu", "cuda", "vulkan", "metal"] = Field(
+        "auto", description="Compute backend; auto = a GPU if present, else cpu."
+    )
+    threads: Optional[int] = Field(
+        None, ge=1, description="CPU threads for the cpu backend (default: all cores the process may use)."
+    )
+    seed: int = Field(0, description="Random seed (jittered sampling, ...).")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.duration is not None and self.steps is not None:
+            raise ValueError("give sim.duration or sim.steps, not both")
+        if self.gravity is not None and len(self.gravity) != self.dim:
+            raise ValueError(f"sim.gravity must have {self.dim} components for dim {self.dim} (got {len(self.gravity)})")
+        return self
+
+    @property
+    def gravity_vec(self) -> list[float]:
+        if self.gravity is not None:
+            return list(self.gravity)
+        return [0.0] * (self.dim - 1) + [-9.81]
+
+    @property
+    def n_steps(self) -> int:
+        if self.steps is not None:
+            return self.steps
+        duration = 1.0 if self.duration is None else self.duration
+        return max(1, int(round(duration / self.dt)))
+
+
+# ------------------------------------------------------------------------ domain
+
+
+class Boundary(Strict):
+    type: Literal["slip", "sticky", "separate"] = Field(
+        "slip",
+        description="slip: normal velocity zeroed, tangential kept (minus Coulomb friction); sticky: all "
+        "velocity zeroed (or set to the face velocity); separate: like slip but only when moving into the wall.",
+    )
+    friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient [-].")
+    velocity: Optional[Vec] = Field(
+        None, description="Wall velocity [m/s] (a moving lid); one component per dimension."
+    )
+
+
+class Domain(Strict):
+    lower: Optional[Vec] = Field(
+        None, description="Lower corner of the simulation box [m]. Default (-0.5, -0.5, 0) in 3D, (0, 0) in 2D."
+    )
+    upper: Optional[Vec] = Field(
+        None, description="Upper corner of the simulation box [m]. Default (0.5, 0.5, 1) in 3D, (1, 1) in 2D."
+    )
+    boundary: Boundary = Field(default_factory=Boundary, description="Wall condition on every face.")
+    faces: dict[Literal["x-", "x+", "y-", "y+", "z-", "z+"], Boundary] = Field(
+        default_factory=dict, description="Per-face overrides of `boundary` (faces x-, x+, y-, y+, z-, z+)."
+    )
+
+    def bounds(self, dim: int) -> tuple[list[float], list[float]]:
+        lo = self.lower if self.lower is not None else ([-0.5, -0.5, 0.0] if dim == 3 else [0.0, 0.0])
+        hi = self.upper if self.upper is not None else ([0.5, 0.5, 1.0] if dim == 3 else [1.0, 1.0])
+        return list(lo), list(hi)
+
+    def face(self, name: str) -> Boundary:
+        return self.faces.get(name, self.boundary)
+
+
+# --------------------------------------------------------------------- colliders
+
+
+class _ColliderBase(Strict):
+    boundary: Literal["slip", "sticky", "separate"] = Field(
+        "separate", description="Contact condition on the collider surface (see domain.boundary.type)."
+    )
+    friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient [-].")
+
+
+class PlaneCollider(_ColliderBase):
+    type: Literal["Plane"]
+    point: Vec = Field(description="A point on the plane [m].")
+    normal: Vec = Field(description="Outward normal (towards the free side) [-]; normalised on load.")
+
+
+class BoxCollider(_ColliderBase):
+    type: Literal["Box"]
+    lower: Vec = Field(description="Lower corner [m].")
+    upper: Vec = Field(description="Upper corner [m].")
+
+
+class SphereCollider(_ColliderBase):
+    type: Literal["Sphere"]
+    center: Vec = Field(description="Centre [m] (a disk in 2D).")
+    radius: float = Field(gt=0, description="Radius [m].")
+
+
+class CylinderCollider(_ColliderBase):
+    type: Literal["Cylinder"]
+    center: Vec = Field(description="Centre of the cylinder's axis segment [m].")
+    radius: float = Field(gt=0, description="Radius [m].")
+    height: float = Field(gt=0, description="Length along the axis [m].")
+    axis: Literal["x", "y", "z"] = Field("z", description="Axis direction.")
+
+
+Collider = Annotated[
+    Union[PlaneCollider, BoxCollider, SphereCollider, CylinderCollider], Field(discriminator="type")
+]
+
+
+# ----------------------------------------------------------------------- solvers
+
+
+class MPMOptions(Strict):
+    grid_density: float = Field(64.0, gt=0, description="Grid cells per metre [1/m]; cell size dx = 1/grid_density.")
+    particle_size: Optional[float] = Field(
+        None,
+        gt=0,
+        description="Particle spacing of the sampling lattice [m]. Default 0.64/grid_density (0.01 m at 64 cells/m).",
+    )
+    sampling: Literal["lattice", "jitter"] = Field(
+        "lattice", description="Particle sampling: regular lattice, or lattice with a random jitter."
+    )
+    cfl: float = Field(0.3, gt=0, le=1, description="CFL number used by substeps: auto [-].")
+
+    @property
+    def dx(self) -> float:
+        return 1.0 / self.grid_density
+
+    @property
+    def spacing(self) -> float:
+        return self.particle_size if self.particle_size is not None else 0.64 / self.grid_density
+
+
+class Solvers(Strict):
+    mpm: MPMOptions = Field(default_factory=MPMOptions, description="MPM solver options.")
+
+
+# ---------------------------------------------------------------------- entities
+
+
+class Entity(Strict):
+    name: str = Field(description="Unique name; names the output groups and files.", min_length=1)
+    material: Material = Field(description="Material; its `type` selects the solver family and model.")
+    morph: Morph = Field(description="Initial shape.")
+    velocity: Optional[Vec] = Field(None, description="Initial velocity [m/s], one component per dimension.")
+    fixed: Optional[Union[Region, list[Region]]] = Field(
+        None, description="Region (or list of regions): particles/vertices inside are held in place."
+    )
+
+    @property
+    def family(self) -> str:
+        return self.material.type.split(".")[0]
+
+    @property
+    def fixed_regions(self) -> list:
+        if self.fixed is None:
+            return []
+        return list(self.fixed) if isinstance(self.fixed, list) else [self.fixed]
+
+
+# ------------------------------------------------------------------------ output
+
+
+class Output(Strict):
+    dir: Optional[str] = Field(
+        None, description="Output folder, relative to the working directory (default out/<scene name>)."
+    )
+    every: int = Field(5, ge=1, description="Write a frame every N steps (frame 0 is the initial state).")
+    formats: list[Literal["hdf5", "vtk"]] = Field(
+        default_factory=lambda: ["hdf5", "vtk"], description="Output formats: hdf5 (sim.h5 + sim.xdmf), vtk."
+    )
+    fields: Union[Literal["default"], list[str]] = Field(
+        "default",
+        description="Per-particle fields to write: 'default' (position, velocity) or a list from "
+        "position, velocity, J, stress (von Mises [Pa]), material_id.",
+    )
+
+
+class Checkpoint(Strict):
+    every: int = Field(0, ge=0, description="Steps between checkpoints; 0 = only on interruption.")
+    keep: int = Field(2, ge=1, description="Number of newest checkpoints kept.")
+
+
+# ------------------------------------------------------------------------- scene
+
+
+class Scene(Strict):
+    version: Literal[1] = Field(1, description="Scene format version.")
+    name: Optional[str] = Field(None, description="Scene name; default: the file name without extension.")
+    sim: Sim = Field(default_factory=Sim, description="Time stepping, dimension, precision and backend.")
+    domain: Domain = Field(default_factory=Domain, description="The box every solver lives in [m].")
+    colliders: list[Collider] = Field(default_factory=list, description="Static rigid obstacles.")
+    solvers: Solvers = Field(default_factory=Solvers, description="Options per solver family.")
+    entities: list[Entity] = Field(default_factory=list, description="Simulated bodies.")
+    output: Output = Field(default_factory=Output, description="What is written, where and how often.")
+    checkpoint: Checkpoint = Field(default_factory=Checkpoint, description="Restart files.")
+
+    @property
+    def families(self) -> set[str]:
+        return {e.family for e in self.entities}

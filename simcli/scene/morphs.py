@@ -1,0 +1,84 @@
+"""Morphs (initial shapes) and regions (for `fixed`)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Optional, Union
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+Vec = list[float]
+
+
+class _Shape(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class BoxShape(_Shape):
+    type: Literal["Box"]
+    lower: Optional[Vec] = Field(None, description="Lower corner [m] (with upper), or use center and size.")
+    upper: Optional[Vec] = Field(None, description="Upper corner [m].")
+    center: Optional[Vec] = Field(None, description="Centre [m] (with size).")
+    size: Optional[Vec] = Field(None, description="Edge lengths [m] (with center).")
+
+    @model_validator(mode="after")
+    def _check(self):
+        corners = self.lower is not None or self.upper is not None
+        cs = self.center is not None or self.size is not None
+        if corners and cs:
+            raise ValueError("give lower/upper or center/size, not both")
+        if corners and (self.lower is None or self.upper is None):
+            raise ValueError("give both lower and upper")
+        if cs and (self.center is None or self.size is None):
+            raise ValueError("give both center and size")
+        if not corners and not cs:
+            raise ValueError("give lower and upper (or center and size)")
+        lo, hi = self.bounds()
+        if len(lo) != len(hi):
+            raise ValueError("lower and upper (center and size) must have the same length")
+        for a, b in zip(lo, hi):
+            if not a < b:
+                raise ValueError(f"lower must be < upper on every axis (got lower {lo}, upper {hi})")
+        return self
+
+    def bounds(self) -> tuple[list[float], list[float]]:
+        if self.lower is not None:
+            return list(self.lower), list(self.upper)
+        return ([c - s / 2 for c, s in zip(self.center, self.size)], [c + s / 2 for c, s in zip(self.center, self.size)])
+
+
+class SphereShape(_Shape):
+    type: Literal["Sphere"]
+    center: Vec = Field(description="Centre [m] (a disk in 2D).")
+    radius: float = Field(gt=0, description="Radius [m].")
+
+    def bounds(self):
+        return [c - self.radius for c in self.center], [c + self.radius for c in self.center]
+
+
+class CylinderShape(_Shape):
+    type: Literal["Cylinder"]
+    center: Vec = Field(description="Centre of the axis segment [m].")
+    radius: float = Field(gt=0, description="Radius [m].")
+    height: float = Field(gt=0, description="Length along the axis [m].")
+    axis: Literal["x", "y", "z"] = Field("z", description="Axis direction.")
+
+    def bounds(self):
+        ax = "xyz".index(self.axis)
+        half = [self.radius] * len(self.center)
+        if ax < len(half):
+            half[ax] = self.height / 2
+        return [c - h for c, h in zip(self.center, half)], [c + h for c, h in zip(self.center, half)]
+
+
+class MeshShape(_Shape):
+    type: Literal["Mesh"]
+    file: str = Field(description="Closed surface mesh (any format meshio reads), relative to the scene file.")
+    scale: Union[float, Vec] = Field(1.0, description="Scale factor [-] (scalar or per axis), applied first.")
+    rotate: Vec = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0], description="Rotation: Euler angles x, y, z [deg], applied second."
+    )
+    translate: Vec = Field(default_factory=lambda: [0.0, 0.0, 0.0], description="Translation [m], applied last.")
+
+
+Morph = Annotated[Union[BoxShape, SphereShape, CylinderShape, MeshShape], Field(discriminator="type")]
+Region = Annotated[Union[BoxShape, SphereShape, CylinderShape], Field(discriminator="type")]
