@@ -1,0 +1,115 @@
+"""The interface every solver family implements, and the data it exchanges.
+
+No Taichi import here: ``Body`` is produced by ``simcli.geometry.sampling`` and
+consumed by the solvers, and both the config side (validate, schema) and the
+writers must be able to import this module without starting Taichi.
+
+Lifecycle (see docs/ARCHITECTURE.md):
+
+* ``__init__(scene, bodies)``: keeps the config and the numpy initial state; no
+  Taichi allocation.
+* ``build()``: allocates every field once and uploads the bodies.
+* ``substep(dt)``: one substep; never allocates, never syncs to the host.
+* ``frame_check()``: once per output frame, one small reduction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from simcli.scene.models import Entity, Scene
+
+
+@dataclass
+class FrameStats:
+    """Health of one entity at a frame boundary."""
+
+    finite: bool  # every position and velocity component is finite
+    max_speed: float  # largest particle speed [m/s] (inf/nan when not finite)
+    n_bad: int  # number of particles with a non-finite position or velocity
+
+
+@dataclass
+class Body:
+    """One entity's sampled initial state (numpy, float64).
+
+    ``x`` (n, dim) positions [m], ``v`` (n, dim) velocities [m/s], ``volume`` (n,)
+    particle volumes [m^3], ``mass`` (n,) particle masses [kg] (rho x body volume / n,
+    so the total mass is exact), ``fixed`` (n,) bool: held in place.
+    """
+
+    name: str
+    entity: "Entity"
+    x: np.ndarray
+    v: np.ndarray
+    volume: np.ndarray
+    mass: np.ndarray
+    fixed: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.x = np.ascontiguousarray(self.x, dtype=np.float64)
+        n = self.x.shape[0]
+        if self.x.ndim != 2:
+            raise ValueError(f"Body {self.name!r}: x must be (n, dim), got shape {self.x.shape}")
+        dim = self.x.shape[1]
+        self.v = np.ascontiguousarray(self.v, dtype=np.float64).reshape(n, dim)
+        self.volume = np.ascontiguousarray(self.volume, dtype=np.float64).reshape(n)
+        self.mass = np.ascontiguousarray(self.mass, dtype=np.float64).reshape(n)
+        self.fixed = np.ascontiguousarray(self.fixed, dtype=bool).reshape(n)
+
+    @property
+    def n(self) -> int:
+        return int(self.x.shape[0])
+
+    @property
+    def dim(self) -> int:
+        return int(self.x.shape[1])
+
+
+class Solver:
+    """Base class of a solver family. Subclasses implement every method below."""
+
+    family: ClassVar[str] = ""
+
+    def __init__(self, scene: "Scene", bodies: list[Body]) -> None:
+        self.scene = scene
+        self.bodies = list(bodies)
+
+    def build(self) -> None:
+        """Allocate fields once and upload the initial state."""
+        raise NotImplementedError
+
+    def substep(self, dt: float) -> None:
+        """Advance by ``dt`` seconds; no allocation, no host sync."""
+        raise NotImplementedError
+
+    def frame_check(self) -> dict[str, FrameStats]:
+        """Per entity: all finite? largest speed? (one small reduction)."""
+        raise NotImplementedError
+
+    def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
+        """Arrays of one entity's particles for the given output field names."""
+        raise NotImplementedError
+
+    def get_state(self) -> dict[str, np.ndarray]:
+        """Everything needed to restart bit-for-bit."""
+        raise NotImplementedError
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        raise NotImplementedError
+
+    def stable_dt(self) -> float:
+        """Largest stable substep for the current state [s]."""
+        raise NotImplementedError
+
+    def counts(self) -> dict[str, int]:
+        """Sizes worth reporting: particles, cells, ..."""
+        raise NotImplementedError
+
+    def info(self) -> dict[str, Any]:
+        """Optional extra facts for run.json (design choices, sizes)."""
+        return {}
