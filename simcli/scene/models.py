@@ -243,3 +243,18 @@ class Scene(Strict):
     @property
     def families(self) -> set[str]:
         return {e.family for e in self.entities}
+
+
+def resolved_scene_dict(scene: Scene, name: str) -> dict:
+    """The scene with every default filled in (what ``OUT/scene.yaml`` echoes)."""
+    d = scene.model_dump(mode="json")
+    dim = scene.sim.dim
+    d["name"] = name
+    d["sim"]["gravity"] = scene.sim.gravity_vec
+    if scene.sim.steps is None:
+        d["sim"]["duration"] = 1.0 if scene.sim.duration is None else scene.sim.duration
+    lo, hi = scene.domain.bounds(dim)
+    d["domain"]["lower"], d["domain"]["upper"] = lo, hi
+    d["solvers"]["mpm"]["particle_size"] = scene.solvers.mpm.spacing
+    d["output"]["dir"] = scene.output.dir if scene.output.dir is not None else f"out/{name}"
+    return d

@@ -1,0 +1,161 @@
+"""Command line: click commands, nothing else. Human logs go to stderr; stdout carries only
+machine-readable output (``schema``, ``--json``)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from simcli import __version__
+from simcli.errors import EXIT_INVALID_SCENE, EXIT_OK, EXIT_USAGE, SceneError
+
+_T0 = time.perf_counter()
+
+
+def _err(msg: str) -> None:
+    click.echo(msg, err=True)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="simcli")
+def cli() -> None:
+    """simcli: configuration-driven batch simulator for non-rigid physics."""
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output folder (overrides output.dir).")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="Override a scene key by dotted path (list items by index); value parsed as YAML. Repeatable.")
+@click.option("--backend", type=click.Choice(["auto", "cpu", "gpu", "cuda", "vulkan", "metal"]), default=None,
+              help="Compute backend (overrides sim.backend).")
+@click.option("--resume", is_flag=True, help="Continue from the newest checkpoint in the output folder.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress output.")
+@click.option("--json", "as_json", is_flag=True, help="Print run.json to stdout at the end.")
+def run(scene: Path, out: Path | None, sets: tuple[str, ...], backend: str | None, resume: bool, quiet: bool,
+        as_json: bool) -> None:
+    """Run SCENE and write frames, run.json and checkpoints to the output folder."""
+    from simcli.scene.loader import load_scene
+
+    try:
+        loaded = load_scene(scene, sets)
+    except SceneError as e:
+        for line in e.lines:
+            _err(line)
+        sys.exit(EXIT_INVALID_SCENE)
+    from simcli.runner import run_scene
+
+    code, info = run_scene(loaded, out_dir=out, backend=backend, resume=resume, quiet=quiet,
+                           sets=list(sets), t_process=_T0)
+    if as_json and info is not None:
+        click.echo(json.dumps(info, indent=2))
+    sys.exit(code)
+
+
+@cli.command()
+@click.argument("scenes", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override a scene key (as in run).")
+@click.option("--quiet", "-q", is_flag=True, help="Print errors only.")
+def validate(scenes: tuple[Path, ...], sets: tuple[str, ...], quiet: bool) -> None:
+    """Check scene files without starting any solver; every problem is reported, one line each."""
+    from simcli.scene.loader import load_scene
+
+    bad = 0
+    for path in scenes:
+        try:
+            loaded = load_scene(path, sets)
+        except SceneError as e:
+            bad += 1
+            for line in e.lines:
+                _err(line)
+            continue
+        if not quiet:
+            s = loaded.scene
+            _err(f"{path}: ok ({len(s.entities)} entities, dim {s.sim.dim}, {s.sim.n_steps} steps)")
+    sys.exit(EXIT_INVALID_SCENE if bad else EXIT_OK)
+
+
+@cli.command()
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Folder to write scene.schema.json (and sweep.schema.json) into; without it the scene "
+              "schema goes to stdout.")
+def schema(out: Path | None) -> None:
+    """Write the JSON Schema of scene files (generated from the same models as validation)."""
+    from simcli.scene.schema import schema_text, write_schemas
+
+    if out is None:
+        sys.stdout.write(schema_text())
+        return
+    for p in write_schemas(out):
+        _err(f"wrote {p}")
+
+
+@cli.command()
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output on stdout.")
+def info(as_json: bool) -> None:
+    """Versions, backends and devices found."""
+    import platform
+
+    from simcli.backend import stdout_to_stderr
+
+    facts: dict = {"simcli": __version__, "python": platform.python_version(), "platform": platform.platform()}
+    for mod in ("numpy", "h5py", "meshio", "pydantic", "yaml", "click"):
+        try:
+            facts[mod] = __import__(mod).__version__
+        except Exception:
+            facts[mod] = None
+    with stdout_to_stderr():
+        try:
+            import taichi as ti
+
+            facts["taichi"] = ti.__version__ if isinstance(ti.__version__, str) else ".".join(map(str, ti.__version__))
+            from taichi._lib import core as _ti_core
+
+            backends = {}
+            for name in ("cuda", "vulkan", "metal", "opengl"):
+                try:
+                    backends[name] = bool(getattr(_ti_core, f"with_{name}")())
+                except Exception:
+                    backends[name] = False
+            facts["taichi_backends_compiled"] = backends
+        except Exception as e:  # pragma: no cover
+            facts["taichi"] = f"unavailable: {e}"
+    try:
+        import subprocess
+
+        r = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total", "--format=csv,noheader"],
+                           capture_output=True, text=True, timeout=5)
+        facts["gpus"] = [g.strip() for g in r.stdout.splitlines() if g.strip()] if r.returncode == 0 else []
+    except Exception:
+        facts["gpus"] = []
+    import os
+
+    facts["cpu_cores"] = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if as_json:
+        click.echo(json.dumps(facts, indent=2))
+    else:
+        for k, v in facts.items():
+            _err(f"{k}: {v}")
+
+
+def _register_optional() -> None:
+    """Sub-command groups that live in their own packages."""
+    for mod, attr in (("simcli.verify.cli", "verify"), ("simcli.sweep.cli", "sweep")):
+        try:
+            m = __import__(mod, fromlist=[attr])
+        except ImportError:
+            continue
+        cli.add_command(getattr(m, attr))
+
+
+_register_optional()
+
+
+def main() -> None:
+    # click's standalone mode maps usage errors to exit 2, as the contract says
+    cli(prog_name="simcli")

@@ -1,0 +1,420 @@
+"""The time loop: build, substeps, per-frame guard, output, checkpoints, signals, progress
+and run.json. Knows nothing of any solver's physics."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import resource
+import signal
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from simcli import __version__
+from simcli.errors import (
+    EXIT_INTERRUPTED,
+    EXIT_NUMERICAL,
+    EXIT_OK,
+    EXIT_OTHER,
+    EXIT_USAGE,
+    NumericalError,
+    OutputError,
+    SimcliError,
+)
+from simcli.progress import Progress
+from simcli.scene.loader import LoadedScene
+from simcli.scene.models import resolved_scene_dict
+
+# A substep whose CFL number (max speed * substep / dx) exceeds this is a blow-up: MPM's
+# transfers assume particles move less than a cell per substep.
+RUNAWAY_CFL = 2.0
+AUTO_MAX_SUBSTEPS = 100_000
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        raise OutputError(f"cannot write {path}: {e.strerror or e}") from None
+
+
+def _peak_memory_mb() -> float:
+    # ru_maxrss is in KiB on Linux
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _versions(ti_info: dict | None) -> dict:
+    import h5py
+    import meshio
+    import pydantic
+
+    v = {"simcli": __version__, "python": platform.python_version(), "numpy": np.__version__,
+         "h5py": h5py.__version__, "meshio": meshio.__version__, "pydantic": pydantic.__version__}
+    if ti_info:
+        t = ti_info.get("taichi")
+        v["taichi"] = ".".join(map(str, t)) if isinstance(t, (tuple, list)) else t
+    return v
+
+
+class _Signals:
+    """SIGTERM, SIGINT, SIGUSR1: finish the current step, checkpoint, exit 75."""
+
+    NAMES = ("SIGTERM", "SIGINT", "SIGUSR1")
+
+    def __init__(self):
+        self.received: str | None = None
+        self._old = {}
+
+    def _handler(self, signum, frame):
+        if self.received is not None and signum == signal.SIGINT:
+            # a second Ctrl-C: the user really wants out
+            raise KeyboardInterrupt
+        self.received = signal.Signals(signum).name
+
+    def install(self):
+        for n in self.NAMES:
+            s = getattr(signal, n, None)
+            if s is not None:
+                self._old[s] = signal.signal(s, self._handler)
+
+    def restore(self):
+        for s, h in self._old.items():
+            signal.signal(s, h)
+
+
+def run_scene(loaded: LoadedScene, out_dir: Path | None = None, backend: str | None = None, resume: bool = False,
+              quiet: bool = False, sets: list[str] | None = None, t_process: float | None = None,
+              solver_factory=None) -> tuple[int, dict | None]:
+    """Run a validated scene. Returns (exit code, run.json dict)."""
+    runner = Runner(loaded, out_dir, backend, resume, quiet, sets or [], t_process)
+    return runner.run(solver_factory)
+
+
+class Runner:
+    def __init__(self, loaded, out_dir, backend, resume, quiet, sets, t_process):
+        self.loaded = loaded
+        self.scene = loaded.scene
+        self.name = loaded.name
+        res = resolved_scene_dict(self.scene, self.name)
+        self.out = Path(out_dir) if out_dir is not None else Path(res["output"]["dir"])
+        res["output"]["dir"] = str(self.out)
+        self.resolved = res
+        self.backend = backend or self.scene.sim.backend
+        self.resume = resume
+        self.quiet = quiet
+        self.sets = sets
+        self.t_process = t_process if t_process is not None else time.perf_counter()
+        self.warnings: list[str] = []
+        self.info: dict = {}
+        self.timings = {"startup_s": 0.0, "setup_s": 0.0, "taichi_init_s": 0.0, "build_s": 0.0, "compile_s": 0.0,
+                        "stepping_s": 0.0, "output_s": 0.0, "checkpoint_s": 0.0}
+        self.signals = _Signals()
+
+    # ------------------------------------------------------------------ helpers
+    def log(self, msg: str) -> None:
+        if not self.quiet:
+            print(f"simcli: {msg}", file=sys.stderr, flush=True)
+
+    def warn(self, msg: str) -> None:
+        self.warnings.append(msg)
+        print(f"simcli: warning: {msg}", file=sys.stderr, flush=True)
+
+    def write_run_json(self, status: str, exit_code: int | None) -> dict:
+        self.info.update(status=status, exit_code=exit_code, warnings=self.warnings,
+                         timings={k: round(v, 4) for k, v in self.timings.items()},
+                         peak_memory_mb=round(_peak_memory_mb(), 1), updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+        if self.out.is_dir():
+            try:
+                _atomic_write(self.out / "run.json", json.dumps(self.info, indent=2) + "\n")
+            except OutputError as e:
+                print(f"simcli: error: {e}", file=sys.stderr)
+        return self.info
+
+    # ------------------------------------------------------------------ main
+    def run(self, solver_factory=None) -> tuple[int, dict | None]:
+        self.signals.install()
+        try:
+            return self._run(solver_factory)
+        except NumericalError as e:
+            print(f"simcli: error: {e}", file=sys.stderr, flush=True)
+            self.info["error"] = str(e)
+            return e.exit_code, self.write_run_json("failed", e.exit_code)
+        except OutputError as e:
+            print(f"simcli: error: {e}", file=sys.stderr, flush=True)
+            self.info["error"] = str(e)
+            return e.exit_code, self.write_run_json("failed", e.exit_code)
+        except SimcliError as e:
+            print(f"simcli: error: {e}", file=sys.stderr, flush=True)
+            self.info["error"] = str(e)
+            return e.exit_code, self.write_run_json("failed", e.exit_code)
+        except KeyboardInterrupt:
+            print("simcli: interrupted twice; stopped without a checkpoint", file=sys.stderr)
+            return 130, self.write_run_json("killed", 130)
+        except Exception as e:  # an internal error: short message, details in run.json
+            tb = traceback.format_exc()
+            print(f"simcli: internal error: {type(e).__name__}: {e} (details in {self.out / 'run.json'})",
+                  file=sys.stderr, flush=True)
+            self.info["error"] = f"{type(e).__name__}: {e}"
+            self.info["traceback"] = tb
+            return EXIT_OTHER, self.write_run_json("failed", EXIT_OTHER)
+        finally:
+            self.signals.restore()
+
+    def _prepare_out(self) -> None:
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            probe = self.out / ".write_test"
+            probe.write_text("ok")
+            probe.unlink()
+        except OSError as e:
+            raise OutputError(f"cannot write to output folder {self.out}: {e.strerror or e}; choose another with "
+                              f"-o or output.dir") from None
+
+    def _run(self, solver_factory) -> tuple[int, dict]:
+        from simcli.io.checkpoint import latest_checkpoint, read_checkpoint, write_checkpoint
+        from simcli.io.frames import FrameSink
+
+        scene = self.scene
+        sim = scene.sim
+        ckpt = None
+        if self.resume:
+            path = latest_checkpoint(self.out / "checkpoints") if self.out.is_dir() else None
+            if path is None:
+                print(f"simcli: error: --resume: no checkpoint in {self.out / 'checkpoints'}; run without --resume",
+                      file=sys.stderr)
+                return EXIT_USAGE, None
+            ckpt = read_checkpoint(path)
+        self._prepare_out()
+        scene_text = yaml.safe_dump(self.resolved, sort_keys=False)
+        _atomic_write(self.out / "scene.yaml", "# resolved scene: every default filled in\n" + scene_text)
+
+        self.info = {"simcli_version": __version__, "scene": str(self.loaded.path), "name": self.name,
+                     "out": str(self.out), "overrides": self.sets, "resumed": bool(self.resume),
+                     "command": " ".join(sys.argv), "pid": os.getpid(), "host": platform.node()}
+        self.write_run_json("starting", None)
+
+        # ---- set-up: sample bodies (no taichi yet)
+        t0 = time.perf_counter()
+        from simcli.geometry.sampling import sample_scene
+
+        bodies = sample_scene(scene, self.loaded.scene_dir, sim.seed)
+        for b in bodies:
+            for w in getattr(b, "warnings", []) or []:
+                self.warn(f"{b.name}: {w}")
+            if len(b.x) == 0:
+                raise SimcliError(f"entity '{b.name}' got no particles: its morph is thinner than "
+                                  f"solvers.mpm.particle_size; lower particle_size")
+        self.timings["setup_s"] = time.perf_counter() - t0
+
+        # ---- taichi and the solver
+        from simcli.backend import init_taichi
+
+        ti_info = init_taichi(self.backend, sim.precision, sim.threads)
+        self.timings["taichi_init_s"] = ti_info["import_s"] + ti_info["init_s"]
+        self.info.update(backend=ti_info["arch"], requested_backend=self.backend, threads=ti_info["threads"],
+                         precision=sim.precision, kernel_cache=ti_info["cache"], versions=_versions(ti_info))
+        t0 = time.perf_counter()
+        if solver_factory is None:
+            from simcli.solvers import make_solvers
+
+            solvers = make_solvers(scene, bodies)
+        else:
+            solvers = solver_factory(scene, bodies)
+        for s in solvers:
+            s.build()
+        self.timings["build_s"] = time.perf_counter() - t0
+        self.info["counts"] = {s.family: s.counts() for s in solvers}
+        n_particles = sum(len(b.x) for b in bodies)
+        self.info["particles"] = n_particles
+        self.info["families"] = [s.family for s in solvers]
+
+        # ---- output
+        every = scene.output.every
+        n_steps = sim.n_steps
+        fields = self._fields()
+        entity_meta = self._entity_meta(bodies, fields)
+        sink = FrameSink(self.out, list(scene.output.formats))
+        step = 0
+        frame = 0
+        substeps_now = sim.substeps if sim.substeps != "auto" else None
+        sub_hist: list[int] = []
+        if ckpt is not None:
+            state, meta = ckpt
+            self._check_resume_meta(meta)
+            for s in solvers:
+                s.set_state({k.split("/", 1)[1]: v for k, v in state.items() if k.startswith(s.family + "/")})
+            step = int(meta["step"])
+            frame = int(meta["frame"])
+            substeps_now = meta.get("substeps_now", substeps_now)
+            sub_hist = list(meta.get("substeps_hist", []))
+            self.timings.update({k: float(v) for k, v in meta.get("timings", {}).items() if k == "stepping_s"})
+            self.log(f"resuming from {meta['path'] if 'path' in meta else 'checkpoint'} at step {step} "
+                     f"(t = {step * sim.dt:.6g} s)")
+        t0 = time.perf_counter()
+        attrs = {"name": self.name, "dt": sim.dt, "dim": sim.dim}
+        sink.open(entity_meta, scene_text, attrs, resume_frame=(frame + 1) if ckpt is not None else None)
+        if ckpt is None:
+            self._check_frame(solvers, 0, sim.dt / (substeps_now or 1))
+            sink.write_frame(0, 0, 0.0, self._frame_data(solvers, bodies, fields))
+        self.timings["output_s"] += time.perf_counter() - t0
+        self.timings["startup_s"] = time.perf_counter() - self.t_process
+
+        # ---- stability warnings for a fixed substep
+        stable = min(s.stable_dt() for s in solvers)
+        if substeps_now is not None and sim.dt / substeps_now > stable:
+            need = int(math.ceil(sim.dt / stable))
+            self.warn(f"substep {sim.dt / substeps_now:.3g} s exceeds the stability limit {stable:.3g} s "
+                      f"(CFL / elastic wave speed); suggest sim.substeps >= {need} or sim.substeps: auto")
+
+        progress = Progress(total_steps=n_steps, start_step=step, dt=sim.dt, quiet=self.quiet)
+        self.write_run_json("running", None)
+        ckpt_every = scene.checkpoint.every
+        first = True
+        last_json = time.perf_counter()
+        t_loop = time.perf_counter()
+        stepping0 = self.timings["stepping_s"]
+        substeps_done = 0
+        while step < n_steps:
+            if sim.substeps == "auto" and (step % every == 0 or substeps_now is None):
+                stable = min(s.stable_dt() for s in solvers)
+                substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))
+            sub_dt = sim.dt / substeps_now
+            ts = time.perf_counter()
+            for k in range(substeps_now):
+                for s in solvers:
+                    s.substep(sub_dt)
+                if first:
+                    for s in solvers:
+                        s.sync()
+                    self.timings["compile_s"] = time.perf_counter() - ts
+                    first = False
+                    ts = time.perf_counter()
+            for s in solvers:
+                s.sync()
+            self.timings["stepping_s"] += time.perf_counter() - ts
+            substeps_done += substeps_now
+            sub_hist.append(substeps_now)
+            step += 1
+            if step % every == 0 or step == n_steps:
+                t0 = time.perf_counter()
+                self._check_frame(solvers, frame + 1, sub_dt, step=step)
+                if step % every == 0:
+                    frame += 1
+                    sink.write_frame(frame, step, step * sim.dt, self._frame_data(solvers, bodies, fields))
+                self.timings["output_s"] += time.perf_counter() - t0
+            interrupted = self.signals.received is not None
+            if interrupted or (ckpt_every and step % ckpt_every == 0 and step < n_steps):
+                t0 = time.perf_counter()
+                meta = {"step": step, "frame": frame, "time": step * sim.dt, "substeps_now": substeps_now,
+                        "substeps_hist": sub_hist[-10000:], "scene_name": self.name,
+                        "timings": {"stepping_s": self.timings["stepping_s"]},
+                        "particles": n_particles}
+                state = {}
+                for s in solvers:
+                    state.update({f"{s.family}/{k}": v for k, v in s.get_state().items()})
+                p = write_checkpoint(self.out / "checkpoints", step, state, meta, scene.checkpoint.keep)
+                self.info["checkpoint"] = str(p)
+                self.timings["checkpoint_s"] += time.perf_counter() - t0
+                if interrupted:
+                    sink.close()
+                    self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
+                    print(f"simcli: {self.signals.received} received: checkpoint written at step {step} "
+                          f"({p}); resume with --resume", file=sys.stderr, flush=True)
+                    return EXIT_INTERRUPTED, self.write_run_json("interrupted", EXIT_INTERRUPTED)
+            progress.update(step)
+            if time.perf_counter() - last_json > 10.0:
+                self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
+                self.write_run_json("running", None)
+                last_json = time.perf_counter()
+        sink.close()
+        progress.close()
+        self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
+        self.info["loop_wall_s"] = round(time.perf_counter() - t_loop, 4)
+        info = self.write_run_json("done", EXIT_OK)
+        self.log(f"done: {step} steps, {frame + 1} frames in {self.out} "
+                 f"({info['throughput']['particle_substeps_per_s']:.3g} particle-substeps/s)")
+        return EXIT_OK, info
+
+    # ------------------------------------------------------------------ pieces
+    def _finish_stats(self, step, n_particles, sub_hist, stepping0, substeps_done):
+        sim = self.scene.sim
+        t = self.timings["stepping_s"] - stepping0
+        # the first substep carries the kernel compilation: leave it out of throughput
+        steady = max(t, 1e-12)
+        sps = substeps_done / steady if substeps_done else 0.0
+        self.info.update(steps_done=step, sim_time=step * sim.dt,
+                         substeps={"fixed": sim.substeps if sim.substeps != "auto" else None,
+                                   "auto": sim.substeps == "auto",
+                                   "min": min(sub_hist) if sub_hist else None,
+                                   "max": max(sub_hist) if sub_hist else None,
+                                   "mean": float(np.mean(sub_hist)) if sub_hist else None,
+                                   "total": int(sum(sub_hist))},
+                         throughput={"steps_per_s": (step / steady) if step else 0.0, "substeps_per_s": sps,
+                                     "particle_substeps_per_s": sps * n_particles})
+
+    def _check_resume_meta(self, meta: dict) -> None:
+        if meta.get("scene_name") not in (None, self.name):
+            self.warn(f"checkpoint was written by scene '{meta.get('scene_name')}', resuming '{self.name}'")
+
+    def _fields(self) -> list[str]:
+        f = self.scene.output.fields
+        if f == "default":
+            return ["position", "velocity"]
+        out = list(f)
+        if "position" not in out:
+            out.insert(0, "position")
+        return out
+
+    def _entity_meta(self, bodies, fields):
+        from simcli.io.frames import EntityMeta
+
+        dim = self.scene.sim.dim
+        comps = {"position": (dim, "m"), "velocity": (dim, "m/s"), "J": (1, "1"), "stress": (1, "Pa"),
+                 "material_id": (1, "1")}
+        unknown = [f for f in fields if f not in comps]
+        if unknown:
+            raise SimcliError(f"output.fields: unknown field(s) {', '.join(unknown)} for MPM particles "
+                              f"(available: {', '.join(comps)})")
+        return [EntityMeta(name=b.name, kind="particles", n=len(b.x), dim=dim, fields={f: comps[f] for f in fields})
+                for b in bodies]
+
+    def _frame_data(self, solvers, bodies, fields):
+        data = {}
+        for s in solvers:
+            for b in bodies:
+                if s.owns(b.name):
+                    data[b.name] = s.entity_arrays(b.name, fields)
+        return data
+
+    def _check_frame(self, solvers, frame: int, sub_dt: float, step: int = 0) -> None:
+        """Once per frame: NaN/Inf and runaway speeds; fail with advice, keeping every earlier frame."""
+        sim = self.scene.sim
+        for s in solvers:
+            stats = s.frame_check()
+            dx = s.length_scale()
+            for name, st in stats.items():
+                cfl = st.max_speed * sub_dt / dx if math.isfinite(st.max_speed) else math.inf
+                if st.finite and cfl <= RUNAWAY_CFL:
+                    continue
+                subs = sim.substeps if sim.substeps != "auto" else "auto"
+                what = (f"{st.n_bad} particle(s) with NaN/Inf" if not st.finite
+                        else f"a particle speed of {st.max_speed:.3g} m/s (it crosses {cfl:.1f} cells per substep)")
+                advice = (f"lower sim.dt (now {sim.dt:g} s), raise sim.substeps (now {subs}) or use substeps: auto, "
+                          f"or lower the stiffness E of '{name}'")
+                if isinstance(subs, int) and math.isfinite(cfl) and cfl > 0:
+                    advice += f"; substeps >= {int(math.ceil(subs * cfl / 0.5))} would keep the CFL number below 0.5"
+                raise NumericalError(f"numerical failure in entity '{name}' before frame {frame} (step {step}, "
+                                     f"t = {step * sim.dt:.6g} s): {what}. Every earlier frame is kept. "
+                                     f"To fix: {advice}.")

@@ -1,0 +1,391 @@
+"""Scene loading: YAML with line/column for every key, then validation, reporting every
+problem of a file at once as ``file:line:col: dotted.path: message``.
+
+No Taichi here: ``simcli validate`` and ``simcli schema`` must answer in well under a second.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from simcli.errors import SceneError
+from simcli.scene.materials import PLANNED_TYPES, material_type_names
+from simcli.scene.models import Scene
+from simcli.scene.overrides import apply_overrides, parse_set
+
+Path_ = tuple  # a key path: str keys and int list indices
+
+
+@dataclass
+class Located:
+    """Plain YAML data plus the source position of every key and value."""
+
+    data: Any
+    file: str
+    key_pos: dict[Path_, tuple[int, int]] = field(default_factory=dict)  # 1-based line, column of a key
+    value_pos: dict[Path_, tuple[int, int]] = field(default_factory=dict)
+    override_src: dict[Path_, str] = field(default_factory=dict)  # path -> "--set k=v" text
+
+    def where(self, path: Path_, prefer_key: bool = False) -> str:
+        """``file:line:col`` of the deepest known node on ``path``."""
+        p = tuple(path)
+        while True:
+            if p in self.override_src:
+                return self.override_src[p]
+            table = (self.key_pos, self.value_pos) if prefer_key else (self.value_pos, self.key_pos)
+            for t in table:
+                if p in t:
+                    line, col = t[p]
+                    return f"{self.file}:{line}:{col}"
+            if not p:
+                return f"{self.file}:1:1"
+            p = p[:-1]
+
+
+def _mark(node) -> tuple[int, int]:
+    return node.start_mark.line + 1, node.start_mark.column + 1
+
+
+def _walk(loader, node, path: Path_, loc: Located, errors: list[str]) -> Any:
+    if isinstance(node, yaml.MappingNode):
+        loader.flatten_mapping(node)
+        out: dict = {}
+        for knode, vnode in node.value:
+            key = loader.construct_object(knode, deep=True)
+            if not isinstance(key, (str, int, float, bool)) or key is None:
+                errors.append(f"{loc.file}:{_mark(knode)[0]}:{_mark(knode)[1]}: {_dotted(path)}: keys must be "
+                              f"plain names (found {type(key).__name__})")
+                continue
+            if key in out:
+                line, col = _mark(knode)
+                errors.append(f"{loc.file}:{line}:{col}: {_dotted(path + (key,))}: duplicate key (the last one "
+                              f"would silently win; remove one)")
+            loc.key_pos[path + (key,)] = _mark(knode)
+            loc.value_pos[path + (key,)] = _mark(vnode)
+            out[key] = _walk(loader, vnode, path + (key,), loc, errors)
+        return out
+    if isinstance(node, yaml.SequenceNode):
+        items = []
+        for i, item in enumerate(node.value):
+            loc.value_pos[path + (i,)] = _mark(item)
+            loc.key_pos.setdefault(path + (i,), _mark(item))
+            items.append(_walk(loader, item, path + (i,), loc, errors))
+        return items
+    return loader.construct_object(node, deep=True)
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 floats: PyYAML (YAML 1.1) reads 1e5 or -1e-3 as strings."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+    |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."),
+)
+
+
+def parse_yaml(text: str, file: str) -> Located:
+    """Parse YAML text, keeping positions. Raises SceneError for malformed YAML."""
+    loc = Located(data=None, file=file)
+    errors: list[str] = []
+    try:
+        loader = _Loader(text)
+        try:
+            node = loader.get_single_node()
+            loc.data = _walk(loader, node, (), loc, errors) if node is not None else {}
+        finally:
+            loader.dispose()
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        line, col = (mark.line + 1, mark.column + 1) if mark else (1, 1)
+        problem = e.problem or "malformed YAML"
+        ctx = f" ({e.context})" if e.context else ""
+        raise SceneError([f"{file}:{line}:{col}: malformed YAML: {problem}{ctx}"]) from None
+    except yaml.YAMLError as e:
+        raise SceneError([f"{file}:1:1: malformed YAML: {e}"]) from None
+    if errors:
+        raise SceneError(errors)
+    if loc.data is None:
+        loc.data = {}
+    if not isinstance(loc.data, dict):
+        raise SceneError([f"{file}:1:1: (top level): expected a mapping of scene keys (found {_kind(loc.data)})"])
+    return loc
+
+
+# ----------------------------------------------------------------- error output
+
+
+def _dotted(path) -> str:
+    return ".".join(str(p) for p in path) if path else "(top level)"
+
+
+def _kind(v: Any) -> str:
+    if v is None:
+        return "null"
+    if isinstance(v, bool):
+        return "a boolean"
+    if isinstance(v, int):
+        return "an integer"
+    if isinstance(v, float):
+        return "a number"
+    if isinstance(v, str):
+        return "a string"
+    if isinstance(v, list):
+        return "a list"
+    if isinstance(v, dict):
+        return "a mapping"
+    return type(v).__name__
+
+
+def _short(v: Any) -> str:
+    if isinstance(v, (dict, list)):
+        return _kind(v)
+    s = repr(v) if isinstance(v, str) else str(v)
+    return s if len(s) <= 60 else s[:57] + "..."
+
+
+def _unwrap(tp):
+    """Strip Annotated/Optional/list wrappers down to model classes (a tuple of candidates)."""
+    origin = typing.get_origin(tp)
+    if origin is typing.Annotated:
+        return _unwrap(typing.get_args(tp)[0])
+    if origin is typing.Union or str(origin) == "types.UnionType":
+        out = ()
+        for a in typing.get_args(tp):
+            out += _unwrap(a)
+        return out
+    if origin in (list, tuple):
+        return _unwrap(typing.get_args(tp)[0])
+    if origin is dict:
+        return _unwrap(typing.get_args(tp)[1])
+    if isinstance(tp, type) and issubclass(tp, BaseModel):
+        return (tp,)
+    return ()
+
+
+def _model_at(path: Path_, data: Any) -> type[BaseModel] | None:
+    """The pydantic model class that describes the mapping at ``path`` of ``data``."""
+    models: tuple = (Scene,)
+    cur = data
+    for p in path:
+        if isinstance(p, int):
+            cur = cur[p] if isinstance(cur, list) and p < len(cur) else None
+            continue
+        chosen = _pick(models, cur)
+        if chosen is None or p not in chosen.model_fields:
+            # dict-valued fields (domain.faces) keep the model list
+            if chosen is not None:
+                return None
+        else:
+            models = _unwrap(chosen.model_fields[p].annotation)
+        cur = cur.get(p) if isinstance(cur, dict) else None
+    return _pick(models, cur)
+
+
+def _pick(models: tuple, data: Any):
+    if not models:
+        return None
+    if len(models) == 1:
+        return models[0]
+    if isinstance(data, dict) and "type" in data:
+        for m in models:
+            f = m.model_fields.get("type")
+            if f is not None and data["type"] in typing.get_args(f.annotation):
+                return m
+    return models[0]
+
+
+def _clean_loc(loc: tuple, data: Any) -> Path_:
+    """Drop the union-member tags pydantic inserts into error locations."""
+    out: list = []
+    cur = data
+    for p in loc:
+        if isinstance(p, int):
+            if isinstance(cur, list):
+                out.append(p)
+                cur = cur[p] if p < len(cur) else None
+            continue
+        if isinstance(cur, dict) and p in cur:
+            out.append(p)
+            cur = cur[p]
+            continue
+        if isinstance(cur, dict) and isinstance(p, str) and ("[" in p or "." in p or p[:1].isupper()
+                                                              or p in ("int", "float", "str", "list")):
+            continue  # a union tag such as 'MPM.Elastic', 'Box', 'int', "literal['auto']"
+        if not isinstance(cur, dict) and isinstance(p, str) and (cur is not None or "[" in p or "-" in p):
+            continue  # below a scalar or list, a string is a union tag ('constrained-int', 'list[...]')
+        out.append(p)
+        cur = None
+    return tuple(out)
+
+
+def _describe(err: dict, data: Any, path: Path_) -> str:
+    t = err["type"]
+    ctx = err.get("ctx") or {}
+    got = err.get("input")
+    if t == "extra_forbidden":
+        model = _model_at(path[:-1], data)
+        known = list(model.model_fields) if model is not None else []
+        hint = difflib.get_close_matches(str(path[-1]), known, n=1, cutoff=0.6)
+        tail = f" (did you mean '{hint[0]}'?)" if hint else (f" (known keys: {', '.join(known)})" if known else "")
+        return f"unknown key{tail}"
+    if t == "missing":
+        return "required key missing"
+    if t in ("union_tag_invalid", "union_tag_not_found"):
+        tag = ctx.get("tag", got if not isinstance(got, dict) else got.get("type"))
+        expected = ctx.get("expected_tags", "")
+        if t == "union_tag_not_found":
+            return f"missing 'type' (expected one of {expected})"
+        hint = difflib.get_close_matches(str(tag), [s.strip(" '") for s in str(expected).split(",")], n=1, cutoff=0.6)
+        if path and path[-1] == "material" and tag in PLANNED_TYPES:
+            return (f"material type '{tag}' is not implemented in this version of simcli "
+                    f"(available: {', '.join(material_type_names())})")
+        tail = f" (did you mean '{hint[0]}'?)" if hint else ""
+        return f"unknown type '{tag}'; expected one of {expected}{tail}"
+    if t == "literal_error":
+        expected = ctx.get("expected", "")
+        if path and path[-1] == "type" and len(path) >= 2 and path[-2] == "material":
+            if got in PLANNED_TYPES:
+                return (f"material type '{got}' is not implemented in this version of simcli "
+                        f"(available: {', '.join(material_type_names())})")
+            hint = difflib.get_close_matches(str(got), material_type_names() + list(PLANNED_TYPES), n=1)
+            tail = f" (did you mean '{hint[0]}'?)" if hint else ""
+            return f"unknown material type {_short(got)}; expected {expected}{tail}"
+        opts = [s.strip(" '") for s in str(expected).replace(" or ", ",").split(",")]
+        hint = difflib.get_close_matches(str(got), opts, n=1, cutoff=0.6)
+        tail = f" (did you mean '{hint[0]}'?)" if hint and hint[0] != str(got) else ""
+        return f"expected {expected} (got {_short(got)}){tail}"
+    bounds = {"greater_than": ("> ", "gt"), "greater_than_equal": (">= ", "ge"),
+              "less_than": ("< ", "lt"), "less_than_equal": ("<= ", "le")}
+    if t in bounds:
+        sym, key = bounds[t]
+        return f"must be {sym}{ctx.get(key)} (got {_short(got)})"
+    if t in ("int_type", "int_parsing", "int_from_float"):
+        return f"expected an integer (got {_short(got)})"
+    if t in ("float_type", "float_parsing"):
+        return f"expected a number (got {_short(got)})"
+    if t in ("string_type",):
+        return f"expected a string (got {_short(got)})"
+    if t in ("bool_type", "bool_parsing"):
+        return f"expected true or false (got {_short(got)})"
+    if t in ("list_type", "tuple_type"):
+        return f"expected a list (got {_short(got)})"
+    if t in ("dict_type", "model_type", "model_attributes_type"):
+        return f"expected a mapping of keys (got {_short(got)})"
+    if t == "string_too_short":
+        return "must not be empty"
+    if t == "value_error":
+        return str(ctx.get("error", err["msg"])).removeprefix("Value error, ")
+    return f"{err['msg']} (got {_short(got)})"
+
+
+def format_validation_error(exc: ValidationError, loc: Located) -> list[str]:
+    grouped: dict[Path_, list[tuple[dict, str]]] = {}
+    order: list[Path_] = []
+    for err in exc.errors(include_url=False):
+        path = _clean_loc(err["loc"], loc.data)
+        msg = _describe(err, loc.data, path)
+        if path not in grouped:
+            grouped[path] = []
+            order.append(path)
+        if msg not in [m for _, m in grouped[path]]:
+            grouped[path].append((err, msg))
+    lines = []
+    for path in order:
+        items = grouped[path]
+        if len(items) > 1:
+            # a plain union (e.g. substeps: int >= 1 | 'auto'): say every acceptable form once
+            msgs = [m for _, m in items if not m.startswith("unknown key")] or [m for _, m in items]
+            got = re.search(r" \(got [^)]*\)$", msgs[-1])
+            parts = [re.sub(r" \(got [^)]*\)$", "", m) for m in msgs]
+            msg = " or ".join(dict.fromkeys(parts)) + (got.group(0) if got else "")
+        else:
+            msg = items[0][1]
+        prefer_key = items[0][0]["type"] == "extra_forbidden"
+        lines.append(f"{loc.where(path, prefer_key=prefer_key)}: {_dotted(path)}: {msg}")
+    return sort_lines(lines)
+
+
+def _line_key(line: str):
+    m = re.match(r"^(.*?):(\d+):(\d+): ", line)
+    return (0, "", 0, 0) if m is None else (1, m.group(1), int(m.group(2)), int(m.group(3)))
+
+
+def sort_lines(lines: list[str]) -> list[str]:
+    """In file order (--set lines first), so a user can fix them top to bottom."""
+    return sorted(lines, key=_line_key)
+
+
+# ----------------------------------------------------------------- entry points
+
+
+@dataclass
+class LoadedScene:
+    scene: Scene
+    path: Path
+    located: Located
+
+    @property
+    def scene_dir(self) -> Path:
+        return self.path.parent
+
+    @property
+    def name(self) -> str:
+        return self.scene.name or self.path.stem
+
+
+def load_scene(path: str | Path, sets: list[str] | tuple[str, ...] = (), check: bool = True) -> LoadedScene:
+    """Read, override, validate and semantically check a scene file.
+
+    Raises SceneError with every problem found, one formatted line each.
+    """
+    path = Path(path)
+    shown = str(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SceneError([f"{shown}: file not found"]) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneError([f"{shown}: cannot read: {e}"]) from None
+    loc = parse_yaml(text, shown)
+    if sets:
+        errors = []
+        for s in sets:
+            try:
+                key_path, value = parse_set(s)
+                apply_overrides(loc.data, [(key_path, value)])
+                # everything under an overridden key now comes from --set
+                for p in list(loc.key_pos) + list(loc.value_pos):
+                    if p[: len(key_path)] == key_path:
+                        loc.key_pos.pop(p, None)
+                        loc.value_pos.pop(p, None)
+                loc.override_src[key_path] = f"--set {s}"
+            except ValueError as e:
+                errors.append(f"--set {s}: {e}")
+        if errors:
+            raise SceneError(errors)
+    try:
+        scene = Scene.model_validate(loc.data)
+    except ValidationError as e:
+        raise SceneError(format_validation_error(e, loc)) from None
+    loaded = LoadedScene(scene=scene, path=path, located=loc)
+    if check:
+        from simcli.scene.checks import check_scene
+
+        lines = check_scene(loaded)
+        if lines:
+            raise SceneError(lines)
+    return loaded
