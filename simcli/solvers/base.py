@@ -110,6 +110,21 @@ class Solver:
         """Sizes worth reporting: particles, cells, ..."""
         raise NotImplementedError
 
+    def owns(self, name: str) -> bool:
+        """Whether entity ``name`` is simulated by this solver."""
+        return any(b.name == name for b in self.bodies)
+
+    def sync(self) -> None:
+        """Wait for queued kernels (timing and signal handling happen on step boundaries)."""
+        import taichi as ti
+
+        ti.sync()
+
+    def length_scale(self) -> float:
+        """Resolution length [m] the runaway guard measures CFL numbers against (grid cell,
+        particle spacing)."""
+        raise NotImplementedError
+
     def info(self) -> dict[str, Any]:
         """Optional extra facts for run.json (design choices, sizes)."""
         return {}
