@@ -307,6 +307,8 @@ class Runner:
             substeps_done += substeps_now
             sub_hist.append(substeps_now)
             step += 1
+            if "time_to_first_step_s" not in self.timings:
+                self.timings["time_to_first_step_s"] = time.perf_counter() - self.t_process
             if step % every == 0 or step == n_steps:
                 t0 = time.perf_counter()
                 self._check_frame(solvers, frame + 1, sub_dt, step=step)
