@@ -1,0 +1,196 @@
+#!/usr/bin/env python3
+"""Benchmarks, side by side with Genesis in one run, on the same machine and thread count.
+
+    python benchmarks/bench.py                 # B1 and B1L, cold and warm, writes docs/PERFORMANCE.md
+    python benchmarks/bench.py B1 --no-genesis --threads 2
+
+For each scene it runs ``simcli run configs/bench/<id>.yaml`` twice (cold: an empty kernel
+cache; warm: the same cache again) and, when a Genesis virtualenv is found ($GENESIS_PYTHON,
+or ~/genesis-venv/bin/python; see ../shared/bench/README.md), ``genesis_bench.py`` with the
+same geometry, step sizes and thread count, cold and warm. It prints start-up to the first step,
+compile time, steady substeps/s and particle-substeps/s and peak memory, and writes the table
+to docs/PERFORMANCE.md with a note of the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("SIMCLI_SHARED", ROOT.parent / "shared"))
+
+# id -> (simcli scene, genesis_bench.py arguments, genesis steady steps)
+SCENES = {
+    "B1": ("configs/bench/b1.yaml", ["mpm", "--plane", "0"], 200),
+    "B1L": ("configs/bench/b1l.yaml", ["mpm", "--plane", "0", "--grid_density", "128", "--psize", "0.005",
+                                       "--dt", "1.5e-3"], 60),
+}
+
+# Runs a command and reports the peak RSS of that child alone (KiB on Linux).
+_WRAP = ("import resource, subprocess, sys, time\n"
+         "t = time.perf_counter(); r = subprocess.run(sys.argv[1:], capture_output=True, text=True)\n"
+         "sys.stdout.write(r.stdout); sys.stderr.write(r.stderr)\n"
+         "print('BENCH_WRAP', r.returncode, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, "
+         "time.perf_counter() - t, file=sys.stderr)\n")
+
+
+def _run(cmd: list[str], env: dict, timeout: float) -> tuple[int, str, str, float, float]:
+    r = subprocess.run([sys.executable, "-c", _WRAP, *cmd], capture_output=True, text=True, env=env, timeout=timeout)
+    m = re.search(r"BENCH_WRAP (-?\d+) (\d+) ([\d.]+)", r.stderr)
+    if not m:
+        raise RuntimeError(f"benchmark wrapper failed: {r.stderr[-2000:]}")
+    return int(m.group(1)), r.stdout, r.stderr, int(m.group(2)) / 1024.0, float(m.group(3))
+
+
+def run_simcli(scene: str, threads: int, backend: str, cache: str, steps: int | None) -> dict:
+    env = dict(os.environ, SIMCLI_KERNEL_CACHE=cache)
+    with tempfile.TemporaryDirectory() as out:
+        cmd = [sys.executable, "-m", "simcli", "run", str(ROOT / scene), "-o", out, "--quiet", "--json",
+               "--backend", backend, "--set", f"sim.threads={threads}"]
+        if steps:
+            cmd += ["--set", f"sim.steps={steps}"]
+        rc, stdout, stderr, peak_mb, wall = _run(cmd, env, timeout=1800)
+        if rc != 0:
+            raise RuntimeError(f"simcli failed ({rc}): {stderr[-2000:]}")
+        info = json.loads(stdout)
+    t = info["timings"]
+    tp = info["throughput"]
+    return {"particles": info["particles"], "time_to_first_step_s": t.get("time_to_first_step_s"),
+            "process_wall_s": wall, "compile_s": t["compile_s"], "substeps_per_s": tp["substeps_per_s"],
+            "particle_substeps_per_s": tp["particle_substeps_per_s"], "peak_mb": peak_mb,
+            "backend": info["backend"], "threads": info.get("threads")}
+
+
+def genesis_python() -> str | None:
+    cand = os.environ.get("GENESIS_PYTHON") or str(Path.home() / "genesis-venv" / "bin" / "python")
+    return cand if Path(cand).exists() else None
+
+
+def run_genesis(py: str, args: list[str], threads: int, cache: str | None, steps: int) -> dict:
+    env = dict(os.environ, QD_NUM_THREADS=str(threads))
+    if cache:
+        env.update(QD_OFFLINE_CACHE_FILE_PATH=cache, GS_CACHE_FILE_PATH=cache)
+    script = SHARED / "bench" / "genesis_bench.py"
+    rc, stdout, stderr, peak_mb, wall = _run([py, str(script), *args, "--steps", str(steps), "--max_s", "60"],
+                                             env, timeout=1800)
+    m = re.search(r"^RESULT (.*)$", stdout, re.M)
+    if rc != 0 or not m:
+        raise RuntimeError(f"genesis failed ({rc}): {stderr[-2000:]}")
+    r = json.loads(m.group(1))
+    n = r.get("n_particles") or r.get("n_vertices") or 0
+    first = r["import_s"] + r["gs_init_s"] + r["scene_setup_s"] + r["build_s"] + r["first_step_s"]
+    return {"particles": n, "time_to_first_step_s": first, "process_wall_s": wall, "compile_s": r["build_s"],
+            "substeps_per_s": r["substeps_per_s"], "particle_substeps_per_s": r["substeps_per_s"] * n,
+            "peak_mb": peak_mb, "backend": "cpu", "threads": r.get("threads")}
+
+
+def machine() -> str:
+    cpu = platform.processor()
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    mem = ""
+    try:
+        import psutil
+
+        mem = f", {psutil.virtual_memory().total / 2**30:.0f} GiB RAM"
+    except ImportError:
+        pass
+    return f"{cpu}, {cores} cores available{mem}, {platform.system()} {platform.release()}, Python " \
+           f"{platform.python_version()}"
+
+
+def fmt(x, nd=3):
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        if abs(x) >= 1e5:
+            return f"{x / 1e6:.2f} M"
+        return f"{x:.{nd}g}"
+    return str(x)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("scenes", nargs="*", default=list(SCENES), help="scene ids (default: all)")
+    ap.add_argument("--threads", type=int, default=2, help="CPU threads for both simcli and Genesis")
+    ap.add_argument("--backend", default="cpu", help="simcli backend (Genesis always runs on the CPU here)")
+    ap.add_argument("--no-genesis", action="store_true", help="skip the Genesis runs")
+    ap.add_argument("--steps", type=int, default=None, help="override the simcli scene's step count")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "PERFORMANCE.md"), help="Markdown report ('' = none)")
+    args = ap.parse_args()
+
+    py = None if args.no_genesis else genesis_python()
+    rows = []
+    for sid in args.scenes:
+        scene, gargs, gsteps = SCENES[sid]
+        with tempfile.TemporaryDirectory() as cache:
+            cold = run_simcli(scene, args.threads, args.backend, cache, args.steps)
+            warm = run_simcli(scene, args.threads, args.backend, cache, args.steps)
+        row = {"id": sid, "simcli_cold": cold, "simcli": warm}
+        print(f"{sid} simcli: {json.dumps(warm)} (cold first step {cold['time_to_first_step_s']:.2f} s)", flush=True)
+        if py:
+            with tempfile.TemporaryDirectory() as gcache:
+                gcold = run_genesis(py, gargs, args.threads, gcache, 20)
+            gwarm = run_genesis(py, gargs, args.threads, None, gsteps)
+            row.update(genesis_cold=gcold, genesis=gwarm)
+            print(f"{sid} genesis: {json.dumps(gwarm)} (cold first step {gcold['time_to_first_step_s']:.2f} s)",
+                  flush=True)
+        rows.append(row)
+
+    lines = [
+        "| scene | code | particles | first step cold [s] | first step warm [s] | compile [s] | substeps/s | "
+        "particle-substeps/s | peak memory [MB] | speed-up |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        for code in ("simcli", "genesis"):
+            if code not in r:
+                continue
+            w, c = r[code], r[code + "_cold"]
+            ratio = ""
+            if code == "simcli" and "genesis" in r:
+                ratio = (f"{w['particle_substeps_per_s'] / r['genesis']['particle_substeps_per_s']:.2f}x throughput, "
+                         f"{r['genesis_cold']['time_to_first_step_s'] / c['time_to_first_step_s']:.1f}x faster "
+                         f"cold start")
+            lines.append(f"| {r['id']} | {code} | {w['particles']} | {fmt(c['time_to_first_step_s'])} | "
+                         f"{fmt(w['time_to_first_step_s'])} | {fmt(w['compile_s'])} | {fmt(w['substeps_per_s'])} | "
+                         f"{fmt(w['particle_substeps_per_s'])} | {fmt(w['peak_mb'], 4)} | {ratio} |")
+    table = "\n".join(lines)
+    print(table)
+    if args.out:
+        stamp = time.strftime("%Y-%m-%d")
+        text = (
+            "# Performance\n\n"
+            "Regenerate with `python benchmarks/bench.py` (needs Genesis in ~/genesis-venv or $GENESIS_PYTHON for "
+            "the side-by-side rows; see ../shared/bench/README.md).\n\n"
+            f"Measured {stamp} on: {machine()}. Threads: {args.threads} for both codes; simcli backend "
+            f"{args.backend}, f32. Same scene, dt, substeps and thread count as Genesis's `genesis_bench.py`.\n\n"
+            "*First step*: from the start of the process's Python code (imports included) to the end of the first "
+            "step; cold = empty kernel cache. *Compile*: simcli's first substep (kernel compilation); Genesis's "
+            "`scene.build()`. *Substeps/s*: steady state, after warm-up. *Peak memory*: peak RSS of the process.\n\n"
+            + table + "\n"
+        )
+        extra = ROOT / "docs" / "PERFORMANCE_NOTES.md"
+        if extra.exists():
+            text += "\n" + extra.read_text()
+        Path(args.out).write_text(text)
+        print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
