@@ -1,0 +1,103 @@
+"""References (analytic formulas, published tables, single values) and error metrics."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from simcli.verify.cases import Case, ErrorSpec, Reference
+
+_SAFE = {"np": np, "math": math, "pi": math.pi, "sqrt": np.sqrt, "exp": np.exp, "sin": np.sin, "cos": np.cos,
+         "log": np.log, "abs": np.abs}
+
+
+def shared_dir() -> Path:
+    env = os.environ.get("SIMCLI_SHARED")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[3] / "shared"
+
+
+def _eval(expr: str, env: dict):
+    return eval(expr, {"__builtins__": {}}, {**_SAFE, **env})  # noqa: S307 - formulas come from case files
+
+
+def read_table(path: Path) -> np.ndarray:
+    rows = []
+    for line in path.read_text().splitlines():
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        try:
+            rows.append([float(x) for x in s.split(",")])
+        except ValueError:
+            continue  # a header line
+    return np.asarray(rows, dtype=np.float64)
+
+
+def reference_series(case: Case, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Reference values at the measured times (analytic, value), or the table's own times
+    with the measurement interpolated onto them (returned as (t_ref, ref))."""
+    ref: Reference = case.reference
+    if ref.value is not None:
+        return t, np.full_like(t, ref.value)
+    if ref.analytic is not None:
+        v = _eval(ref.analytic, {"t": t, **ref.constants})
+        return t, np.broadcast_to(np.asarray(v, dtype=np.float64), t.shape).copy()
+    p = ref.table.replace("${SHARED}", str(shared_dir()))
+    path = Path(p) if Path(p).is_absolute() else case.path.parent / p
+    tab = read_table(path)
+    tt, vv = tab[:, 0], tab[:, ref.column]
+    if ref.scale_t:
+        tt = np.asarray(_eval(ref.scale_t, {"x": tt, **ref.constants}), dtype=np.float64)
+    if ref.scale_v:
+        vv = np.asarray(_eval(ref.scale_v, {"x": vv, **ref.constants}), dtype=np.float64)
+    return tt, vv
+
+
+def compute_error(case: Case, t: np.ndarray, measured: np.ndarray) -> dict:
+    spec: ErrorSpec = case.error
+    t_ref, ref = reference_series(case, t)
+    if t_ref is not t:  # a table: interpolate the measurement at the table's times
+        lo, hi = t.min(), t.max()
+        ok = (t_ref >= lo) & (t_ref <= hi)
+        t_ref, ref = t_ref[ok], ref[ok]
+        meas = np.interp(t_ref, t, measured)
+        tt = t_ref
+    else:
+        meas, tt = measured, t
+    if spec.window is not None:
+        sel = (tt >= spec.window[0] - 1e-12) & (tt <= spec.window[1] + 1e-12)
+        tt, meas, ref = tt[sel], meas[sel], ref[sel]
+    if len(tt) == 0:
+        raise ValueError(f"case {case.name}: no measured point inside the comparison window")
+    diff = meas - ref
+    scale = spec.scale if spec.scale is not None else None
+    m = spec.metric
+    if m == "max_abs":
+        err = np.abs(diff).max()
+    elif m == "max_rel":
+        err = (np.abs(diff) / (scale or np.maximum(np.abs(ref), 1e-300))).max()
+    elif m == "rms":
+        err = math.sqrt(float(np.mean(diff**2)))
+    elif m == "rms_rel":
+        err = math.sqrt(float(np.mean(diff**2))) / (scale or float(np.sqrt(np.mean(ref**2))))
+    elif m == "final_abs":
+        err = abs(diff[-1])
+    elif m == "final_rel":
+        err = abs(diff[-1]) / (scale or abs(ref[-1]))
+    elif m == "mean_abs":
+        err = np.abs(diff).mean()
+    elif m == "mean_rel":
+        err = (np.abs(diff) / (scale or np.maximum(np.abs(ref), 1e-300))).mean()
+    elif m == "mean_value_abs":
+        err = abs(meas.mean() - ref.mean())
+    elif m == "mean_value_rel":
+        err = abs(meas.mean() - ref.mean()) / (scale or abs(ref.mean()))
+    else:  # pragma: no cover - the model restricts metric
+        raise ValueError(m)
+    return {"error": float(err), "measured_mean": float(meas.mean()), "reference_mean": float(ref.mean()),
+            "points": int(len(tt))}
