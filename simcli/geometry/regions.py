@@ -49,7 +49,7 @@ def check_shape_dim(shape, dim: int) -> None:
             )
         _check_len(shape, "center", shape.center, dim)
     else:
-        raise ValueError(f"not an analytic shape: {getattr(shape, 'type', type(shape).__name__)}")
+        raise TypeError(f"not an analytic shape: {getattr(shape, 'type', type(shape).__name__)}")
 
 
 def shape_volume(shape, dim: int) -> float:
