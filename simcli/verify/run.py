@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import subprocess
@@ -13,6 +14,9 @@ from pathlib import Path
 from simcli.verify.cases import Case
 from simcli.verify.measure import run_measurement
 from simcli.verify.reference import compute_error
+
+
+_DONE: dict[str, tuple[int, str, float]] = {}  # runs made by this process, by scene+overrides
 
 
 @dataclass
@@ -69,19 +73,25 @@ def _resolution(case: Case, sets: list[str]) -> str:
 def run_case(case: Case, level: int, out_root: Path, backend: str | None = None, judge: bool = True,
              quiet: bool = True) -> Result:
     sets = level_overrides(case, level)
-    out = out_root / case.name / f"level{level}"
-    cmd = [sys.executable, "-m", "simcli", "run", str(case.scene_path), "-o", str(out), "--quiet"]
-    for s in sets:
-        cmd += ["--set", s]
-    if backend:
-        cmd += ["--backend", backend]
-    t0 = time.perf_counter()
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=case.timeout_s)
-        code, stderr = proc.returncode, proc.stderr
-    except subprocess.TimeoutExpired:
-        code, stderr = 124, f"timed out after {case.timeout_s} s"
-    wall = time.perf_counter() - t0
+    # cases that measure different things on the same scene and resolution share one run
+    key = hashlib.sha1(json.dumps([str(case.scene_path), sets, backend]).encode()).hexdigest()[:10]
+    out = out_root / "runs" / f"{case.scene_path.stem}-L{level}-{key}"
+    if key in _DONE:
+        code, stderr, wall = _DONE[key]
+    else:
+        cmd = [sys.executable, "-m", "simcli", "run", str(case.scene_path), "-o", str(out), "--quiet"]
+        for s in sets:
+            cmd += ["--set", s]
+        if backend:
+            cmd += ["--backend", backend]
+        t0 = time.perf_counter()
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=case.timeout_s)
+            code, stderr = proc.returncode, proc.stderr
+        except subprocess.TimeoutExpired:
+            code, stderr = 124, f"timed out after {case.timeout_s} s"
+        wall = time.perf_counter() - t0
+        _DONE[key] = (code, stderr, wall)
     info = {}
     try:
         info = json.loads((out / "run.json").read_text())
