@@ -104,6 +104,8 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             rpath = base + ("fixed",) + ((j,) if isinstance(e.fixed, list) else ())
             for f in ("lower", "upper", "center", "size"):
                 need_len(rpath + (f,), getattr(r, f, None))
+            if dim == 2 and r.type == "Cylinder":
+                err(rpath + ("type",), "Cylinder regions need dim 3 (use a Box or Sphere in 2D)")
         if not (shape_ok and ok_dom):
             continue
         try:
