@@ -19,10 +19,10 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
-import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from time import perf_counter
 from typing import Iterator
 
 import numpy as np
@@ -56,6 +56,9 @@ class EntityMeta:
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"entity {self.name!r}: kind must be one of {KINDS}, got {self.kind!r}")
+        if int(self.n) < 1:
+            raise ValueError(f"entity {self.name!r}: n must be >= 1, got {self.n!r}")
+        self.n = int(self.n)
         if self.dim not in (2, 3):
             raise ValueError(f"entity {self.name!r}: dim must be 2 or 3, got {self.dim!r}")
         if not self.name or "/" in self.name or self.name.startswith("."):
@@ -72,7 +75,9 @@ class EntityMeta:
         self.fields = norm  # type: ignore[assignment]
         if self.kind == "grid":
             if self.grid_shape is None or len(self.grid_shape) != self.dim:
-                raise ValueError(f"grid entity {self.name!r}: grid_shape needs {self.dim} entries (x, y[, z])")
+                raise ValueError(
+                    f"grid entity {self.name!r}: grid_shape needs {self.dim} entries (x, y[, z])"
+                )
             self.grid_shape = tuple(int(s) for s in self.grid_shape)
             if int(np.prod(self.grid_shape)) != self.n:
                 raise ValueError(
@@ -94,7 +99,9 @@ class EntityMeta:
             cells = np.ascontiguousarray(self.cells, dtype=np.int64)
             npc = NODES_PER_CELL[self.kind]
             if cells.ndim != 2 or cells.shape[1] != npc:
-                raise ValueError(f"entity {self.name!r}: cells must have shape (n_cells, {npc}), got {cells.shape}")
+                raise ValueError(
+                    f"entity {self.name!r}: cells must have shape (n_cells, {npc}), got {cells.shape}"
+                )
             if cells.size and (cells.min() < 0 or cells.max() >= self.n):
                 raise ValueError(f"entity {self.name!r}: cells index outside 0..{self.n - 1}")
             self.cells = cells
@@ -126,7 +133,8 @@ class EntityMeta:
             if not ok:
                 hint = " (grids are stored z, y, x: x varies fastest)" if self.kind == "grid" else ""
                 raise ValueError(
-                    f"entity {self.name!r} field {fname!r}: expected shape {want} or {flat}, got {a.shape}{hint}"
+                    f"entity {self.name!r} field {fname!r}: expected shape {want} or {flat}, "
+                    f"got {a.shape}{hint}"
                 )
             a = a.reshape(want)
         return np.ascontiguousarray(a, dtype=dtype)
@@ -258,43 +266,55 @@ class FrameSink:
             raise ValueError("resume_frame must be >= 0")
         self.entities = list(entities)
         ensure_dir(self.out_dir)
-        t0 = time.perf_counter()
-        if "hdf5" in self.formats:
-            from .hdf5 import H5Writer
-            from .xdmf import XdmfWriter
+        try:
+            t0 = perf_counter()
+            if "hdf5" in self.formats:
+                from .hdf5 import H5Writer
+                from .xdmf import XdmfWriter
 
-            self._h5 = H5Writer(self.h5_path)
-            self._h5.open(self.entities, scene_text, attrs or {}, resume_frame)
-            self._xdmf = XdmfWriter(self.out_dir / "sim.xdmf", self.h5_path.name, self.entities)
-            self._xdmf.reset(self._h5.times())
-            t1 = time.perf_counter()
-            self.seconds["hdf5"] += t1 - t0
-            t0 = t1
-        if "vtk" in self.formats:
-            from .vtk import VtkWriter
+                self._h5 = H5Writer(self.h5_path)
+                self._h5.open(self.entities, scene_text, attrs or {}, resume_frame)
+                self._xdmf = XdmfWriter(self.out_dir / "sim.xdmf", self.h5_path.name, self.entities)
+                self._xdmf.reset(self._h5.times())
+                t1 = perf_counter()
+                self.seconds["hdf5"] += t1 - t0
+                t0 = t1
+            if "vtk" in self.formats:
+                from .vtk import VtkWriter
 
-            self._vtk = VtkWriter(self.out_dir / "vtk", self.entities)
-            self._vtk.open(resume_frame)
-            self.seconds["vtk"] += time.perf_counter() - t0
+                self._vtk = VtkWriter(self.out_dir / "vtk", self.entities)
+                self._vtk.open(resume_frame)
+                self.seconds["vtk"] += perf_counter() - t0
+        except BaseException:
+            try:
+                self.close()
+            except OutputError:
+                pass
+            raise
         self.next_frame = resume_frame or 0
         self._open = True
 
-    def write_frame(self, frame: int, step: int, time_: float, data: dict[str, dict[str, np.ndarray]]) -> None:
+    def write_frame(
+        self, frame: int, step: int, time: float, data: dict[str, dict[str, np.ndarray]]
+    ) -> None:
         if not self._open:
             raise RuntimeError("FrameSink.write_frame before open()")
         if frame != self.next_frame:
-            raise ValueError(f"frames must be written in order: expected frame {self.next_frame}, got {frame}")
+            raise ValueError(
+                f"frames must be written in order: expected frame {self.next_frame}, got {frame}"
+            )
         prepared = self._prepare(data)
-        t0 = time.perf_counter()
+        t = float(time)
+        t0 = perf_counter()
         if self._h5 is not None:
-            self._h5.write_frame(frame, step, float(time_), prepared)
-            self._xdmf.add_frame(frame, float(time_))
-            t1 = time.perf_counter()
+            self._h5.write_frame(frame, int(step), t, prepared)
+            self._xdmf.add_frame(frame, t)
+            t1 = perf_counter()
             self.seconds["hdf5"] += t1 - t0
             t0 = t1
         if self._vtk is not None:
-            self._vtk.write_frame(frame, float(time_), prepared)
-            self.seconds["vtk"] += time.perf_counter() - t0
+            self._vtk.write_frame(frame, t, prepared)
+            self.seconds["vtk"] += perf_counter() - t0
         self.next_frame = frame + 1
 
     def _prepare(self, data: dict) -> dict[str, dict[str, np.ndarray]]:

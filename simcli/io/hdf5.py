@@ -1,0 +1,296 @@
+"""``sim.h5``: every frame of every entity, written in HDF5 SWMR mode.
+
+Layout (see SCENE_FORMAT.md section 3)::
+
+    /                      attrs: format="simcli-frames", format_version=1, simcli_version, scene, + run attrs
+    /time   (frames,)      float64, unit "s"
+    /step   (frames,)      int64,   unit "1"
+    /entities/<name>/      attrs: kind, dim, n (+ grid_shape, origin, spacing for grids)
+        <field>            (frames, n[, comps]); grid fields (frames, nz, ny, nx[, comps]) in 3D,
+                           (frames, ny, nx[, comps]) in 2D, with origin / spacing attrs (x, y, z)
+        cells              (n_cells, nodes per cell) int64, static, meshes only
+
+Crash safety: all datasets are created first, then the file switches to SWMR mode; each
+frame writes the entity datasets, flushes, and only then extends ``/time`` and ``/step`` and
+flushes again.  A reader that trusts ``len(/time)`` never sees a half frame, and a SIGKILL
+leaves every completed frame readable.
+
+A file left by a killed writer still carries HDF5's "open for SWMR write" flags; open it with
+``h5py.File(path, "r", swmr=True)`` (see :func:`open_frames`) or clear the flags first with
+:func:`clear_status_flags` (what ``h5clear -s`` does) so that any HDF5 tool opens it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import h5py
+import numpy as np
+
+from simcli.errors import OutputError
+
+from .frames import guard, output_error
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .frames import EntityMeta
+
+FORMAT = "simcli-frames"
+FORMAT_VERSION = 1
+# Lowest format that supports SWMR; capped at 1.10 so that every HDF5 >= 1.10 (ParaView/VTK's
+# bundled copy, MATLAB, ...) reads the file.
+LIBVER = ("v110", "v110")
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def _h5file(path: Path, mode: str, **kw) -> h5py.File:
+    try:
+        return h5py.File(path, mode, locking="best-effort", **kw)
+    except (TypeError, ValueError):  # h5py / HDF5 without best-effort locking
+        return h5py.File(path, mode, **kw)
+
+
+def open_frames(path: Path | str) -> h5py.File:
+    """Open a sim.h5 for reading: works while it is written, after a crash, and after close."""
+    return h5py.File(path, "r", swmr=True)
+
+
+# -- superblock status flags (h5clear -s) ---------------------------------------------------
+
+_M = 0xFFFFFFFF
+
+
+def _rot(x: int, k: int) -> int:
+    return ((x << k) | (x >> (32 - k))) & _M
+
+
+def lookup3(data: bytes, initval: int = 0) -> int:
+    """Bob Jenkins' lookup3 ``hashlittle``: the checksum HDF5 uses for its metadata."""
+    length = len(data)
+    a = b = c = (0xDEADBEEF + length + initval) & _M
+    i = 0
+    while length - i > 12:
+        x, y, z = struct.unpack_from("<3I", data, i)
+        a = (a + x) & _M
+        b = (b + y) & _M
+        c = (c + z) & _M
+        a = (a - c) & _M; a ^= _rot(c, 4); c = (c + b) & _M  # noqa: E702
+        b = (b - a) & _M; b ^= _rot(a, 6); a = (a + c) & _M  # noqa: E702
+        c = (c - b) & _M; c ^= _rot(b, 8); b = (b + a) & _M  # noqa: E702
+        a = (a - c) & _M; a ^= _rot(c, 16); c = (c + b) & _M  # noqa: E702
+        b = (b - a) & _M; b ^= _rot(a, 19); a = (a + c) & _M  # noqa: E702
+        c = (c - b) & _M; c ^= _rot(b, 4); b = (b + a) & _M  # noqa: E702
+        i += 12
+    rest = data[i:]
+    if not rest:
+        return c
+    x, y, z = struct.unpack("<3I", rest.ljust(12, b"\0"))
+    a = (a + x) & _M
+    b = (b + y) & _M
+    c = (c + z) & _M
+    c ^= b; c = (c - _rot(b, 14)) & _M  # noqa: E702
+    a ^= c; a = (a - _rot(c, 11)) & _M  # noqa: E702
+    b ^= a; b = (b - _rot(a, 25)) & _M  # noqa: E702
+    c ^= b; c = (c - _rot(b, 16)) & _M  # noqa: E702
+    a ^= c; a = (a - _rot(c, 4)) & _M  # noqa: E702
+    b ^= a; b = (b - _rot(a, 14)) & _M  # noqa: E702
+    c ^= b; c = (c - _rot(b, 24)) & _M  # noqa: E702
+    return c
+
+
+def clear_status_flags(path: Path | str) -> bool:
+    """Clear the "file is open for (SWMR) write" flags a killed writer leaves in the superblock.
+
+    Like ``h5clear -s -i``: also raises the end-of-allocation address to the file size so that
+    space written after the last superblock update is never handed out twice.  Returns True if
+    the file was changed.  Only for files no process has open for writing.
+    """
+    path = Path(path)
+    with guard(path, "repair"), open(path, "r+b") as fh:
+        size = fh.seek(0, os.SEEK_END)
+        base = 0
+        while base + 64 <= size:
+            fh.seek(base)
+            if fh.read(8) == _HDF5_SIGNATURE:
+                break
+            base = 512 if base == 0 else base * 2
+        else:
+            raise OutputError(f"{path}: not an HDF5 file")
+        fh.seek(base)
+        head = fh.read(12)
+        version, so, _sl, flags = head[8], head[9], head[10], head[11]
+        if version < 2:
+            return False  # no consistency flags before superblock v2
+        n = 12 + 4 * so
+        fh.seek(base)
+        sb = bytearray(fh.read(n + 4))
+        (stored,) = struct.unpack_from("<I", sb, n)
+        if lookup3(bytes(sb[:n])) != stored:
+            raise OutputError(f"{path}: HDF5 superblock checksum mismatch; file is damaged")
+        fmt = {4: "<I", 8: "<Q"}[so]
+        eoa_off = 12 + 2 * so
+        (eoa,) = struct.unpack_from(fmt, sb, eoa_off)
+        new_eoa = max(eoa, size - base)
+        if flags == 0 and new_eoa == eoa:
+            return False
+        sb[11] = 0
+        struct.pack_into(fmt, sb, eoa_off, new_eoa)
+        struct.pack_into("<I", sb, n, lookup3(bytes(sb[:n])))
+        fh.seek(base)
+        fh.write(bytes(sb))
+        fh.flush()
+        os.fsync(fh.fileno())
+    return True
+
+
+# -- the writer -----------------------------------------------------------------------------
+
+
+def _attr_value(v):
+    if isinstance(v, (str, bytes, bool, int, float, np.generic)):
+        return v
+    if isinstance(v, np.ndarray) and v.dtype.kind in "biuf":
+        return v
+    if isinstance(v, (list, tuple)) and v and all(type(x) in (int, float) for x in v):
+        return np.asarray(v)
+    return json.dumps(v, default=str)
+
+
+class H5Writer:
+    """Writes sim.h5; used by :class:`simcli.io.frames.FrameSink`."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.f: h5py.File | None = None
+        self.entities: list[EntityMeta] = []
+        self._ds: list[tuple[h5py.Dataset, str, str]] = []  # (dataset, entity, field)
+        self._times: list[float] = []
+
+    def times(self) -> list[float]:
+        return list(self._times)
+
+    # ------------------------------------------------------------------------------------
+    def open(
+        self, entities: list[EntityMeta], scene_text: str, attrs: dict, resume_frame: int | None
+    ) -> None:
+        from simcli import __version__
+
+        self.entities = list(entities)
+        if resume_frame is None:
+            with guard(self.path, "create"):
+                f = _h5file(self.path, "w", libver=LIBVER)
+            self.f = f
+            with guard(self.path):
+                self._create(f)
+        else:
+            if not self.path.exists():
+                raise OutputError(f"cannot resume: {self.path} does not exist")
+            clear_status_flags(self.path)
+            with guard(self.path, "open for append"):
+                f = _h5file(self.path, "a", libver=LIBVER)
+            self.f = f
+            with guard(self.path):
+                self._reopen(f, resume_frame)
+        with guard(self.path):
+            f.attrs["format"] = FORMAT
+            f.attrs["format_version"] = FORMAT_VERSION
+            f.attrs["simcli_version"] = __version__
+            f.attrs["scene"] = scene_text
+            for k, v in (attrs or {}).items():
+                if k in ("format", "format_version", "simcli_version", "scene"):
+                    continue
+                f.attrs[k] = _attr_value(v)
+            f.flush()
+            f.swmr_mode = True
+
+    def _create(self, f: h5py.File) -> None:
+        t = f.create_dataset("time", shape=(0,), maxshape=(None,), chunks=(1024,), dtype="f8")
+        t.attrs["unit"] = "s"
+        s = f.create_dataset("step", shape=(0,), maxshape=(None,), chunks=(1024,), dtype="i8")
+        s.attrs["unit"] = "1"
+        ents = f.create_group("entities")
+        for e in self.entities:
+            g = ents.create_group(e.name)
+            g.attrs["kind"] = e.kind
+            g.attrs["dim"] = e.dim
+            g.attrs["n"] = e.n
+            if e.kind == "grid":
+                g.attrs["grid_shape"] = np.asarray(e.grid_shape, dtype="i8")
+                g.attrs["origin"] = np.asarray(e.origin, dtype="f8")
+                g.attrs["spacing"] = np.asarray(e.spacing, dtype="f8")
+            if e.cells is not None:
+                c = g.create_dataset("cells", data=e.cells, dtype="i8")
+                c.attrs["unit"] = "1"
+            for fname, (_comps, unit, dtype) in e.fields.items():
+                shape = e.frame_shape(fname)
+                d = g.create_dataset(
+                    fname, shape=(0,) + shape, maxshape=(None,) + shape, chunks=(1,) + shape, dtype=dtype
+                )
+                d.attrs["unit"] = unit
+                if e.kind == "grid":
+                    d.attrs["origin"] = np.asarray(e.origin, dtype="f8")
+                    d.attrs["spacing"] = np.asarray(e.spacing, dtype="f8")
+                    d.attrs["center"] = "cell"
+                self._ds.append((d, e.name, fname))
+        self._time, self._step = t, s
+        self._times = []
+
+    def _reopen(self, f: h5py.File, k: int) -> None:
+        if f.attrs.get("format") != FORMAT:
+            raise OutputError(f"cannot resume: {self.path} is not a simcli frames file")
+        t, s = f["time"], f["step"]
+        nframes = min(t.shape[0], s.shape[0])
+        if k > nframes:
+            raise OutputError(f"cannot resume at frame {k}: {self.path} holds only {nframes} complete frames")
+        for e in self.entities:
+            gpath = f"entities/{e.name}"
+            if gpath not in f:
+                raise OutputError(f"cannot resume: {self.path} has no entity {e.name!r} (scene changed?)")
+            g = f[gpath]
+            for fname, (_c, _u, dtype) in e.fields.items():
+                if fname not in g:
+                    raise OutputError(
+                        f"cannot resume: {self.path} has no field {e.name}/{fname} (scene changed?)"
+                    )
+                d = g[fname]
+                if d.shape[1:] != e.frame_shape(fname) or d.shape[0] < k:
+                    raise OutputError(
+                        f"cannot resume: {self.path} {e.name}/{fname} has shape {d.shape}, "
+                        f"expected (>= {k},) + {e.frame_shape(fname)} (scene changed?)"
+                    )
+                d.resize(k, axis=0)
+                self._ds.append((d, e.name, fname))
+        t.resize(k, axis=0)
+        s.resize(k, axis=0)
+        self._time, self._step = t, s
+        self._times = [float(x) for x in t[:k]]
+
+    # ------------------------------------------------------------------------------------
+    def write_frame(self, frame: int, step: int, time: float, data: dict[str, dict[str, np.ndarray]]) -> None:
+        f = self.f
+        assert f is not None, "H5Writer not open"
+        if frame != len(self._times):
+            raise ValueError(f"sim.h5 holds {len(self._times)} frames; cannot write frame {frame}")
+        try:
+            for d, ename, fname in self._ds:
+                d.resize(frame + 1, axis=0)
+                d.write_direct(data[ename][fname], dest_sel=np.s_[frame])
+            f.flush()  # the frame's data is on disk before /time says it exists
+            self._step.resize(frame + 1, axis=0)
+            self._step[frame] = step
+            self._time.resize(frame + 1, axis=0)
+            self._time[frame] = time
+            f.flush()
+        except (OSError, RuntimeError) as exc:
+            raise output_error(self.path, exc) from exc
+        self._times.append(time)
+
+    def close(self) -> None:
+        f, self.f = self.f, None
+        self._ds = []
+        if f is not None:
+            with guard(self.path, "close"):
+                f.close()
