@@ -183,19 +183,28 @@ class Runner:
                               f"-o or output.dir") from None
 
     def _run(self, solver_factory) -> tuple[int, dict]:
-        from simcli.io.checkpoint import latest_checkpoint, read_checkpoint, write_checkpoint
+        import warnings
+
+        from simcli.io.checkpoint import CheckpointWarning, load_latest_checkpoint, write_checkpoint
         from simcli.io.frames import FrameSink
 
         scene = self.scene
         sim = scene.sim
         ckpt = None
         if self.resume:
-            path = latest_checkpoint(self.out / "checkpoints") if self.out.is_dir() else None
-            if path is None:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", CheckpointWarning)
+                found = load_latest_checkpoint(self.out / "checkpoints") if self.out.is_dir() else None
+            for w in caught:
+                self.warnings.append(str(w.message))
+                print(f"simcli: warning: {w.message}", file=sys.stderr)
+            if found is None:
                 print(f"simcli: error: --resume: no checkpoint in {self.out / 'checkpoints'}; run without --resume",
                       file=sys.stderr)
                 return EXIT_USAGE, None
-            ckpt = read_checkpoint(path)
+            path, state, meta = found
+            meta = dict(meta, path=str(path))
+            ckpt = (state, meta)
         self._prepare_out()
         scene_text = yaml.safe_dump(self.resolved, sort_keys=False)
         _atomic_write(self.out / "scene.yaml", "# resolved scene: every default filled in\n" + scene_text)
