@@ -1,0 +1,219 @@
+"""Static rigid obstacles and domain walls as velocity conditions, shared by the solvers.
+
+Two halves, like the materials:
+
+* host side (no Taichi): :func:`collider_specs` and :func:`wall_specs` turn the scene into
+  small records. What decides which code is compiled (collider kind, contact kind, cylinder
+  axis, wall kind per face) is kept apart from the numbers (points, radii, friction, wall
+  velocity), which live in fields and can change without recompiling;
+* kernel side: signed-distance functions ``sdf_*`` returning ``(phi, normal)`` with ``phi < 0``
+  inside the obstacle and ``normal`` the unit outward normal, and :func:`contact_velocity`, the
+  slip / sticky / separate condition with Coulomb friction.
+
+Importing this module imports Taichi (with stdout kept clean) but does not initialise it.
+"""
+
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+
+with stdout_to_stderr():
+    import taichi as ti
+
+CONTACT_KINDS = ("slip", "sticky", "separate")
+FACE_NAMES = ("x-", "x+", "y-", "y+", "z-", "z+")
+
+
+@dataclass(frozen=True)
+class ColliderSpec:
+    """One obstacle. ``kind``/``contact``/``axis`` are compile-time; the rest is run-time data."""
+
+    kind: str  # Plane | Box | Sphere | Cylinder
+    contact: str  # slip | sticky | separate
+    axis: int  # cylinder axis (0, 1, 2); 0 for the others
+    a: tuple  # Plane: point, Box: lower, Sphere/Cylinder: center
+    b: tuple  # Plane: unit normal, Box: upper, others: zeros
+    radius: float  # Sphere/Cylinder radius [m]
+    half_height: float  # Cylinder half length [m]
+    friction: float  # Coulomb coefficient [-]
+
+
+@dataclass(frozen=True)
+class WallSpec:
+    """One face of the domain box: ``axis``, ``side`` (-1 lower, +1 upper), compile-time ``contact``."""
+
+    name: str
+    axis: int
+    side: int
+    contact: str
+    friction: float
+    velocity: tuple  # wall velocity [m/s]
+
+
+def collider_specs(scene: Any, dim: int) -> list[ColliderSpec]:
+    specs = []
+    for c in scene.colliders:
+        kind = c.type
+        zeros = (0.0,) * dim
+        if kind == "Plane":
+            if len(c.point) != dim or len(c.normal) != dim:
+                raise ValueError(f"Plane collider needs {dim} components for point and normal")
+            n = np.asarray(c.normal, dtype=np.float64)
+            norm = float(np.linalg.norm(n))
+            if norm == 0.0:
+                raise ValueError("Plane collider normal must not be zero")
+            specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.point), tuple(n / norm), 0.0, 0.0, c.friction))
+        elif kind == "Box":
+            if len(c.lower) != dim or len(c.upper) != dim:
+                raise ValueError(f"Box collider needs {dim} components for lower and upper")
+            if any(lo >= hi for lo, hi in zip(c.lower, c.upper)):
+                raise ValueError("Box collider: lower must be < upper on every axis")
+            specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.lower), tuple(c.upper), 0.0, 0.0, c.friction))
+        elif kind == "Sphere":
+            if len(c.center) != dim:
+                raise ValueError(f"Sphere collider needs {dim} components for center")
+            specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.center), zeros, c.radius, 0.0, c.friction))
+        elif kind == "Cylinder":
+            if dim != 3:
+                raise ValueError("Cylinder colliders exist only in 3D (use a Sphere, i.e. a disk, in 2D)")
+            if len(c.center) != 3:
+                raise ValueError("Cylinder collider needs 3 components for center")
+            specs.append(ColliderSpec(kind, c.boundary, "xyz".index(c.axis), tuple(c.center), zeros, c.radius,
+                                      0.5 * c.height, c.friction))
+        else:  # pragma: no cover - the scene schema rejects unknown kinds
+            raise ValueError(f"unknown collider type {kind!r}")
+    return specs
+
+
+def wall_specs(scene: Any, dim: int) -> list[WallSpec]:
+    walls = []
+    for axis in range(dim):
+        for side, sign in ((-1, "-"), (1, "+")):
+            name = "xyz"[axis] + sign
+            b = scene.domain.face(name)
+            vel = tuple(b.velocity) if b.velocity is not None else (0.0,) * dim
+            if len(vel) != dim:
+                raise ValueError(f"domain face {name}: velocity needs {dim} components")
+            walls.append(WallSpec(name, axis, side, b.type, b.friction, vel))
+    return walls
+
+
+# ----------------------------------------------------------------- kernel side
+
+
+@ti.func
+def _tangential(v, n, vn, mu):
+    """Tangential part of ``v`` after Coulomb friction: |v_t| shrinks by mu*|v_n| (compressive v_n only)."""
+    vt = v - vn * n
+    if vn < 0 and mu > 0:
+        vt_norm = vt.norm()
+        if vt_norm > 0:
+            vt *= ti.max(0.0, 1.0 + mu * vn / vt_norm)
+    return vt
+
+
+@ti.func
+def contact_velocity(v, n, v_wall, contact: ti.template(), mu):
+    """Velocity of a node in contact with a surface of unit normal ``n`` moving with ``v_wall``.
+
+    slip: the normal relative velocity is removed both ways (the body cannot leave nor enter);
+    separate: removed only when moving into the surface; sticky: the node moves with the surface.
+    Friction (Coulomb, ``mu``) acts on the tangential relative velocity in proportion to the
+    removed compressive normal velocity.
+    """
+    vr = v - v_wall
+    vn = vr.dot(n)
+    if ti.static(contact == "sticky"):
+        vr = vr * 0.0
+    elif ti.static(contact == "slip"):
+        vr = _tangential(vr, n, vn, mu)
+    else:  # separate
+        if vn < 0:
+            vr = _tangential(vr, n, vn, mu)
+    return vr + v_wall
+
+
+@ti.func
+def sdf_plane(x, point, normal):
+    return (x - point).dot(normal), normal
+
+
+@ti.func
+def sdf_sphere(x, center, radius):
+    d = x - center
+    r = d.norm()
+    n = d * 0.0
+    n[n.n - 1] = 1.0
+    if r > 0:
+        n = d / r
+    return r - radius, n
+
+
+@ti.func
+def sdf_box(x, lower, upper):
+    c = 0.5 * (lower + upper)
+    h = 0.5 * (upper - lower)
+    d = x - c
+    s = ti.math.sign(d)
+    for i in ti.static(range(d.n)):
+        if s[i] == 0:
+            s[i] = 1.0
+    q = ti.abs(d) - h
+    qp = ti.max(q, 0.0)
+    outside = qp.norm()
+    phi = outside
+    n = qp * s
+    if outside > 0:
+        n = n / outside
+    else:
+        # inside: the nearest face is the one with the largest q
+        k = 0
+        qmax = q[0]
+        for i in ti.static(range(1, d.n)):
+            if q[i] > qmax:
+                qmax = q[i]
+                k = i
+        phi = qmax
+        n = n * 0.0
+        for i in ti.static(range(d.n)):
+            if i == k:
+                n[i] = s[i]
+    return phi, n
+
+
+@ti.func
+def sdf_cylinder(x, center, radius, half_height, axis: ti.template()):
+    """Capped cylinder along ``axis`` (3D)."""
+    d = x - center
+    a = d[axis]
+    r = d
+    r[axis] = 0.0
+    rho = r.norm()
+    rhat = r * 0.0
+    if rho > 0:
+        rhat = r / rho
+    else:
+        rhat[(axis + 1) % 3] = 1.0
+    e = d * 0.0
+    e[axis] = 1.0
+    if a < 0:
+        e[axis] = -1.0
+    q0 = rho - radius
+    q1 = ti.abs(a) - half_height
+    p0 = ti.max(q0, 0.0)
+    p1 = ti.max(q1, 0.0)
+    outside = ti.sqrt(p0 * p0 + p1 * p1)
+    phi = outside
+    n = rhat
+    if outside > 0:
+        n = (p0 * rhat + p1 * e) / outside
+    else:
+        phi = ti.max(q0, q1)
+        if q1 > q0:
+            n = e
+    return phi, n
+

@@ -1,0 +1,118 @@
+"""Grid boundary conditions of the MPM solver: domain walls and static colliders.
+
+Both act on grid node velocities in ``grid_update`` (after gravity), the usual MPM way:
+
+* colliders: a node inside an obstacle (signed distance < 0) gets the obstacle's contact
+  condition (slip / sticky / separate, Coulomb friction) along the SDF normal;
+* walls: every node on or beyond a face of the domain box gets that face's condition, with the
+  face normal pointing into the domain. The grid extends ``pad`` cells beyond the domain, so
+  this is a band of nodes (the face node plus the padding ones) and particles, which are also
+  clamped to the box, never leave the domain.
+
+What is compiled: one code path per collider present (its kind, contact kind and cylinder
+axis) and per face (its contact kind). What is data: collider geometry, friction coefficients
+and wall velocities (fields, changeable between substeps without recompiling).
+"""
+
+
+from typing import Any
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+from simcli.colliders import (
+    collider_specs,
+    contact_velocity,
+    sdf_box,
+    sdf_cylinder,
+    sdf_plane,
+    sdf_sphere,
+    wall_specs,
+)
+
+with stdout_to_stderr():
+    import taichi as ti
+
+
+@ti.data_oriented
+class GridBoundary:
+    """Walls of the domain box + colliders, applied to grid nodes.
+
+    ``origin``/``dx``: node I sits at origin + I dx. ``lo_node``/``hi_node``: index of the first
+    and last node of the domain along each axis (nodes at or beyond them are wall nodes).
+    """
+
+    def __init__(self, scene: Any, dim: int, dtype: Any, origin: np.ndarray, dx: float,
+                 lo_node: tuple, hi_node: tuple) -> None:
+        self.dim = dim
+        self.dtype = dtype
+        self.origin = tuple(float(o) for o in origin)
+        self.dx = float(dx)
+        self.lo_node = tuple(int(i) for i in lo_node)
+        self.hi_node = tuple(int(i) for i in hi_node)
+        self.colliders = collider_specs(scene, dim)
+        self.walls = wall_specs(scene, dim)
+        self.n_colliders = len(self.colliders)
+
+    def allocate(self) -> None:
+        dim, f = self.dim, self.dtype
+        nw = len(self.walls)
+        self.wall_velocity = ti.Vector.field(dim, f, shape=nw)
+        self.wall_friction = ti.field(f, shape=nw)
+        nc = max(1, self.n_colliders)
+        self.col_a = ti.Vector.field(dim, f, shape=nc)
+        self.col_b = ti.Vector.field(dim, f, shape=nc)
+        self.col_radius = ti.field(f, shape=nc)
+        self.col_half_height = ti.field(f, shape=nc)
+        self.col_friction = ti.field(f, shape=nc)
+        self.upload()
+
+    def upload(self) -> None:
+        """Copy the run-time numbers (geometry, friction, wall velocity) into the fields."""
+        npf = np.float64 if self.dtype == ti.f64 else np.float32
+        self.wall_velocity.from_numpy(np.array([w.velocity for w in self.walls], dtype=npf))
+        self.wall_friction.from_numpy(np.array([w.friction for w in self.walls], dtype=npf))
+        nc = max(1, self.n_colliders)
+        a = np.zeros((nc, self.dim), npf)
+        b = np.zeros((nc, self.dim), npf)
+        r = np.zeros(nc, npf)
+        h = np.zeros(nc, npf)
+        mu = np.zeros(nc, npf)
+        for k, c in enumerate(self.colliders):
+            a[k], b[k], r[k], h[k], mu[k] = c.a, c.b, c.radius, c.half_height, c.friction
+        self.col_a.from_numpy(a)
+        self.col_b.from_numpy(b)
+        self.col_radius.from_numpy(r)
+        self.col_half_height.from_numpy(h)
+        self.col_friction.from_numpy(mu)
+
+    @ti.func
+    def apply(self, I, v):
+        """Velocity of grid node ``I`` after every collider and wall condition."""
+        if ti.static(self.n_colliders > 0):
+            xI = ti.Vector(self.origin, dt=self.dtype) + I.cast(self.dtype) * self.dx
+            for k in ti.static(range(self.n_colliders)):
+                phi = 1.0
+                n = v * 0.0
+                if ti.static(self.colliders[k].kind == "Plane"):
+                    phi, n = sdf_plane(xI, self.col_a[k], self.col_b[k])
+                elif ti.static(self.colliders[k].kind == "Sphere"):
+                    phi, n = sdf_sphere(xI, self.col_a[k], self.col_radius[k])
+                elif ti.static(self.colliders[k].kind == "Box"):
+                    phi, n = sdf_box(xI, self.col_a[k], self.col_b[k])
+                elif ti.static(self.colliders[k].kind == "Cylinder"):
+                    phi, n = sdf_cylinder(xI, self.col_a[k], self.col_radius[k], self.col_half_height[k],
+                                          self.colliders[k].axis)
+                if phi < 0:
+                    v = contact_velocity(v, n, v * 0.0, self.colliders[k].contact, self.col_friction[k])
+        # walls last: confinement to the domain wins over everything else
+        for k in ti.static(range(len(self.walls))):
+            on_wall = False
+            if ti.static(self.walls[k].side < 0):
+                on_wall = I[self.walls[k].axis] <= self.lo_node[self.walls[k].axis]
+            else:
+                on_wall = I[self.walls[k].axis] >= self.hi_node[self.walls[k].axis]
+            if on_wall:
+                n = ti.Vector.unit(self.dim, self.walls[k].axis, self.dtype) * (-self.walls[k].side)
+                v = contact_velocity(v, n, self.wall_velocity[k], self.walls[k].contact, self.wall_friction[k])
+        return v

@@ -1,0 +1,665 @@
+"""MLS-MPM solver (Hu et al. 2018, "A Moving Least Squares Material Point Method with
+Displacement Discontinuity and Two-Way Rigid Body Coupling"), APIC transfers, quadratic
+B-splines, 2D and 3D, f32 and f64.
+
+A substep is four named kernels, in the paper's order::
+
+    clear_grid -> p2g -> grid_update -> g2p
+
+Design choices (measured on a 2-core CPU, see benchmarks/mpm_micro.py):
+
+* **Grid work bounded by the particles' bounding box.** The grid is a dense array over the
+  domain plus ``PAD`` cells, but ``clear_grid`` and ``grid_update`` only sweep the box of nodes
+  the particles touch. g2p computes that box from the new positions into a tiny field; the next
+  substep's grid loops read their range-for bounds from it on the device: no host sync.
+  Nodes outside the box may hold stale values; nothing reads them.
+* **P2G without atomics on the CPU.** Particles are split into ``T`` contiguous chunks
+  (T = threads); chunk t scatters into its own copy t of the grid with plain read-add-write, and
+  ``grid_update`` sums the copies in a fixed order. This removes the atomic float adds (a
+  compare-and-swap loop each on x86) and makes a run bitwise reproducible for a given thread
+  count. Each copy is cleared and summed only over its own chunk's bounding box. Taichi runs
+  a top-level range-for in tasks of >= 512 iterations on the CPU, so the chunk loop is written
+  as ``for j in range(T * 512): if j % 512 == 0`` to get one task per chunk; correctness does not
+  depend on that mapping (each chunk owns its copy), only the parallel speed-up does.
+  On GPUs the solver uses a single grid and atomic adds instead.
+* **Stress fused into p2g**, from the deformation gradient updated in g2p (F <- (I + dt C) F).
+* **Corotated rotation without SVD**: a warm-started quaternion rotation extraction
+  (Mueller et al. 2016) whose quaternion per particle is part of the restart state.
+* Particle state is struct-of-arrays (one field per quantity).
+"""
+
+
+import math
+from typing import Any
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.mpm.boundary import GridBoundary
+from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, law_key
+
+with stdout_to_stderr():
+    import taichi as ti
+
+PAD = 3  # grid cells beyond each domain face (the wall band)
+CHUNK_STRIDE = 512  # Taichi's smallest CPU range-for task (see module docstring)
+WAVE_SAFETY = 0.5  # dt <= WAVE_SAFETY * dx / c_p, c_p the P-wave speed (B1 runs at 0.47)
+
+OUTPUT_FIELDS = ("position", "velocity", "J", "stress", "material_id")
+
+
+class MPMSolver(Solver):
+    """The MPM family: every entity with an ``MPM.*`` material."""
+
+    family = "mpm"
+
+    def __init__(self, scene: Any, bodies: list[Body]) -> None:
+        super().__init__(scene, bodies)
+        if not bodies:
+            raise ValueError("MPMSolver needs at least one body")
+        self.dim = int(scene.sim.dim)
+        self.precision = scene.sim.precision
+        opts = scene.solvers.mpm
+        self.dx = float(opts.dx)
+        self.inv_dx = 1.0 / self.dx
+        self.cfl = float(opts.cfl)
+        lo, hi = scene.domain.bounds(self.dim)
+        self.domain_lo = np.asarray(lo, dtype=np.float64)
+        self.domain_hi = np.asarray(hi, dtype=np.float64)
+        if np.any(self.domain_hi <= self.domain_lo):
+            raise ValueError(f"domain: lower {lo} must be below upper {hi} on every axis")
+
+        # grid layout: node I at origin + I dx; domain faces at nodes lo_node / hi_node
+        self.origin = self.domain_lo - PAD * self.dx
+        ncells = np.ceil((self.domain_hi - self.domain_lo) / self.dx - 1e-6).astype(int)
+        self.lo_node = tuple([PAD] * self.dim)
+        self.hi_node = tuple(int(PAD + c) for c in ncells)
+        self.grid_shape = tuple(int(h + PAD + 1) for h in self.hi_node)
+
+        # bodies: contiguous particle ranges
+        names = [b.name for b in bodies]
+        if len(set(names)) != len(names):
+            raise ValueError(f"duplicate body names: {names}")
+        self.offsets = np.cumsum([0] + [b.n for b in bodies]).astype(np.int64)
+        self.n = int(self.offsets[-1])
+        if self.n == 0:
+            raise ValueError("MPMSolver: the bodies hold no particles")
+        self._index = {b.name: k for k, b in enumerate(bodies)}
+        for b in bodies:
+            if b.dim != self.dim:
+                raise ValueError(f"body {b.name!r} has dimension {b.dim}, the scene {self.dim}")
+
+        # materials: one id per distinct material config, one law per distinct model
+        self.materials: list[Any] = []
+        body_mid = []
+        for b in bodies:
+            mat = b.entity.material
+            if mat not in self.materials:
+                self.materials.append(mat)
+            body_mid.append(self.materials.index(mat))
+        self.body_mid = body_mid
+        self.law_keys: list[str] = []
+        for mat in self.materials:
+            key = law_key(mat)
+            if key not in LAWS:
+                raise ValueError(f"MPM material model {key!r} is not implemented")
+            if key not in self.law_keys:
+                self.law_keys.append(key)
+        self.mat_law = [self.law_keys.index(law_key(m)) for m in self.materials]
+        self.has_fixed = any(bool(np.any(b.fixed)) for b in bodies)
+
+        # P-wave speed of the stiffest material, for stable_dt
+        c_max = 0.0
+        for m in self.materials:
+            E, nu, rho = float(m.E), float(m.nu), float(m.rho)
+            c_max = max(c_max, math.sqrt(E * (1 - nu) / ((1 + nu) * (1 - 2 * nu) * rho)))
+        self.c_max = c_max
+        self._built = False
+
+    # ------------------------------------------------------------------ build
+
+    def build(self) -> None:
+        if self._built:
+            return
+        cfg = ti.lang.impl.current_cfg()
+        self.f = ti.f64 if self.precision == "f64" else ti.f32
+        self.npf = np.float64 if self.precision == "f64" else np.float32
+        self.arch = str(cfg.arch).split(".")[-1]
+        cpu = self.arch in ("x64", "arm64")
+        threads = int(getattr(cfg, "cpu_max_num_threads", 1) or 1)
+        self.chunked = cpu
+        self.T = max(1, min(threads, self.n)) if cpu else 1
+        dim, f, n, T = self.dim, self.f, self.n, self.T
+
+        # particles (struct of arrays)
+        self.x = ti.Vector.field(dim, f, shape=n)
+        self.v = ti.Vector.field(dim, f, shape=n)
+        self.C = ti.Matrix.field(dim, dim, f, shape=n)
+        self.F = ti.Matrix.field(dim, dim, f, shape=n)
+        self.mass = ti.field(f, shape=n)
+        self.vol = ti.field(f, shape=n)
+        self.mid = ti.field(ti.i32, shape=n)
+        self.fixed = ti.field(ti.u8, shape=n) if self.has_fixed else None
+
+        # grid: T private copies of (momentum, mass[, fixed mass]) + the updated velocity
+        self.gdim = dim + 1 + (1 if self.has_fixed else 0)
+        self.grid = ti.Vector.field(self.gdim, f, shape=(T,) + self.grid_shape)
+        self.grid_v = ti.Vector.field(dim, f, shape=self.grid_shape)
+        self.bbox = ti.Vector.field(dim, ti.i32, shape=(T, 2))  # per chunk [lo, hi) node box
+        self.bbox_all = ti.Vector.field(dim, ti.i32, shape=2)
+        self.chunk_start = ti.field(ti.i32, shape=T + 1)
+
+        # run-time parameters
+        nm = len(self.materials)
+        self.gravity = ti.Vector.field(dim, f, shape=())
+        self.mat_mu = ti.field(f, shape=nm)
+        self.mat_lam = ti.field(f, shape=nm)
+        self.mat_law_id = ti.field(ti.i32, shape=nm)
+
+        # per-entity frame statistics and outputs
+        nb = len(self.bodies)
+        self.body_offsets = ti.field(ti.i32, shape=nb + 1)
+        self.stat_speed = ti.field(f, shape=nb)
+        self.stat_bad = ti.field(ti.i32, shape=nb)
+        self.out_J = ti.field(f, shape=n)
+        self.out_vm = ti.field(f, shape=n)
+
+        self.laws: list[ConstitutiveLaw] = [LAWS[k](dim, f) for k in self.law_keys]
+        for law in self.laws:
+            law.allocate(n)
+        self.boundary = GridBoundary(self.scene, dim, f, self.origin, self.dx, self.lo_node, self.hi_node)
+        self.boundary.allocate()
+
+        self._upload()
+        self._make_kernels()
+        self._compute_bbox()
+        self._built = True
+        self._version = 0
+        self._cache: dict = {}
+        # compile the per-frame kernels now, so the first frame write does not pay for them
+        self.frame_check()
+        self._outputs()
+
+    def _upload(self) -> None:
+        npf = self.npf
+        xs = np.concatenate([b.x for b in self.bodies])
+        if not np.all(np.isfinite(xs)):
+            raise ValueError("MPMSolver: initial particle positions are not finite")
+        eps = 1e-9 * self.dx
+        for b in self.bodies:
+            if b.n and (np.any(b.x < self.domain_lo - eps) or np.any(b.x > self.domain_hi + eps)):
+                raise ValueError(f"entity {b.name!r}: particles outside the domain "
+                                 f"{self.domain_lo.tolist()} - {self.domain_hi.tolist()}")
+        xs = np.clip(xs, self.domain_lo, self.domain_hi)
+        self.x.from_numpy(xs.astype(npf))
+        self.v.from_numpy(np.concatenate([b.v for b in self.bodies]).astype(npf))
+        eye = np.broadcast_to(np.eye(self.dim), (self.n, self.dim, self.dim))
+        self.F.from_numpy(np.ascontiguousarray(eye, dtype=npf))
+        self.C.from_numpy(np.zeros((self.n, self.dim, self.dim), npf))
+        self.mass.from_numpy(np.concatenate([b.mass for b in self.bodies]).astype(npf))
+        self.vol.from_numpy(np.concatenate([b.volume for b in self.bodies]).astype(npf))
+        self.mid.from_numpy(np.concatenate([np.full(b.n, m, np.int32) for b, m in zip(self.bodies, self.body_mid)]))
+        if self.fixed is not None:
+            self.fixed.from_numpy(np.concatenate([b.fixed for b in self.bodies]).astype(np.uint8))
+        self.chunk_start.from_numpy((np.arange(self.T + 1, dtype=np.int64) * self.n // self.T).astype(np.int32))
+        self.body_offsets.from_numpy(self.offsets.astype(np.int32))
+        self.set_gravity(self.scene.sim.gravity_vec)
+        self.mat_mu.from_numpy(np.array([m.mu for m in self.materials], npf))
+        self.mat_lam.from_numpy(np.array([m.lam for m in self.materials], npf))
+        self.mat_law_id.from_numpy(np.array(self.mat_law, np.int32))
+        for law in self.laws:
+            law.init_state()
+
+    def set_gravity(self, g: list[float]) -> None:
+        """Gravity is run-time data: changing it does not recompile anything."""
+        if len(g) != self.dim:
+            raise ValueError(f"gravity needs {self.dim} components")
+        self.gravity[None] = [float(c) for c in g]
+
+    # ---------------------------------------------------------------- kernels
+
+    def _make_kernels(self) -> None:  # noqa: C901 - one closure per kernel, read top to bottom
+        dim, f, n, T = self.dim, self.f, self.n, self.T
+        gdim, chunked, has_fixed = self.gdim, self.chunked, self.has_fixed
+        x, v, C, F, mass, vol, mid, fixed = self.x, self.v, self.C, self.F, self.mass, self.vol, self.mid, self.fixed
+        grid, grid_v, bbox, bbox_all, chunk_start = self.grid, self.grid_v, self.bbox, self.bbox_all, self.chunk_start
+        gravity, mat_mu, mat_lam, mat_law_id = self.gravity, self.mat_mu, self.mat_lam, self.mat_law_id
+        laws, boundary = self.laws, self.boundary
+        n_laws = len(laws)
+        any_plastic = any(law.plastic for law in laws)
+        dx, inv_dx = self.dx, self.inv_dx
+        origin = ti.Vector(list(self.origin), dt=f)
+        dom_lo = ti.Vector(list(self.domain_lo), dt=f)
+        dom_hi = ti.Vector(list(self.domain_hi), dt=f)
+        stencil = ti.ndrange(*([3] * dim))
+        big = 1 << 30
+        one = 1.0
+
+        @ti.func
+        def chunk_of(j):
+            """Chunk index of outer iteration j, or -1 (see CHUNK_STRIDE)."""
+            t = -1
+            if j % CHUNK_STRIDE == 0:
+                t = j // CHUNK_STRIDE
+            return t
+
+        @ti.func
+        def bspline(xp):
+            Xp = (xp - origin) * inv_dx
+            base = ti.cast(Xp - 0.5, ti.i32)  # floor: Xp >= PAD > 0.5
+            fx = Xp - ti.cast(base, f)
+            w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
+            return base, fx, w
+
+        @ti.func
+        def kirchhoff(p, Fp, J, update: ti.template()):
+            m = mid[p]
+            mu = mat_mu[m]
+            lam = mat_lam[m]
+            tau = ti.Matrix.zero(f, dim, dim)
+            if ti.static(n_laws == 1):
+                tau = laws[0].kirchhoff(p, Fp, J, mu, lam, update)
+            else:
+                lid = mat_law_id[m]
+                for k in ti.static(range(n_laws)):
+                    if lid == k:
+                        tau = laws[k].kirchhoff(p, Fp, J, mu, lam, update)
+            return tau
+
+        @ti.func
+        def p2g_particle(p, t, dt):
+            base, fx, w = bspline(x[p])
+            Fp = F[p]
+            J = Fp.determinant()
+            tau = kirchhoff(p, Fp, J, True)
+            m = mass[p]
+            # MLS-MPM (Hu et al. 2018, eq. 16/29): momentum m v + (m C - dt V0 D^-1 tau) (x_i - x_p),
+            # D^-1 = 4 / dx^2 for quadratic B-splines
+            affine = (-dt * vol[p] * 4.0 * inv_dx * inv_dx) * tau + m * C[p]
+            q0 = m * v[p] - affine @ (fx * dx)  # the part of the node value independent of the offset
+            A = affine * dx
+            fm = 0.0
+            if ti.static(has_fixed):
+                fm = m * ti.cast(fixed[p], f)
+            for off in ti.static(ti.grouped(stencil)):
+                weight = one
+                for d in ti.static(range(dim)):
+                    weight *= w[off[d]][d]
+                val = q0 + A @ off
+                contrib = ti.Vector.zero(f, gdim)
+                for d in ti.static(range(dim)):
+                    contrib[d] = weight * val[d]
+                contrib[dim] = weight * m
+                if ti.static(has_fixed):
+                    contrib[dim + 1] = weight * fm
+                I = base + off
+                if ti.static(chunked):
+                    grid[t, I] = grid[t, I] + contrib  # chunk t owns copy t: no atomics needed
+                else:
+                    grid[0, I] += contrib
+
+        @ti.func
+        def g2p_particle(p, dt):
+            base, fx, w = bspline(x[p])
+            new_v = ti.Vector.zero(f, dim)
+            B = ti.Matrix.zero(f, dim, dim)
+            for off in ti.static(ti.grouped(stencil)):
+                weight = one
+                for d in ti.static(range(dim)):
+                    weight *= w[off[d]][d]
+                wv = weight * grid_v[base + off]
+                new_v += wv
+                B += wv.outer_product(off)
+            # sum_i w_i v_i (i - fx)^T = sum_i w_i v_i i^T - v fx^T ; C = D^-1 sum w v (x_i - x_p)^T
+            new_C = (4.0 * inv_dx) * (B - new_v.outer_product(fx))
+            is_fixed = False
+            if ti.static(has_fixed):
+                is_fixed = fixed[p] != 0
+            if is_fixed:
+                v[p] = ti.Vector.zero(f, dim)
+                C[p] = ti.Matrix.zero(f, dim, dim)
+            else:
+                Fp = (ti.Matrix.identity(f, dim) + dt * new_C) @ F[p]
+                if ti.static(any_plastic):
+                    m = mid[p]
+                    for k in ti.static(range(n_laws)):
+                        if ti.static(laws[k].plastic):
+                            if mat_law_id[m] == k:
+                                Fp = laws[k].return_mapping(p, Fp, m)
+                F[p] = Fp
+                v[p] = new_v
+                C[p] = new_C
+                x[p] = ti.min(ti.max(x[p] + dt * new_v, dom_lo), dom_hi)
+
+        @ti.func
+        def particle_base(p):
+            Xp = (x[p] - origin) * inv_dx
+            return ti.cast(Xp - 0.5, ti.i32)
+
+        @ti.func
+        def clear_copy(t):
+            """Zero copy t of the grid over the node box of chunk t (the nodes p2g will write)."""
+            a = bbox[t, 0]
+            b = bbox[t, 1]
+            if ti.static(dim == 3):
+                for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
+                    grid[t, i, j, k] = ti.Vector.zero(f, gdim)
+            else:
+                for i, j in ti.ndrange((a[0], b[0]), (a[1], b[1])):
+                    grid[t, i, j] = ti.Vector.zero(f, gdim)
+
+        @ti.func
+        def clear_grid():
+            # chunked (CPU): each chunk clears its own copy at the start of its p2g task, see p2g
+            if ti.static(not chunked):
+                clear_copy(0)
+
+        @ti.func
+        def p2g(dt):
+            if ti.static(chunked):
+                for j in range(T * CHUNK_STRIDE):
+                    t = chunk_of(j)
+                    if t >= 0:
+                        clear_copy(t)  # serial inside the chunk's task: saves a parallel launch
+                        for p in range(chunk_start[t], chunk_start[t + 1]):
+                            p2g_particle(p, t, dt)
+            else:
+                for p in range(n):
+                    p2g_particle(p, 0, dt)
+
+        @ti.func
+        def node_update(I, dt):
+            g = ti.Vector.zero(f, gdim)
+            if ti.static(T == 1):
+                g = grid[0, I]
+            else:
+                for t in ti.static(range(T)):
+                    a = bbox[t, 0]
+                    b = bbox[t, 1]
+                    inside = True
+                    for d in ti.static(range(dim)):
+                        inside = inside and a[d] <= I[d] and I[d] < b[d]
+                    if inside:  # outside its chunk's box a copy holds stale values
+                        g += grid[t, I]
+            m = g[dim]
+            vI = ti.Vector.zero(f, dim)
+            if m > 0:
+                for d in ti.static(range(dim)):
+                    vI[d] = g[d] / m
+                vI += dt * gravity[None]
+                pinned = False
+                if ti.static(has_fixed):
+                    pinned = g[dim + 1] > 0
+                if pinned:
+                    vI = ti.Vector.zero(f, dim)
+                else:
+                    vI = boundary.apply(I, vI)
+            grid_v[I] = vI
+
+        @ti.func
+        def grid_update(dt):
+            lo = bbox[0, 0]
+            hi = bbox[0, 1]
+            for t in ti.static(range(1, T)):
+                lo = ti.min(lo, bbox[t, 0])
+                hi = ti.max(hi, bbox[t, 1])
+            bbox_all[0] = lo
+            bbox_all[1] = hi
+            a = bbox_all[0]
+            b = bbox_all[1]
+            if ti.static(dim == 3):
+                for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
+                    node_update(ti.Vector([i, j, k]), dt)
+            else:
+                for i, j in ti.ndrange((a[0], b[0]), (a[1], b[1])):
+                    node_update(ti.Vector([i, j]), dt)
+
+        @ti.func
+        def g2p(dt):
+            if ti.static(chunked):
+                for j in range(T * CHUNK_STRIDE):
+                    t = chunk_of(j)
+                    if t >= 0:
+                        lo = ti.Vector([big] * dim)
+                        hi = ti.Vector([-big] * dim)
+                        for p in range(chunk_start[t], chunk_start[t + 1]):
+                            g2p_particle(p, dt)
+                            bp = particle_base(p)
+                            lo = ti.min(lo, bp)
+                            hi = ti.max(hi, bp)
+                        bbox[t, 0] = lo
+                        bbox[t, 1] = hi + 3
+            else:
+                bbox[0, 0] = ti.Vector([big] * dim)
+                bbox[0, 1] = ti.Vector([-big] * dim)
+                for p in range(n):
+                    g2p_particle(p, dt)
+                    bp = particle_base(p)
+                    for d in ti.static(range(dim)):
+                        ti.atomic_min(bbox[0, 0][d], bp[d])
+                        ti.atomic_max(bbox[0, 1][d], bp[d] + 3)
+
+        @ti.kernel
+        def substep(dt: f):
+            # one launch per substep: each top-level loop below is one parallel task, and on the
+            # CPU every kernel launch and every parallel task costs tens of microseconds
+            clear_grid()
+            p2g(dt)
+            grid_update(dt)
+            g2p(dt)
+
+        # the same stages one kernel each, for tests and profiling (not on the hot path)
+        @ti.kernel
+        def stage_p2g(dt: f):
+            clear_grid()
+            p2g(dt)
+
+        @ti.kernel
+        def stage_grid_update(dt: f):
+            grid_update(dt)
+
+        @ti.kernel
+        def stage_g2p(dt: f):
+            g2p(dt)
+
+        @ti.kernel
+        def compute_bbox():
+            if ti.static(chunked):
+                for j in range(T * CHUNK_STRIDE):
+                    t = chunk_of(j)
+                    if t >= 0:
+                        lo = ti.Vector([big] * dim)
+                        hi = ti.Vector([-big] * dim)
+                        for p in range(chunk_start[t], chunk_start[t + 1]):
+                            bp = particle_base(p)
+                            lo = ti.min(lo, bp)
+                            hi = ti.max(hi, bp)
+                        bbox[t, 0] = lo
+                        bbox[t, 1] = hi + 3
+            else:
+                bbox[0, 0] = ti.Vector([big] * dim)
+                bbox[0, 1] = ti.Vector([-big] * dim)
+                for p in range(n):
+                    bp = particle_base(p)
+                    for d in ti.static(range(dim)):
+                        ti.atomic_min(bbox[0, 0][d], bp[d])
+                        ti.atomic_max(bbox[0, 1][d], bp[d] + 3)
+
+        # ---- per-frame kernels
+        nb = len(self.bodies)
+        body_offsets, stat_speed, stat_bad = self.body_offsets, self.stat_speed, self.stat_bad
+        out_J, out_vm = self.out_J, self.out_vm
+        f64 = f == ti.f64
+
+        @ti.func
+        def finite(a):
+            # exponent bits all ones = inf or NaN; bit test because fast-math may drop isnan
+            ok = True
+            for d in ti.static(range(a.n)):
+                if ti.static(f64):
+                    ok = ok and ((ti.bit_cast(a[d], ti.i64) >> 52) & 0x7FF) != 0x7FF
+                else:
+                    ok = ok and ((ti.bit_cast(a[d], ti.i32) >> 23) & 0xFF) != 0xFF
+            return ok
+
+        @ti.func
+        def body_of(p):
+            lo = 0
+            if ti.static(nb > 1):
+                hi = nb
+                while hi - lo > 1:
+                    m = (lo + hi) // 2
+                    if body_offsets[m] <= p:
+                        lo = m
+                    else:
+                        hi = m
+            return lo
+
+        @ti.kernel
+        def frame_stats():
+            for b in range(nb):
+                stat_speed[b] = 0.0
+                stat_bad[b] = 0
+            for p in range(n):
+                b = body_of(p)
+                vp = v[p]
+                if finite(x[p]) and finite(vp):
+                    ti.atomic_max(stat_speed[b], vp.norm())
+                else:
+                    ti.atomic_add(stat_bad[b], 1)
+
+        @ti.kernel
+        def outputs():
+            for p in range(n):
+                Fp = F[p]
+                J = Fp.determinant()
+                tau = kirchhoff(p, Fp, J, False)
+                invJ = 0.0
+                if J != 0:
+                    invJ = 1.0 / J
+                s = tau * invJ  # Cauchy stress
+                vm = 0.0
+                if ti.static(dim == 3):
+                    dev = s - ti.Matrix.identity(f, 3) * (s.trace() / 3.0)
+                    vm = ti.sqrt(1.5 * (dev * dev).sum())
+                else:
+                    # plane strain: add the out-of-plane normal stress
+                    szz = 0.0
+                    m = mid[p]
+                    if ti.static(n_laws == 1):
+                        szz = laws[0].tau_zz(Fp, J, mat_mu[m], mat_lam[m]) * invJ
+                    else:
+                        for k in ti.static(range(n_laws)):
+                            if mat_law_id[m] == k:
+                                szz = laws[k].tau_zz(Fp, J, mat_mu[m], mat_lam[m]) * invJ
+                    mean = (s[0, 0] + s[1, 1] + szz) / 3.0
+                    d0 = s[0, 0] - mean
+                    d1 = s[1, 1] - mean
+                    d2 = szz - mean
+                    vm = ti.sqrt(1.5 * (d0 * d0 + d1 * d1 + d2 * d2 + s[0, 1] * s[0, 1] + s[1, 0] * s[1, 0]))
+                out_J[p] = J
+                out_vm[p] = vm
+
+        self._substep = substep
+        self._stage_p2g, self._stage_grid_update, self._stage_g2p = stage_p2g, stage_grid_update, stage_g2p
+        self._compute_bbox, self._frame_stats, self._outputs = compute_bbox, frame_stats, outputs
+
+    # ---------------------------------------------------------------- stepping
+
+    def substep(self, dt: float) -> None:
+        self._substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
+        self._version += 1
+
+    # ------------------------------------------------------------ frame checks
+
+    def frame_check(self) -> dict[str, FrameStats]:
+        self._frame_stats()
+        speed = self.stat_speed.to_numpy()
+        bad = self.stat_bad.to_numpy()
+        out = {}
+        for k, b in enumerate(self.bodies):
+            nbad = int(bad[k])
+            out[b.name] = FrameStats(finite=nbad == 0, max_speed=float(speed[k]) if nbad == 0 else float("inf"),
+                                     n_bad=nbad)
+        return out
+
+    def stable_dt(self) -> float:
+        """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p) [s]; one reduction kernel."""
+        self._frame_stats()
+        vmax = float(np.max(self.stat_speed.to_numpy()))
+        dt_wave = WAVE_SAFETY * self.dx / self.c_max if self.c_max > 0 else math.inf
+        dt_cfl = self.cfl * self.dx / vmax if vmax > 0 else math.inf
+        return float(min(dt_wave, dt_cfl))
+
+    # ------------------------------------------------------------------ output
+
+    def _full(self, key: str) -> np.ndarray:
+        hit = self._cache.get(key)
+        if hit is not None and hit[0] == self._version:
+            return hit[1]
+        if key == "position":
+            arr = self.x.to_numpy()
+        elif key == "velocity":
+            arr = self.v.to_numpy()
+        elif key in ("J", "stress"):
+            self._outputs()
+            self._cache["J"] = (self._version, self.out_J.to_numpy())
+            self._cache["stress"] = (self._version, self.out_vm.to_numpy())
+            return self._cache[key][1]
+        elif key == "material_id":
+            arr = self.mid.to_numpy()
+        else:
+            raise KeyError(f"unknown MPM output field {key!r}; known: {', '.join(OUTPUT_FIELDS)}")
+        self._cache[key] = (self._version, arr)
+        return arr
+
+    def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
+        k = self._index[name]
+        lo, hi = int(self.offsets[k]), int(self.offsets[k + 1])
+        return {fld: np.array(self._full(fld)[lo:hi]) for fld in fields}
+
+    # ------------------------------------------------------------------- state
+
+    def get_state(self) -> dict[str, np.ndarray]:
+        state = {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "C": self.C.to_numpy(), "F": self.F.to_numpy()}
+        for law in self.laws:
+            state.update(law.get_state())
+        return state
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        npf = self.npf
+        shapes = {"x": (self.n, self.dim), "v": (self.n, self.dim), "C": (self.n, self.dim, self.dim),
+                  "F": (self.n, self.dim, self.dim)}
+        for key, fld in (("x", self.x), ("v", self.v), ("C", self.C), ("F", self.F)):
+            arr = np.ascontiguousarray(state[key], dtype=npf)
+            if arr.shape != shapes[key]:
+                raise ValueError(f"MPM state {key!r}: shape {arr.shape}, expected {shapes[key]}")
+            fld.from_numpy(arr)
+        for law in self.laws:
+            law.set_state(state)
+        self._compute_bbox()
+        self._version += 1
+
+    # ------------------------------------------------------------------ counts
+
+    def counts(self) -> dict[str, int]:
+        active = 0
+        if self._built:  # node box the next substep works on (union over the chunks)
+            b = self.bbox.to_numpy()
+            active = int(np.prod(np.maximum(b[:, 1].max(axis=0) - b[:, 0].min(axis=0), 0)))
+        return {
+            "particles": self.n,
+            "grid_cells": int(np.prod(self.grid_shape)),
+            "grid_copies": self.T if self._built else 0,
+            "active_cells": active,
+        }
+
+    def info(self) -> dict[str, Any]:
+        return {
+            "transfer": "MLS-MPM / APIC, quadratic B-splines",
+            "grid": f"dense {self.grid_shape}, work limited to the particles' bounding box",
+            "p2g": f"{self.T} private grid copies, no atomics" if self.chunked else "atomic adds",
+            "laws": list(self.law_keys),
+            "colliders": [c.kind for c in self.boundary.colliders] if self._built else [],
+        }
