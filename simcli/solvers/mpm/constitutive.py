@@ -62,7 +62,10 @@ def extract_rotation(A, q, max_iter: ti.template(), tol):
     (r_i, a_i the columns of R and A), which drives R towards the maximiser of tr(R^T A) over
     SO(3): the rotation of the polar decomposition A = R S when det A > 0, and the same
     "rotation-variant" R = U diag(1, 1, det(U V^T)) V^T as an SVD-based polar when det A <= 0.
-    Warm-started from the previous substep's rotation it needs one or two iterations.
+    Warm-started from the previous substep's rotation it needs one or two iterations at small
+    strains; each iteration shrinks the error by about (s_max - s_min)/(s_max + s_min) of the
+    stretch, so large anisotropic stretches need more (the solver allows up to
+    ``rotation_iters`` per substep and stops at ``tol``).
     Returns the new unit quaternion.
     """
     for _ in range(max_iter):
@@ -110,7 +113,7 @@ class ConstitutiveLaw:
     key: ClassVar[str] = ""
     plastic: ClassVar[bool] = False  # True when return_mapping changes F
 
-    def __init__(self, dim: int, dtype: Any, rotation_iters: int = 4) -> None:
+    def __init__(self, dim: int, dtype: Any, rotation_iters: int = 8) -> None:
         self.dim = dim
         self.dtype = dtype
         self.rotation_iters = rotation_iters
