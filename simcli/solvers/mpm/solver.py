@@ -115,6 +115,9 @@ class MPMSolver(Solver):
             E, nu, rho = float(m.E), float(m.nu), float(m.rho)
             c_max = max(c_max, math.sqrt(E * (1 - nu) / ((1 + nu) * (1 - 2 * nu) * rho)))
         self.c_max = c_max
+        # "auto": private grid copies on the CPU, atomics elsewhere; "atomic" forces the GPU path
+        # (tests run it on the CPU), "chunked" the CPU one
+        self.p2g_mode = "auto"
         self._built = False
 
     # ------------------------------------------------------------------ build
@@ -128,8 +131,12 @@ class MPMSolver(Solver):
         self.arch = str(cfg.arch).split(".")[-1]
         cpu = self.arch in ("x64", "arm64")
         threads = int(getattr(cfg, "cpu_max_num_threads", 1) or 1)
-        self.chunked = cpu
-        self.T = max(1, min(threads, self.n)) if cpu else 1
+        if self.p2g_mode not in ("auto", "chunked", "atomic"):
+            raise ValueError(f"p2g_mode must be auto, chunked or atomic, not {self.p2g_mode!r}")
+        if self.p2g_mode == "chunked" and not cpu:
+            raise ValueError("p2g_mode 'chunked' needs the CPU backend")
+        self.chunked = cpu if self.p2g_mode == "auto" else self.p2g_mode == "chunked"
+        self.T = max(1, min(threads, self.n)) if self.chunked else 1
         dim, f, n, T = self.dim, self.f, self.n, self.T
 
         # particles (struct of arrays)
