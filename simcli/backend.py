@@ -33,6 +33,18 @@ def default_cache_dir() -> str:
     return os.path.join(base, "simcli", "taichi")
 
 
+def _has_gpu_driver() -> bool:
+    """Whether a CUDA driver library can be loaded (Taichi's own probe prints warnings)."""
+    import ctypes.util
+
+    if ctypes.util.find_library("cuda"):
+        return True
+    for p in ("/usr/lib/x86_64-linux-gnu/libcuda.so.1", "/usr/lib64/libcuda.so.1", "/usr/lib/wsl/lib/libcuda.so.1"):
+        if os.path.exists(p):
+            return True
+    return sys.platform == "darwin"  # Metal
+
+
 def init_taichi(backend: str = "cpu", precision: str = "f32", threads: int | None = None,
                 debug: bool = False) -> dict:
     """Initialise Taichi once per process and return facts about it.
@@ -42,14 +54,15 @@ def init_taichi(backend: str = "cpu", precision: str = "f32", threads: int | Non
     """
     if _STATE:
         return dict(_STATE)
-    os.environ.setdefault("TI_LOG_LEVEL", "warn")
-    os.environ.setdefault("TI_ENABLE_CUDA_WARNINGS", "0")
+    os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")  # the version banner
     t0 = time.perf_counter()
     with stdout_to_stderr():
         import taichi as ti
     import_s = time.perf_counter() - t0
 
     arch_map = {"cpu": ti.cpu, "gpu": ti.gpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "metal": ti.metal, "auto": ti.gpu}
+    if backend == "auto" and not _has_gpu_driver():
+        backend = "cpu"
     fp = ti.f64 if precision == "f64" else ti.f32
     cache = os.environ.get("SIMCLI_KERNEL_CACHE", default_cache_dir())
     kwargs = dict(default_fp=fp, default_ip=ti.i32, offline_cache=True, offline_cache_file_path=cache,

@@ -27,7 +27,7 @@ class Progress:
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.interval = interval_s if interval_s is not None else (0.2 if self.tty else 5.0)
         self.t0 = time.perf_counter()
-        self.last = 0.0
+        self.last = self.t0
         self._drawn = False
 
     def update(self, step: int) -> None:
