@@ -87,7 +87,8 @@ class _Signals:
         for n in self.NAMES:
             s = getattr(signal, n, None)
             if s is not None:
-                self._old[s] = signal.signal(s, self._handler)
+                old = signal.signal(s, self._handler)
+                self._old.setdefault(s, old)
 
     def restore(self):
         for s, h in self._old.items():
@@ -231,6 +232,7 @@ class Runner:
         from simcli.backend import init_taichi
 
         ti_info = init_taichi(self.backend, sim.precision, sim.threads)
+        self.signals.install()  # Taichi installs handlers of its own in ti.init: ours must win
         self.timings["taichi_init_s"] = ti_info["import_s"] + ti_info["init_s"]
         self.info.update(backend=ti_info["arch"], requested_backend=self.backend, threads=ti_info["threads"],
                          precision=sim.precision, kernel_cache=ti_info["cache"], versions=_versions(ti_info))
