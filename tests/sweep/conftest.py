@@ -32,3 +32,8 @@ def make_sweep(tmp_path):
         return p
 
     return make
+
+
+def pytest_configure(config):
+    # also registered in pyproject.toml; here so that --strict-markers accepts it either way
+    config.addinivalue_line("markers", "slurm: needs the Slurm binaries; starts a one-node cluster (pytest -m slurm)")

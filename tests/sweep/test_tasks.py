@@ -73,7 +73,8 @@ def test_task_runs_and_rerun_is_a_no_op(sweep, tmp_path, capfd):
     assert len(json.loads((out / TASK_FILE).read_text())["attempts"]) == 1
 
 
-def test_usr1_checkpoints_then_rerun_resumes(sweep, tmp_path, monkeypatch):
+@pytest.mark.parametrize("sig", [signal.SIGUSR1, signal.SIGTERM])
+def test_signal_checkpoints_then_rerun_resumes(sweep, tmp_path, monkeypatch, sig):
     p_sweep = sweep(steps=2000)
     monkeypatch.setenv("FAKE_SIM_STEP_S", "0.01")
     out = tmp_path / "out" / "n2000"
@@ -81,7 +82,7 @@ def test_usr1_checkpoints_then_rerun_resumes(sweep, tmp_path, monkeypatch):
                          stderr=subprocess.PIPE, text=True)
     assert _wait_for(lambda: (out / "run.json").exists() and _rj(out)["status"] == "running")
     time.sleep(0.1)
-    p.send_signal(signal.SIGUSR1)  # to the driver: it forwards to the simulation
+    p.send_signal(sig)  # to the driver: it forwards to the simulation
     _, err = p.communicate(timeout=20)
     assert p.returncode == 75, err
     assert "interrupted (exit 75)" in err
