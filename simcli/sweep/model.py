@@ -93,6 +93,17 @@ def sweep_schema_text() -> str:
     return json.dumps(sweep_schema(), indent=2, sort_keys=True) + "\n"
 
 
+def looks_like_sweep(path: str | Path) -> bool:
+    """True for a sweep file (a top-level ``base:`` key), so ``simcli validate`` can route it here."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return False
+    return isinstance(data, dict) and "base" in data and "entities" not in data
+
+
 # --------------------------------------------------------------------------- runs
 
 

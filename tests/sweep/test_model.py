@@ -226,3 +226,11 @@ def test_committed_sweep_schema_is_current(tmp_path):
     written = write_schemas(tmp_path)
     assert (tmp_path / "sweep.schema.json") in written
     assert (tmp_path / "sweep.schema.json").read_text() == committed
+
+
+def test_sweep_files_are_recognised(make_sweep):
+    from simcli.sweep.model import looks_like_sweep
+    from tests.sweep.conftest import TINY
+
+    assert looks_like_sweep(make_sweep("base: tiny.yaml\n"))
+    assert not looks_like_sweep(TINY)
