@@ -67,6 +67,9 @@ def validate(scenes: tuple[Path, ...], sets: tuple[str, ...], quiet: bool) -> No
 
     bad = 0
     for path in scenes:
+        if _is_sweep(path):
+            bad += _validate_sweep(path, quiet)
+            continue
         try:
             loaded = load_scene(path, sets)
         except SceneError as e:
@@ -78,6 +81,30 @@ def validate(scenes: tuple[Path, ...], sets: tuple[str, ...], quiet: bool) -> No
             s = loaded.scene
             _err(f"{path}: ok ({len(s.entities)} entities, dim {s.sim.dim}, {s.sim.n_steps} steps)")
     sys.exit(EXIT_INVALID_SCENE if bad else EXIT_OK)
+
+
+def _is_sweep(path: Path) -> bool:
+    try:
+        from simcli.sweep.model import looks_like_sweep
+    except ImportError:
+        return False
+    return looks_like_sweep(path)
+
+
+def _validate_sweep(path: Path, quiet: bool) -> int:
+    """A sweep file given to `validate`: check it and every scene it expands to."""
+    from simcli.sweep.model import load_sweep, validate_runs
+
+    try:
+        ls = load_sweep(path)
+        lines = validate_runs(ls)
+    except SceneError as e:
+        lines = e.lines
+    for line in lines:
+        _err(line)
+    if not lines and not quiet:
+        _err(f"{path}: ok (sweep of {len(ls.runs)} runs)")
+    return 1 if lines else 0
 
 
 @cli.command()
