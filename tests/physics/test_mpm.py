@@ -304,6 +304,40 @@ def test_sticky_sphere_holds_its_cube(obstacles):
     assert abs(com(p, np.ones(len(p)))[0] - SPHERE_C[0]) < 0.02
 
 
+# ---------------------------------------------------------- 2D Coulomb friction on the floor
+
+
+def test_sliding_block_decelerates_at_mu_g(ti_f32):
+    """A block sliding on a floor with Coulomb friction mu: v(t) = v0 - mu g t, stop at v0^2 / (2 mu g)."""
+    from simcli.solvers.mpm import MPMSolver
+
+    mu, v0, dx, h = 0.3, 1.0, 1 / 64, 2.5e-4
+    lo, hi = (0.1, 1.2 * dx), (0.2, 1.2 * dx + 0.05)  # about where the grid contact lets it rest
+    scene = make_scene(
+        sim={"dim": 2},
+        domain={"lower": [0.0, 0.0], "upper": [1.0, 0.5], "faces": {"y-": {"type": "slip", "friction": mu}}},
+        solvers={"mpm": {"grid_density": 64}},
+        entities=[{"name": "b", "material": elastic(), "morph": box(lo, hi)}],
+    )
+    body = make_body(scene.entities[0], lo, hi, dx / 2)
+    solver = MPMSolver(scene, [body])
+    solver.build()
+    for _ in range(800):  # settle for 0.2 s
+        solver.substep(h)
+    state = solver.get_state()
+    state["v"][:, 0] += v0
+    solver.set_state(state)
+    x0 = solver.entity_arrays("b", ["position"])["position"][:, 0].mean()
+    for k in range(1, 2001):
+        solver.substep(h)
+        if k % 400 == 0 and k * h < 0.3:
+            v = solver.entity_arrays("b", ["velocity"])["velocity"][:, 0].mean()
+            assert v == pytest.approx(v0 - mu * G * k * h, abs=0.03), k * h
+    a = solver.entity_arrays("b", ["position", "velocity"])
+    assert abs(a["velocity"][:, 0].mean()) < 0.05  # stopped
+    assert a["position"][:, 0].mean() - x0 == pytest.approx(v0 ** 2 / (2 * mu * G), rel=0.05)
+
+
 # ------------------------------------------------------------------ 2D fixed cantilever
 
 

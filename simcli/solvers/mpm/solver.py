@@ -44,6 +44,7 @@ with stdout_to_stderr():
 
 PAD = 3  # grid cells beyond each domain face (the wall band)
 CHUNK_STRIDE = 512  # Taichi's smallest CPU range-for task (see module docstring)
+MAX_PRIVATE_GRID_BYTES = 1 << 30  # memory allowed for the per-thread grid copies of P2G
 WAVE_SAFETY = 0.5  # dt <= WAVE_SAFETY * dx / c_p, c_p the P-wave speed (B1 runs at 0.47)
 
 OUTPUT_FIELDS = ("position", "velocity", "J", "stress", "material_id")
@@ -135,8 +136,14 @@ class MPMSolver(Solver):
             raise ValueError(f"p2g_mode must be auto, chunked or atomic, not {self.p2g_mode!r}")
         if self.p2g_mode == "chunked" and not cpu:
             raise ValueError("p2g_mode 'chunked' needs the CPU backend")
-        self.chunked = cpu if self.p2g_mode == "auto" else self.p2g_mode == "chunked"
-        self.T = max(1, min(threads, self.n)) if self.chunked else 1
+        T = max(1, min(threads, self.n))
+        copy_bytes = int(np.prod(self.grid_shape)) * (self.dim + 2) * (8 if self.precision == "f64" else 4)
+        if self.p2g_mode == "auto":
+            # private copies cost T grids of memory: beyond the budget, atomics on one grid
+            self.chunked = cpu and T * copy_bytes <= MAX_PRIVATE_GRID_BYTES
+        else:
+            self.chunked = self.p2g_mode == "chunked"
+        self.T = T if self.chunked else 1
         dim, f, n, T = self.dim, self.f, self.n, self.T
 
         # particles (struct of arrays)
