@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from simcli.backend import init_taichi  # noqa: E402
+from simcli.backend import init_taichi
 
 
 def lattice_box(lo, hi, spacing):

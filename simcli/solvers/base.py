@@ -43,7 +43,7 @@ class Body:
     """
 
     name: str
-    entity: "Entity"
+    entity: Entity
     x: np.ndarray
     v: np.ndarray
     volume: np.ndarray
@@ -75,7 +75,7 @@ class Solver:
 
     family: ClassVar[str] = ""
 
-    def __init__(self, scene: "Scene", bodies: list[Body]) -> None:
+    def __init__(self, scene: Scene, bodies: list[Body]) -> None:
         self.scene = scene
         self.bodies = list(bodies)
 

@@ -57,7 +57,7 @@ def rot_kernels(ti_f32):
         for p in range(n):
             R2[p] = polar_rotation_2d(F2[p])
 
-    return dict(n=n, F3=F3, R3=R3, q=q, F2=F2, R2=R2, rot3=rot3, rot2=rot2)
+    return {"n": n, "F3": F3, "R3": R3, "q": q, "F2": F2, "R2": R2, "rot3": rot3, "rot2": rot2}
 
 
 def _cold_start(k, Fs, iters):

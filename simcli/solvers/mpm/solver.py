@@ -233,7 +233,7 @@ class MPMSolver(Solver):
 
     # ---------------------------------------------------------------- kernels
 
-    def _make_kernels(self) -> None:  # noqa: C901 - one closure per kernel, read top to bottom
+    def _make_kernels(self) -> None:
         dim, f, n, T = self.dim, self.f, self.n, self.T
         gdim, chunked, has_fixed = self.gdim, self.chunked, self.has_fixed
         x, v, C, F, mass, vol, mid, fixed = self.x, self.v, self.C, self.F, self.mass, self.vol, self.mid, self.fixed
@@ -373,7 +373,7 @@ class MPMSolver(Solver):
                 if ti.static(any_plastic):
                     m = mid[p]
                     for k in ti.static(range(n_laws)):
-                        if ti.static(laws[k].plastic):
+                        if ti.static(laws[k].plastic):  # noqa: SIM102 - compile-time, then run-time test
                             if mat_law_id[m] == k:
                                 Fp = laws[k].return_mapping(p, Fp, m)
                 F[p] = Fp
