@@ -210,6 +210,20 @@ def test_2d_slab_respects_the_plane_and_slides_down_it(ramp2d):
     assert traj[-1]["com"][0] < traj[0]["com"][0] - 0.02
 
 
+def test_nan_is_reported_not_a_crash(ramp2d):
+    """A blown-up particle (NaN position, inf velocity) must neither crash nor write outside the
+    grid: the frame check reports it."""
+    solver = ramp2d["solver"]
+    state = solver.get_state()
+    state["x"][3] = np.nan
+    state["v"][5] = np.inf
+    solver.set_state(state)
+    for _ in range(10):
+        solver.substep(2.5e-4)
+    st = solver.frame_check()["slab"]
+    assert not st.finite and st.n_bad >= 2 and st.max_speed == float("inf")
+
+
 # --------------------------------------------- colliders, several entities and materials
 
 SPHERE_C, SPHERE_R = (-0.2, 0.0, 0.12), 0.06

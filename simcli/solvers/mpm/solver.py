@@ -247,6 +247,7 @@ class MPMSolver(Solver):
         dom_lo = ti.Vector(list(self.domain_lo), dt=f)
         dom_hi = ti.Vector(list(self.domain_hi), dt=f)
         big = 1 << 30
+        base_max = ti.Vector([s - 3 for s in self.grid_shape])  # the stencil is base .. base + 2
 
         @ti.func
         def chunk_of(j):
@@ -257,9 +258,17 @@ class MPMSolver(Solver):
             return t
 
         @ti.func
+        def base_node(xp):
+            # floor (Xp >= PAD > 0.5 for positions in the domain); the clamp only matters for a
+            # NaN/inf position, which then stays inside the grid arrays (memory safety) while its
+            # NaN weights show up in the next frame check
+            b = ti.cast((xp - origin) * inv_dx - 0.5, ti.i32)
+            return ti.min(ti.max(b, 0), base_max)
+
+        @ti.func
         def bspline(xp):
             Xp = (xp - origin) * inv_dx
-            base = ti.cast(Xp - 0.5, ti.i32)  # floor: Xp >= PAD > 0.5
+            base = base_node(xp)
             fx = Xp - ti.cast(base, f)
             w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
             return base, fx, w
@@ -383,8 +392,7 @@ class MPMSolver(Solver):
 
         @ti.func
         def particle_base(p):
-            Xp = (x[p] - origin) * inv_dx
-            return ti.cast(Xp - 0.5, ti.i32)
+            return base_node(x[p])
 
         @ti.func
         def clear_copy(t):
