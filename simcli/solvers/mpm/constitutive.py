@@ -169,6 +169,13 @@ class ConstitutiveLaw:
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         pass
 
+    # ---- per-material parameters beyond mu and lambda (host side)
+    def allocate_materials(self, materials: list) -> None:
+        """Called once in build with every material config of the solver, indexed by material id.
+        A law with parameters of its own (yield stress, friction angle, hardening...) allocates a
+        field per parameter here and fills the entries of the materials that use it; its funcs
+        index them with the ``mid`` they receive. Elastic laws need nothing beyond mu, lambda."""
+
     # ---- kernel side
     @ti.func
     def return_mapping(self, p, F, mid):

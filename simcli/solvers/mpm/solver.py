@@ -182,6 +182,7 @@ class MPMSolver(Solver):
         self.laws: list[ConstitutiveLaw] = [LAWS[k](dim, f) for k in self.law_keys]
         for law in self.laws:
             law.allocate(n)
+            law.allocate_materials(self.materials)
         self.boundary = GridBoundary(self.scene, dim, f, self.origin, self.dx, self.lo_node, self.hi_node)
         self.boundary.allocate()
 
