@@ -58,6 +58,13 @@ def min_coord(f, entity, axis=2, **_):
     return f["time"][...], _positions(g)[:, :, axis].min(axis=1)
 
 
+@measurement("depth_below")
+def depth_below(f, entity, axis=2, level=0.0, **_):
+    """How far the lowest particle is below ``level`` along ``axis`` (0 when none is)."""
+    _, g = _entity(f, entity)
+    return f["time"][...], np.maximum(0.0, level - _positions(g)[:, :, axis].min(axis=1))
+
+
 @measurement("gap_change")
 def gap_change(f, entity, axis=2, band=None, **_):
     """Change of the distance between the top and bottom particle layers along ``axis``

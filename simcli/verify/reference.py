@@ -93,6 +93,10 @@ def compute_error(case: Case, t: np.ndarray, measured: np.ndarray) -> dict:
         err = np.abs(diff).mean()
     elif m == "mean_rel":
         err = (np.abs(diff) / (scale or np.maximum(np.abs(ref), 1e-300))).mean()
+    elif m == "midrange_rel":
+        # (max + min) / 2 of an oscillation about a static state: the static value, whatever
+        # the period, once the window holds a full period
+        err = abs(0.5 * (meas.max() + meas.min()) - ref.mean()) / (scale or abs(ref.mean()))
     elif m == "mean_value_abs":
         err = abs(meas.mean() - ref.mean())
     elif m == "mean_value_rel":
