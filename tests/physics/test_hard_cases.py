@@ -66,6 +66,8 @@ def test_hard_case(scene: Path, tmp_path: Path):
     assert "Traceback" not in r.stderr, r.stderr
     assert r.returncode in (0, 70), r.stderr
     res = yaml.safe_load((out / "scene.yaml").read_text().split("\n", 1)[1])
+    if res["sim"]["substeps"] == "auto":
+        assert r.returncode == 0, f"substeps: auto must keep a hard case alive: {r.stderr}"
     info = json.loads((out / "run.json").read_text())
     dx = 1.0 / res["solvers"]["mpm"]["grid_density"]
     lo, hi = np.asarray(res["domain"]["lower"]), np.asarray(res["domain"]["upper"])
@@ -87,7 +89,10 @@ def test_hard_case(scene: Path, tmp_path: Path):
                 d = _sdf(c, x[-1])
                 assert d.min() > -1.0 * dx, (name, c["type"], d.min())
             # no energy gained: kinetic + gravitational potential per unit mass never exceeds its
-            # start (elastic energy is >= 0 and every body here starts undeformed)
+            # start (elastic energy is >= 0 and every body here starts undeformed). A body started
+            # inside a collider is not at rest: pushing it out does work, so it is exempt.
+            if any(_sdf(c, x[0]).min() < 0 for c in res["colliders"]):
+                continue
             e = 0.5 * (v * v).sum(axis=2).mean(axis=1) - (x @ g).mean(axis=1)
             scale = max(abs(e[0]), float(np.abs(g).sum()) * dx)
             assert e.max() <= e[0] + 0.02 * scale, (name, e[0], e.max())
