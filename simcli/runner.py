@@ -20,7 +20,6 @@ import yaml
 from simcli import __version__
 from simcli.errors import (
     EXIT_INTERRUPTED,
-    EXIT_NUMERICAL,
     EXIT_OK,
     EXIT_OTHER,
     EXIT_USAGE,
@@ -255,7 +254,7 @@ class Runner:
         every = scene.output.every
         n_steps = sim.n_steps
         fields = self._fields()
-        entity_meta = self._entity_meta(bodies, fields)
+        entity_meta = self._entity_meta(solvers, bodies, fields)
         sink = FrameSink(self.out, list(scene.output.formats))
         step = 0
         frame = 0
@@ -390,18 +389,21 @@ class Runner:
             out.insert(0, "position")
         return out
 
-    def _entity_meta(self, bodies, fields):
+    def _entity_meta(self, solvers, bodies, fields):
         from simcli.io.frames import EntityMeta
 
-        dim = self.scene.sim.dim
-        comps = {"position": (dim, "m"), "velocity": (dim, "m/s"), "J": (1, "1"), "stress": (1, "Pa"),
-                 "material_id": (1, "1")}
-        unknown = [f for f in fields if f not in comps]
-        if unknown:
-            raise SimcliError(f"output.fields: unknown field(s) {', '.join(unknown)} for MPM particles "
-                              f"(available: {', '.join(comps)})")
-        return [EntityMeta(name=b.name, kind="particles", n=len(b.x), dim=dim, fields={f: comps[f] for f in fields})
-                for b in bodies]
+        metas = []
+        for b in bodies:
+            s = next(s for s in solvers if s.owns(b.name))
+            avail = s.output_fields()
+            unknown = [f for f in fields if f not in avail]
+            if unknown:
+                raise SimcliError(f"output.fields: unknown field(s) {', '.join(unknown)} for entity '{b.name}' "
+                                  f"({s.family}; available: {', '.join(avail)})")
+            metas.append(EntityMeta(name=b.name, kind=s.entity_kind(b.name), n=s.entity_size(b.name),
+                                    dim=self.scene.sim.dim, fields={f: avail[f] for f in fields},
+                                    cells=s.entity_cells(b.name)))
+        return metas
 
     def _frame_data(self, solvers, bodies, fields):
         data = {}

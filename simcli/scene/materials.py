@@ -8,45 +8,17 @@ validation error rather than a run-time failure.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Union
+from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from simcli.scene.material_base import _Material, _Solid  # noqa: F401  (re-exported)
+from simcli.solvers.mpm.config import MATERIALS as _MPM
 
-class _Material(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
-
-
-class _Solid(_Material):
-    E: float = Field(3.0e5, gt=0, description="Young's modulus [Pa].")
-    nu: float = Field(0.2, gt=-1.0, lt=0.5, description="Poisson's ratio [-], in (-1, 0.5).")
-    rho: float = Field(1000.0, gt=0, description="Density [kg/m^3].")
-
-    @property
-    def mu(self) -> float:
-        return self.E / (2.0 * (1.0 + self.nu))
-
-    @property
-    def lam(self) -> float:
-        return self.E * self.nu / ((1.0 + self.nu) * (1.0 - 2.0 * self.nu))
-
-
-class MPMElastic(_Solid):
-    """Hyperelastic MPM solid."""
-
-    type: Literal["MPM.Elastic"]
-    model: Literal["corotation", "neohooken"] = Field(
-        "corotation",
-        description="Constitutive model: 'corotation' (fixed corotated, Stomakhin et al. 2012) or "
-        "'neohooken' (compressible Neo-Hookean; Genesis's spelling).",
-    )
-
-
-# Registry: every material type a solver implements. Add new models here.
-MATERIAL_TYPES: tuple[type[_Material], ...] = (MPMElastic,)
-
+# Registry: every material type a solver family implements, from each family's config module.
+MATERIAL_TYPES: tuple[type[_Material], ...] = (*_MPM,)
 if len(MATERIAL_TYPES) > 1:
-    Material = Annotated[Union[MATERIAL_TYPES], Field(discriminator="type")]  # type: ignore[valid-type]
+    Material = Annotated[MATERIAL_TYPES, Field(discriminator="type")]  # type: ignore[valid-type]
 else:
     Material = MATERIAL_TYPES[0]  # type: ignore[misc]
 

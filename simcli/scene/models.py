@@ -6,12 +6,13 @@ generated from these models (``simcli schema``).
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Optional, Union
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simcli.scene.materials import Material
 from simcli.scene.morphs import Morph, Region
+from simcli.solvers.mpm.config import MPMOptions
 
 FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
@@ -30,16 +31,16 @@ class Strict(BaseModel):
 class Sim(Strict):
     dim: Literal[2, 3] = Field(3, description="Spatial dimension: 2 or 3.")
     dt: float = Field(2.0e-3, gt=0, description="Step [s]; frames are written on step boundaries.")
-    substeps: Union[Annotated[int, Field(ge=1)], Literal["auto"]] = Field(
+    substeps: Annotated[int, Field(ge=1)] | Literal["auto"] = Field(
         10,
         description="Substeps per step (integer >= 1), or 'auto': the largest stable substep from the "
         "CFL and elastic wave-speed limits, chosen every frame.",
     )
-    duration: Optional[float] = Field(
+    duration: float | None = Field(
         None, gt=0, description="Simulated time [s]. Give duration or steps, not both (default 1 s)."
     )
-    steps: Optional[int] = Field(None, ge=1, description="Number of steps to run. Give duration or steps, not both.")
-    gravity: Optional[Vec] = Field(
+    steps: int | None = Field(None, ge=1, description="Number of steps to run. Give duration or steps, not both.")
+    gravity: Vec | None = Field(
         None,
         description="Gravitational acceleration [m/s^2], one component per dimension. Default: -9.81 along "
         "the last axis.",
@@ -48,7 +49,7 @@ class Sim(Strict):
     backend: Literal["auto", "cpu", "gpu", "cuda", "vulkan", "metal"] = Field(
         "auto", description="Compute backend; auto = a GPU if present, else cpu."
     )
-    threads: Optional[int] = Field(
+    threads: int | None = Field(
         None, ge=1, description="CPU threads for the cpu backend (default: all cores the process may use)."
     )
     seed: int = Field(0, description="Random seed (jittered sampling, ...).")
@@ -85,16 +86,16 @@ class Boundary(Strict):
         "velocity zeroed (or set to the face velocity); separate: like slip but only when moving into the wall.",
     )
     friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient [-].")
-    velocity: Optional[Vec] = Field(
+    velocity: Vec | None = Field(
         None, description="Wall velocity [m/s] (a moving lid); one component per dimension."
     )
 
 
 class Domain(Strict):
-    lower: Optional[Vec] = Field(
+    lower: Vec | None = Field(
         None, description="Lower corner of the simulation box [m]. Default (-0.5, -0.5, 0) in 3D, (0, 0) in 2D."
     )
-    upper: Optional[Vec] = Field(
+    upper: Vec | None = Field(
         None, description="Upper corner of the simulation box [m]. Default (0.5, 0.5, 1) in 3D, (1, 1) in 2D."
     )
     boundary: Boundary = Field(default_factory=Boundary, description="Wall condition on every face.")
@@ -148,32 +149,11 @@ class CylinderCollider(_ColliderBase):
 
 
 Collider = Annotated[
-    Union[PlaneCollider, BoxCollider, SphereCollider, CylinderCollider], Field(discriminator="type")
+    PlaneCollider | BoxCollider | SphereCollider | CylinderCollider, Field(discriminator="type")
 ]
 
 
 # ----------------------------------------------------------------------- solvers
-
-
-class MPMOptions(Strict):
-    grid_density: float = Field(64.0, gt=0, description="Grid cells per metre [1/m]; cell size dx = 1/grid_density.")
-    particle_size: Optional[float] = Field(
-        None,
-        gt=0,
-        description="Particle spacing of the sampling lattice [m]. Default 0.64/grid_density (0.01 m at 64 cells/m).",
-    )
-    sampling: Literal["lattice", "jitter"] = Field(
-        "lattice", description="Particle sampling: regular lattice, or lattice with a random jitter."
-    )
-    cfl: float = Field(0.3, gt=0, le=1, description="CFL number used by substeps: auto [-].")
-
-    @property
-    def dx(self) -> float:
-        return 1.0 / self.grid_density
-
-    @property
-    def spacing(self) -> float:
-        return self.particle_size if self.particle_size is not None else 0.64 / self.grid_density
 
 
 class Solvers(Strict):
@@ -187,8 +167,8 @@ class Entity(Strict):
     name: str = Field(description="Unique name; names the output groups and files.", min_length=1)
     material: Material = Field(description="Material; its `type` selects the solver family and model.")
     morph: Morph = Field(description="Initial shape.")
-    velocity: Optional[Vec] = Field(None, description="Initial velocity [m/s], one component per dimension.")
-    fixed: Optional[Union[Region, list[Region]]] = Field(
+    velocity: Vec | None = Field(None, description="Initial velocity [m/s], one component per dimension.")
+    fixed: Region | list[Region] | None = Field(
         None, description="Region (or list of regions): particles/vertices inside are held in place."
     )
 
@@ -207,14 +187,14 @@ class Entity(Strict):
 
 
 class Output(Strict):
-    dir: Optional[str] = Field(
+    dir: str | None = Field(
         None, description="Output folder, relative to the working directory (default out/<scene name>)."
     )
     every: int = Field(5, ge=1, description="Write a frame every N steps (frame 0 is the initial state).")
     formats: list[Literal["hdf5", "vtk"]] = Field(
         default_factory=lambda: ["hdf5", "vtk"], description="Output formats: hdf5 (sim.h5 + sim.xdmf), vtk."
     )
-    fields: Union[Literal["default"], list[str]] = Field(
+    fields: Literal["default"] | list[str] = Field(
         "default",
         description="Per-particle fields to write: 'default' (position, velocity) or a list from "
         "position, velocity, J, stress (von Mises [Pa]), material_id.",
@@ -231,7 +211,7 @@ class Checkpoint(Strict):
 
 class Scene(Strict):
     version: Literal[1] = Field(1, description="Scene format version.")
-    name: Optional[str] = Field(None, description="Scene name; default: the file name without extension.")
+    name: str | None = Field(None, description="Scene name; default: the file name without extension.")
     sim: Sim = Field(default_factory=Sim, description="Time stepping, dimension, precision and backend.")
     domain: Domain = Field(default_factory=Domain, description="The box every solver lives in [m].")
     colliders: list[Collider] = Field(default_factory=list, description="Static rigid obstacles.")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Optional, Union
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -15,10 +15,10 @@ class _Shape(BaseModel):
 
 class BoxShape(_Shape):
     type: Literal["Box"]
-    lower: Optional[Vec] = Field(None, description="Lower corner [m] (with upper), or use center and size.")
-    upper: Optional[Vec] = Field(None, description="Upper corner [m].")
-    center: Optional[Vec] = Field(None, description="Centre [m] (with size).")
-    size: Optional[Vec] = Field(None, description="Edge lengths [m] (with center).")
+    lower: Vec | None = Field(None, description="Lower corner [m] (with upper), or use center and size.")
+    upper: Vec | None = Field(None, description="Upper corner [m].")
+    center: Vec | None = Field(None, description="Centre [m] (with size).")
+    size: Vec | None = Field(None, description="Edge lengths [m] (with center).")
 
     @model_validator(mode="after")
     def _check(self):
@@ -73,12 +73,12 @@ class CylinderShape(_Shape):
 class MeshShape(_Shape):
     type: Literal["Mesh"]
     file: str = Field(description="Closed surface mesh (any format meshio reads), relative to the scene file.")
-    scale: Union[float, Vec] = Field(1.0, description="Scale factor [-] (scalar or per axis), applied first.")
+    scale: float | Vec = Field(1.0, description="Scale factor [-] (scalar or per axis), applied first.")
     rotate: Vec = Field(
         default_factory=lambda: [0.0, 0.0, 0.0], description="Rotation: Euler angles x, y, z [deg], applied second."
     )
     translate: Vec = Field(default_factory=lambda: [0.0, 0.0, 0.0], description="Translation [m], applied last.")
 
 
-Morph = Annotated[Union[BoxShape, SphereShape, CylinderShape, MeshShape], Field(discriminator="type")]
-Region = Annotated[Union[BoxShape, SphereShape, CylinderShape], Field(discriminator="type")]
+Morph = Annotated[BoxShape | SphereShape | CylinderShape | MeshShape, Field(discriminator="type")]
+Region = Annotated[BoxShape | SphereShape | CylinderShape, Field(discriminator="type")]

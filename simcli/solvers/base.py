@@ -110,6 +110,23 @@ class Solver:
         """Sizes worth reporting: particles, cells, ..."""
         raise NotImplementedError
 
+    def output_fields(self) -> dict[str, tuple[int, str]]:
+        """Per-entity output fields this family can write: name -> (components, unit)."""
+        raise NotImplementedError
+
+    def entity_kind(self, name: str) -> str:
+        """How an entity is written: particles | tets | triangles | lines | grid."""
+        return "particles"
+
+    def entity_cells(self, name: str):
+        """Static topology (n_cells, nodes per cell) of a mesh entity, or None."""
+        return None
+
+    def entity_size(self, name: str) -> int:
+        """Rows of the entity's per-point arrays (particles, vertices)."""
+        b = next(b for b in self.bodies if b.name == name)
+        return b.n
+
     def owns(self, name: str) -> bool:
         """Whether entity ``name`` is simulated by this solver."""
         return any(b.name == name for b in self.bodies)

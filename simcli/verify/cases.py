@@ -18,7 +18,7 @@ Adding a case means adding files; nothing here lists cases.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal, Optional, Union
+from typing import Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -31,21 +31,21 @@ class _M(BaseModel):
 
 class Measure(_M):
     quantity: str = Field(description="Name of a measurement in simcli.verify.measure (com, gap, tip, ...).")
-    entity: Optional[str] = Field(None, description="Entity the measurement reads (default: the first).")
+    entity: str | None = Field(None, description="Entity the measurement reads (default: the first).")
     params: dict[str, Any] = Field(default_factory=dict, description="Extra parameters of the measurement.")
-    axis: Optional[int] = Field(None, description="Axis index (0 = x) for vector quantities.")
+    axis: int | None = Field(None, description="Axis index (0 = x) for vector quantities.")
 
 
 class Reference(_M):
-    analytic: Optional[str] = Field(
+    analytic: str | None = Field(
         None, description="Formula in t (time [s]) and the constants; numpy functions as np.*.")
-    table: Optional[str] = Field(
+    table: str | None = Field(
         None, description="CSV file (relative to the case file; ${SHARED} = ../shared); first column is time.")
     column: int = Field(1, ge=1, description="Column of the table holding the reference value.")
-    value: Optional[float] = Field(None, description="A single reference value.")
+    value: float | None = Field(None, description="A single reference value.")
     constants: dict[str, float] = Field(default_factory=dict, description="Named constants of the formula.")
-    scale_t: Optional[str] = Field(None, description="Formula converting the table's time column to seconds.")
-    scale_v: Optional[str] = Field(None, description="Formula converting the table's value column to the measure's unit.")
+    scale_t: str | None = Field(None, description="Formula converting the table's time column to seconds.")
+    scale_v: str | None = Field(None, description="Formula converting the table's value column to the measure's unit.")
     note: str = Field("", description="Where the reference comes from.")
 
     @model_validator(mode="after")
@@ -60,8 +60,8 @@ class ErrorSpec(_M):
                     "mean_value_rel", "mean_value_abs", "midrange_rel"] = Field(
         "max_rel", description="How measured and reference series are compared. mean_value_*: compare the "
         "time averages over the window (an oscillation about a static state); midrange_rel: (max + min) / 2 over the window.")
-    window: Optional[list[float]] = Field(None, description="Time window [t0, t1] compared [s].")
-    scale: Optional[float] = Field(None, description="Normalisation for *_rel metrics (default |reference|).")
+    window: list[float] | None = Field(None, description="Time window [t0, t1] compared [s].")
+    scale: float | None = Field(None, description="Normalisation for *_rel metrics (default |reference|).")
 
 
 class Case(_M):
@@ -74,7 +74,7 @@ class Case(_M):
     refine: dict[str, float] = Field(
         default_factory=dict,
         description="Per refinement level, multiply these scene keys (dotted paths) by these factors.")
-    refine_tolerance_level: Optional[int] = Field(
+    refine_tolerance_level: int | None = Field(
         None, description="With --refine, the level (0 = coarsest) whose error must meet the tolerance "
         "(default: the finest).")
     overrides: dict[str, Any] = Field(default_factory=dict, description="--set overrides applied to the scene.")
@@ -99,7 +99,7 @@ def default_root() -> Path:
 def load_case(path: Path) -> Case:
     from pydantic import ValidationError
 
-    from simcli.scene.loader import _clean_loc, _describe, parse_yaml
+    from simcli.scene.loader import _clean_loc, parse_yaml
 
     loc = parse_yaml(path.read_text(), str(path))
     try:

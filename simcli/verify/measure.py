@@ -6,7 +6,7 @@ entity name and the case's ``params``/``axis`` and returns ``(t, values)``.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import h5py
 import numpy as np

@@ -15,7 +15,6 @@ from simcli.verify.cases import Case
 from simcli.verify.measure import run_measurement
 from simcli.verify.reference import compute_error
 
-
 _DONE: dict[str, tuple[int, str, float]] = {}  # runs made by this process, by scene+overrides
 
 

@@ -702,6 +702,11 @@ class MPMSolver(Solver):
     def length_scale(self) -> float:
         return self.dx
 
+    def output_fields(self) -> dict[str, tuple[int, str]]:
+        d = self.dim
+        return {"position": (d, "m"), "velocity": (d, "m/s"), "J": (1, "1"), "stress": (1, "Pa"),
+                "material_id": (1, "1")}
+
     # ------------------------------------------------------------------ counts
 
     def counts(self) -> dict[str, int]:
