@@ -1,21 +1,30 @@
-"""Solver families. ``make_solvers`` builds only the families some entity uses."""
+"""Solver families. ``make_solvers`` builds only the families some entity uses.
+
+A family is registered here by the material-type prefix its entities use ("MPM", "SPH", ...)
+and the import path of its solver class; a family no entity uses is never imported,
+allocated or compiled.
+"""
 
 from __future__ import annotations
 
+import importlib
+
+FAMILIES: dict[str, str] = {
+    "MPM": "simcli.solvers.mpm.solver:MPMSolver",
+}
+
 
 def make_solvers(scene, bodies) -> list:
-    """One solver per family present in the scene (imported lazily: a family no entity
-    uses is never imported, allocated or compiled)."""
-    families = []
+    """One solver per family present in the scene, in order of first appearance."""
+    families: list[str] = []
     for e in scene.entities:
         if e.family not in families:
             families.append(e.family)
     solvers = []
     for fam in families:
-        if fam == "MPM":
-            from simcli.solvers.mpm.solver import MPMSolver
-
-            solvers.append(MPMSolver(scene, [b for b in bodies if b.entity.family == "MPM"]))
-        else:  # the schema only admits implemented families; this is a programming error
+        if fam not in FAMILIES:  # the schema only admits implemented families
             raise NotImplementedError(f"solver family {fam} is not available")
+        mod, cls = FAMILIES[fam].split(":")
+        solver_cls = getattr(importlib.import_module(mod), cls)
+        solvers.append(solver_cls(scene, [b for b in bodies if b.entity.family == fam]))
     return solvers
