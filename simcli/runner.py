@@ -242,6 +242,7 @@ class Runner:
             solvers = make_solvers(scene, bodies)
         else:
             solvers = solver_factory(scene, bodies)
+        self._solvers = solvers
         for s in solvers:
             s.build()
         self.timings["build_s"] = time.perf_counter() - t0
@@ -362,6 +363,11 @@ class Runner:
     # ------------------------------------------------------------------ pieces
     def _finish_stats(self, step, n_particles, sub_hist, stepping0, substeps_done):
         sim = self.scene.sim
+        for s in getattr(self, "_solvers", []):
+            try:
+                self.info.setdefault("solvers", {})[s.family] = s.info()
+            except Exception as e:  # reporting must never fail a run
+                self.info.setdefault("solvers", {})[s.family] = {"info_error": str(e)}
         t = self.timings["stepping_s"] - stepping0
         # the first substep carries the kernel compilation: leave it out of throughput
         steady = max(t, 1e-12)
