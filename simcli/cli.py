@@ -123,6 +123,26 @@ def schema(out: Path | None) -> None:
 
 
 @cli.command()
+@click.argument("out", type=click.Path(exists=True, file_okay=False, path_type=Path))
+def repair(out: Path) -> None:
+    """Make OUT/sim.h5 of a killed run openable by every HDF5 tool (ParaView, h5py without SWMR).
+
+    A run killed with SIGKILL leaves every completed frame in sim.h5, but HDF5 keeps its
+    "open for writing" flag set; SWMR readers read it as it is, other tools refuse it until
+    the flag is cleared (what `h5clear -s` does). `simcli run --resume` clears it too."""
+    from simcli.io import clear_status_flags, open_frames
+
+    h5 = out / "sim.h5"
+    if not h5.exists():
+        _err(f"{h5}: not found")
+        sys.exit(EXIT_USAGE)
+    cleared = clear_status_flags(h5)
+    with open_frames(h5) as f:
+        n = len(f["time"])
+    _err(f"{h5}: {'cleared the open-for-writing flag' if cleared else 'already clean'}; {n} frames readable")
+
+
+@cli.command()
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output on stdout.")
 def info(as_json: bool) -> None:
     """Versions, backends and devices found."""

@@ -137,6 +137,11 @@ def test_sigkill_leaves_readable_outputs(tmp_path):
         assert n >= 15
         x = f["entities/blob/position"][:n]
         assert np.isfinite(x).all() and np.abs(x).max() > 0
+    # `simcli repair` makes it openable by tools that do not read SWMR (ParaView, plain h5py)
+    r = _run(["repair", str(out)])
+    assert r.returncode == 0 and "frames readable" in r.stderr, r.stderr
+    with h5py.File(out / "sim.h5", "r") as f:
+        assert len(f["time"]) == n
     pvd = ET.parse(out / "vtk" / "blob.pvd").getroot()
     listed = {d.get("file") for d in pvd.iter("DataSet")}
     on_disk = {f"blob/{q.name}" for q in (out / "vtk" / "blob").glob("*.vtu")}
