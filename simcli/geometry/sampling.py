@@ -3,8 +3,9 @@
 Plain numpy, no Taichi (runs before any solver is built).
 
 Lattice
-    A regular lattice of spacing ``h = scene.solvers.mpm.spacing`` (``particle_size``,
-    default 0.64 / grid_density), centred on the shape's bounding box: along an
+    A regular lattice of spacing ``h``, the family's particle spacing (MPM: ``solvers.mpm.spacing``,
+    i.e. ``particle_size``, default 0.64 / grid_density; SPH: ``solvers.sph.particle_size``), centred
+    on the shape's bounding box: along an
     axis of extent L it has ``n = max(1, floor(L / h + 1/2))`` points at
     ``centre + (i - (n - 1) / 2) h``, so it is symmetric within the shape and
     cell-centred when L is a multiple of h (a 0.2 m box at h = 0.01 m gets 20
@@ -219,11 +220,12 @@ def sample_entity(entity, scene, scene_dir: PathLike | None = None, rng=None) ->
     """
     dim = scene.sim.dim
     mpm = scene.solvers.mpm
-    jitter = getattr(mpm, "sampling", "lattice") == "jitter"
+    jitter = entity.family == "MPM" and getattr(mpm, "sampling", "lattice") == "jitter"
     if jitter and rng is None:
         rng = scene.sim.seed
     try:
-        x, volume, warnings = sample_morph(entity.morph, mpm.spacing, dim, scene_dir, jitter=jitter, rng=rng)
+        x, volume, warnings = sample_morph(entity.morph, family_spacing(scene, entity.family), dim, scene_dir,
+                                          jitter=jitter, rng=rng)
     except MeshFileNotFoundError as exc:
         raise MeshFileNotFoundError(f"entity '{entity.name}': {exc}") from None
     except MeshError as exc:
@@ -272,18 +274,29 @@ def sample_entity(entity, scene, scene_dir: PathLike | None = None, rng=None) ->
     return body
 
 
+# Families whose entities are sampled as particles, and where each takes its particle spacing from.
+PARTICLE_FAMILIES = ("MPM", "SPH")
+
+
+def family_spacing(scene, family: str) -> float:
+    """Particle spacing [m] of a family: solvers.sph.particle_size for SPH, solvers.mpm.spacing for MPM."""
+    if family == "SPH":
+        return float(scene.solvers.sph.particle_size)
+    return float(scene.solvers.mpm.spacing)
+
+
 def entity_rng(seed: int, index: int) -> np.random.Generator:
     """The random generator of the index-th entity: independent of the other entities."""
     return np.random.default_rng(np.random.SeedSequence([int(seed) % 2**63, int(index)]))
 
 
 def sample_scene(scene, scene_dir: PathLike | None = None, seed: int | None = None) -> list[Body]:
-    """Bodies of every MPM entity, in entity order (each entity jittered by its own generator)."""
+    """Bodies of every particle entity (MPM, SPH), in entity order (each entity jittered by its own generator)."""
     if seed is None:
         seed = scene.sim.seed
     scene_dir = Path(scene_dir) if scene_dir is not None else None
     return [
         sample_entity(e, scene, scene_dir, entity_rng(seed, i))
         for i, e in enumerate(scene.entities)
-        if e.family == "MPM"
+        if e.family in PARTICLE_FAMILIES
     ]

@@ -14,6 +14,14 @@ from simcli.scene.loader import LoadedScene, sort_lines
 _BYTES_PER_PARTICLE_3D = 4 * (3 + 3 + 9 + 9 + 4 + 6) + 4 * 12
 _BYTES_PER_PARTICLE_2D = 4 * (2 + 2 + 4 + 4 + 2 + 6) + 4 * 8
 _BYTES_PER_CELL = {2: 4 * 3, 3: 4 * 4}  # grid momentum/velocity (dim) + mass
+# SPH, f32: per particle x, v, new v, boundary gradient sum (dim each), 10 scalars, 6 ints, the reorder
+# copies (2 dim + 4) and the neighbour list (capacity x (index + gradient)); per boundary particle
+# position, velocity, volume, flag; per cell (cell = support / 2) count and start offsets of the liquid
+# and of the boundary particles.
+_SPH_CAPACITY = {2: 32, 3: 64}
+_SPH_BYTES_PER_PARTICLE = {d: 4 * (4 * d + 10 + 6 + 2 * d + 4 + _SPH_CAPACITY[d] * (1 + d)) for d in (2, 3)}
+_SPH_BYTES_PER_BOUNDARY = {d: 4 * (2 * d + 2) for d in (2, 3)}
+_SPH_BYTES_PER_CELL = 4 * 3
 MEMORY_FRACTION = 0.8  # refuse a scene that needs more than this share of available memory
 
 
@@ -78,7 +86,9 @@ def check_scene(loaded: LoadedScene) -> list[str]:
     # entities
     seen: dict[str, int] = {}
     n_particles = 0
+    n_sph = 0
     mpm = s.solvers.mpm
+    sph = s.solvers.sph
     for i, e in enumerate(s.entities):
         base = ("entities", i)
         if e.name in seen:
@@ -114,6 +124,8 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             mlo, mhi = morph_bounds(m, loaded.scene_dir)
             if e.family == "MPM":
                 n_particles += estimate_particle_count(m, mpm.spacing, dim, loaded.scene_dir)
+            elif e.family == "SPH":
+                n_sph += estimate_particle_count(m, sph.particle_size, dim, loaded.scene_dir)
         except Exception as ex:  # mesh unreadable or not closed
             err(mpath + ("file",) if m.type == "Mesh" else mpath, str(ex))
             continue
@@ -135,9 +147,19 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         for a in range(dim):
             cells *= int(math.ceil((hi[a] - lo[a]) * mpm.grid_density)) + 7
     need = n_particles * per_p + cells * _BYTES_PER_CELL[dim] * fp
+    if "SPH" in s.families:
+        # boundary particles: two layers outside every face of the domain (colliders add less)
+        ext = [hi[a] - lo[a] for a in range(dim)]
+        faces = sum(math.prod(ext[b] for b in range(dim) if b != a) for a in range(dim))
+        n_bnd = int(2 * 2 * faces / sph.particle_size ** (dim - 1))
+        sph_cells = math.prod(int(math.ceil(e / sph.particle_size)) + 6 for e in ext)
+        need += (n_sph * _SPH_BYTES_PER_PARTICLE[dim] + n_bnd * _SPH_BYTES_PER_BOUNDARY[dim]
+                 + sph_cells * _SPH_BYTES_PER_CELL) * fp
+        n_particles += n_sph
     avail = _available_memory()
     if need > MEMORY_FRACTION * avail:
-        err(("solvers", "mpm", "grid_density") if "MPM" in s.families else ("entities",),
+        err(("solvers", "mpm", "grid_density") if "MPM" in s.families
+            else ("solvers", "sph", "particle_size") if "SPH" in s.families else ("entities",),
             f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {cells:,} grid "
             f"nodes) but only {avail / 2**30:.1f} GiB is available; lower solvers.mpm.grid_density, raise "
             f"particle_size or shrink the domain")

@@ -8,17 +8,18 @@ validation error rather than a run-time failure.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Union
 
 from pydantic import Field
 
 from simcli.scene.material_base import _Material, _Solid  # noqa: F401  (re-exported)
 from simcli.solvers.mpm.config import MATERIALS as _MPM
+from simcli.solvers.sph.config import MATERIALS as _SPH
 
 # Registry: every material type a solver family implements, from each family's config module.
-MATERIAL_TYPES: tuple[type[_Material], ...] = (*_MPM,)
+MATERIAL_TYPES: tuple[type[_Material], ...] = (*_MPM, *_SPH)
 if len(MATERIAL_TYPES) > 1:
-    Material = Annotated[MATERIAL_TYPES, Field(discriminator="type")]  # type: ignore[valid-type]
+    Material = Annotated[Union[MATERIAL_TYPES], Field(discriminator="type")]  # type: ignore[valid-type]  # noqa: UP007
 else:
     Material = MATERIAL_TYPES[0]  # type: ignore[misc]
 
@@ -27,7 +28,7 @@ PLANNED_TYPES = (
     "MPM.ElastoPlastic", "MPM.Sand", "MPM.Snow", "MPM.Liquid", "MPM.Muscle",
     "FEM.Elastic", "FEM.Muscle", "FEM.Cloth",
     "PBD.Cloth", "PBD.Elastic", "PBD.Liquid", "PBD.Particle",
-    "SPH.Liquid", "SF.Smoke",
+    "SF.Smoke",
 )
 
 

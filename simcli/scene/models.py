@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from simcli.scene.materials import Material
 from simcli.scene.morphs import Morph, Region
 from simcli.solvers.mpm.config import MPMOptions
+from simcli.solvers.sph.config import SPHOptions
 
 FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
@@ -158,6 +159,7 @@ Collider = Annotated[
 
 class Solvers(Strict):
     mpm: MPMOptions = Field(default_factory=MPMOptions, description="MPM solver options.")
+    sph: SPHOptions = Field(default_factory=SPHOptions, description="SPH solver options (WCSPH / DFSPH liquids).")
 
 
 # ---------------------------------------------------------------------- entities
@@ -197,7 +199,8 @@ class Output(Strict):
     fields: Literal["default"] | list[str] = Field(
         "default",
         description="Per-particle fields to write: 'default' (position, velocity) or a list from "
-        "position, velocity, J, stress (von Mises [Pa]), material_id.",
+        "position, velocity, J, stress (von Mises [Pa]), material_id (MPM); position, velocity, density "
+        "[kg/m^3], pressure [Pa], material_id (SPH).",
     )
 
 

@@ -11,6 +11,7 @@ import importlib
 
 FAMILIES: dict[str, str] = {
     "MPM": "simcli.solvers.mpm.solver:MPMSolver",
+    "SPH": "simcli.solvers.sph.solver:SPHSolver",
 }
 
 

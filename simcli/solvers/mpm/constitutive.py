@@ -150,7 +150,7 @@ class ConstitutiveLaw:
         self.rotation_iters = rotation_iters
         # target error of the rotation extraction [rad]: a relative stress error of that order,
         # far below the strains an explicit MPM resolves; near the precision's resolution in f64
-        self.rotation_tol = 2.0e-5 if dtype == ti.f32 else 1.0e-12
+        self.rotation_tol = 1.0e-6 if dtype == ti.f32 else 1.0e-12
         self.n = 0
 
     # ---- per-particle state (host side)
