@@ -247,15 +247,14 @@ class Runner:
             s.build()
         self.timings["build_s"] = time.perf_counter() - t0
         self.info["counts"] = {s.family: s.counts() for s in solvers}
-        n_particles = sum(len(b.x) for b in bodies)
+        n_particles = sum(int(s.counts().get("particles", 0)) for s in solvers)
         self.info["particles"] = n_particles
         self.info["families"] = [s.family for s in solvers]
 
         # ---- output
         every = scene.output.every
         n_steps = sim.n_steps
-        fields = self._fields()
-        entity_meta = self._entity_meta(solvers, bodies, fields)
+        entity_meta = self._entity_meta(solvers)
         sink = FrameSink(self.out, list(scene.output.formats))
         step = 0
         frame = 0
@@ -278,7 +277,7 @@ class Runner:
         sink.open(entity_meta, scene_text, attrs, resume_frame=(frame + 1) if ckpt is not None else None)
         if ckpt is None:
             self._check_frame(solvers, 0, sim.dt / (substeps_now or 1))
-            sink.write_frame(0, 0, 0.0, self._frame_data(solvers, bodies, fields))
+            sink.write_frame(0, 0, 0.0, self._frame_data())
         self.timings["output_s"] += time.perf_counter() - t0
         self.timings["startup_s"] = time.perf_counter() - self.t_process
 
@@ -325,7 +324,7 @@ class Runner:
                 self._check_frame(solvers, frame + 1, sub_dt, step=step)
                 if step % every == 0:
                     frame += 1
-                    sink.write_frame(frame, step, step * sim.dt, self._frame_data(solvers, bodies, fields))
+                    sink.write_frame(frame, step, step * sim.dt, self._frame_data())
                 self.timings["output_s"] += time.perf_counter() - t0
             interrupted = self.signals.received is not None
             if interrupted or (ckpt_every and step % ckpt_every == 0 and step < n_steps):
@@ -386,38 +385,38 @@ class Runner:
         if meta.get("scene_name") not in (None, self.name):
             self.warn(f"checkpoint was written by scene '{meta.get('scene_name')}', resuming '{self.name}'")
 
-    def _fields(self) -> list[str]:
+    def _fields(self, solver, name: str) -> list[str]:
         f = self.scene.output.fields
         if f == "default":
-            return ["position", "velocity"]
+            return list(solver.default_fields(name))
         out = list(f)
-        if "position" not in out:
+        if solver.entity_kind(name) != "grid" and "position" not in out:
             out.insert(0, "position")
         return out
 
-    def _entity_meta(self, solvers, bodies, fields):
+    def _entity_meta(self, solvers):
+        """Output metadata of every entity, from the solver that owns it (particles, meshes, grids)."""
         from simcli.io.frames import EntityMeta
 
-        metas = []
-        for b in bodies:
-            s = next(s for s in solvers if s.owns(b.name))
+        metas, self._entity_fields = [], {}
+        for e in self.scene.entities:
+            s = next(s for s in solvers if s.owns(e.name))
+            fields = self._fields(s, e.name)
             avail = s.output_fields()
             unknown = [f for f in fields if f not in avail]
             if unknown:
-                raise SimcliError(f"output.fields: unknown field(s) {', '.join(unknown)} for entity '{b.name}' "
+                raise SimcliError(f"output.fields: unknown field(s) {', '.join(unknown)} for entity '{e.name}' "
                                   f"({s.family}; available: {', '.join(avail)})")
-            metas.append(EntityMeta(name=b.name, kind=s.entity_kind(b.name), n=s.entity_size(b.name),
+            grid = s.entity_grid(e.name)
+            kw = {} if grid is None else {"grid_shape": grid[0], "origin": grid[1], "spacing": grid[2]}
+            metas.append(EntityMeta(name=e.name, kind=s.entity_kind(e.name), n=s.entity_size(e.name),
                                     dim=self.scene.sim.dim, fields={f: avail[f] for f in fields},
-                                    cells=s.entity_cells(b.name)))
+                                    cells=s.entity_cells(e.name), **kw))
+            self._entity_fields[e.name] = (s, fields)
         return metas
 
-    def _frame_data(self, solvers, bodies, fields):
-        data = {}
-        for s in solvers:
-            for b in bodies:
-                if s.owns(b.name):
-                    data[b.name] = s.entity_arrays(b.name, fields)
-        return data
+    def _frame_data(self):
+        return {name: s.entity_arrays(name, fields) for name, (s, fields) in self._entity_fields.items()}
 
     def _check_frame(self, solvers, frame: int, sub_dt: float, step: int = 0) -> None:
         """Once per frame: NaN/Inf and runaway speeds; fail with advice, keeping every earlier frame."""

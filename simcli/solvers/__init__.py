@@ -27,5 +27,6 @@ def make_solvers(scene, bodies) -> list:
             raise NotImplementedError(f"solver family {fam} is not available")
         mod, cls = FAMILIES[fam].split(":")
         solver_cls = getattr(importlib.import_module(mod), cls)
+        # particle families get their sampled bodies; grid families (SF) read the scene itself
         solvers.append(solver_cls(scene, [b for b in bodies if b.entity.family == fam]))
     return solvers

@@ -122,6 +122,14 @@ class Solver:
         """Static topology (n_cells, nodes per cell) of a mesh entity, or None."""
         return None
 
+    def default_fields(self, name: str) -> list[str]:
+        """What ``output.fields: default`` writes for this entity."""
+        return ["position", "velocity"]
+
+    def entity_grid(self, name: str):
+        """For a grid entity: (shape in x, y[, z] order, origin, spacing); None otherwise."""
+        return None
+
     def entity_size(self, name: str) -> int:
         """Rows of the entity's per-point arrays (particles, vertices)."""
         b = next(b for b in self.bodies if b.name == name)
