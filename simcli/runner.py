@@ -379,7 +379,9 @@ class Runner:
                                    "mean": float(np.mean(sub_hist)) if sub_hist else None,
                                    "total": int(sum(sub_hist))},
                          throughput={"steps_per_s": (step / steady) if step else 0.0, "substeps_per_s": sps,
-                                     "particle_substeps_per_s": sps * n_particles})
+                                     "particle_substeps_per_s": sps * n_particles,
+                                     "cell_substeps_per_s": sps * sum(int(s.counts().get("cells", 0))
+                                                                      for s in getattr(self, "_solvers", []))})
 
     def _check_resume_meta(self, meta: dict) -> None:
         if meta.get("scene_name") not in (None, self.name):
