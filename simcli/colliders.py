@@ -7,8 +7,9 @@ Two halves, like the materials:
   axis, wall kind per face) is kept apart from the numbers (points, radii, friction, wall
   velocity), which live in fields and can change without recompiling;
 * kernel side: signed-distance functions ``sdf_*`` returning ``(phi, normal)`` with ``phi < 0``
-  inside the obstacle and ``normal`` the unit outward normal, and :func:`contact_velocity`, the
-  slip / sticky / separate condition with Coulomb friction.
+  inside the obstacle and ``normal`` the unit outward normal, :func:`contact_velocity`, the
+  slip / sticky / separate condition with Coulomb friction (grid nodes), and
+  :func:`project_out`, which moves a particle found inside an obstacle back to its surface.
 
 Importing this module imports Taichi (with stdout kept clean) but does not initialise it.
 """
@@ -135,6 +136,25 @@ def contact_velocity(v, n, v_wall, contact: ti.template(), mu):
         if vn < 0:
             vr = _tangential(vr, n, vn, mu)
     return vr + v_wall
+
+
+@ti.func
+def project_out(x, v, phi, n, contact: ti.template(), mu):
+    """Particle-level contact with a static obstacle: a particle at signed distance ``phi`` < 0
+    moves to the surface along the unit outward normal ``n``; sticky: it stops; slip and
+    separate: its velocity into the surface is removed (Coulomb friction ``mu`` on the
+    tangential part in proportion). Velocities already leaving the surface are kept."""
+    xo = x
+    vo = v
+    if phi < 0:
+        xo = x - phi * n
+        if ti.static(contact == "sticky"):
+            vo = v * 0.0
+        else:
+            vn = v.dot(n)
+            if vn < 0:
+                vo = _tangential(v, n, vn, mu)
+    return xo, vo
 
 
 @ti.func

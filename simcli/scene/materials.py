@@ -25,7 +25,6 @@ else:
 
 # Types of the contract that are not implemented yet: named in a clear error.
 PLANNED_TYPES = (
-    "MPM.ElastoPlastic", "MPM.Sand", "MPM.Snow", "MPM.Liquid", "MPM.Muscle",
     "FEM.Elastic", "FEM.Muscle", "FEM.Cloth",
     "PBD.Cloth", "PBD.Elastic", "PBD.Liquid", "PBD.Particle",
     "SF.Smoke",

@@ -9,6 +9,10 @@ Both act on grid node velocities in ``grid_update`` (after gravity), the usual M
   this is a band of nodes (the face node plus the padding ones) and particles, which are also
   clamped to the box, never leave the domain.
 
+Colliders also act on particles after g2p's advection (``project_particle``): a particle found
+inside one (it started there, or a fast one tunnelled through the grid contact) is moved back to
+the surface along the SDF normal and loses its inward normal velocity.
+
 What is compiled: one code path per collider present (its kind, contact kind and cylinder
 axis) and per face (its contact kind). What is data: collider geometry, friction coefficients
 and wall velocities (fields, changeable between substeps without recompiling).
@@ -23,6 +27,7 @@ from simcli.backend import stdout_to_stderr
 from simcli.colliders import (
     collider_specs,
     contact_velocity,
+    project_out,
     sdf_box,
     sdf_cylinder,
     sdf_plane,
@@ -87,22 +92,37 @@ class GridBoundary:
         self.col_friction.from_numpy(mu)
 
     @ti.func
+    def sdf(self, k: ti.template(), x):
+        """(phi, outward normal) of collider k at x."""
+        phi = 1.0
+        n = x * 0.0
+        if ti.static(self.colliders[k].kind == "Plane"):
+            phi, n = sdf_plane(x, self.col_a[k], self.col_b[k])
+        elif ti.static(self.colliders[k].kind == "Sphere"):
+            phi, n = sdf_sphere(x, self.col_a[k], self.col_radius[k])
+        elif ti.static(self.colliders[k].kind == "Box"):
+            phi, n = sdf_box(x, self.col_a[k], self.col_b[k])
+        elif ti.static(self.colliders[k].kind == "Cylinder"):
+            phi, n = sdf_cylinder(x, self.col_a[k], self.col_radius[k], self.col_half_height[k],
+                                  self.colliders[k].axis)
+        return phi, n
+
+    @ti.func
+    def project_particle(self, x, v):
+        """Particle-level contact after advection: out of every collider, inward velocity removed
+        (see :func:`simcli.colliders.project_out`). Compiled only when colliders exist."""
+        for k in ti.static(range(self.n_colliders)):
+            phi, n = self.sdf(k, x)
+            x, v = project_out(x, v, phi, n, self.colliders[k].contact, self.col_friction[k])
+        return x, v
+
+    @ti.func
     def apply(self, I, v):
         """Velocity of grid node ``I`` after every collider and wall condition."""
         if ti.static(self.n_colliders > 0):
             xI = ti.Vector(self.origin, dt=self.dtype) + I.cast(self.dtype) * self.dx
             for k in ti.static(range(self.n_colliders)):
-                phi = 1.0
-                n = v * 0.0
-                if ti.static(self.colliders[k].kind == "Plane"):
-                    phi, n = sdf_plane(xI, self.col_a[k], self.col_b[k])
-                elif ti.static(self.colliders[k].kind == "Sphere"):
-                    phi, n = sdf_sphere(xI, self.col_a[k], self.col_radius[k])
-                elif ti.static(self.colliders[k].kind == "Box"):
-                    phi, n = sdf_box(xI, self.col_a[k], self.col_b[k])
-                elif ti.static(self.colliders[k].kind == "Cylinder"):
-                    phi, n = sdf_cylinder(xI, self.col_a[k], self.col_radius[k], self.col_half_height[k],
-                                          self.colliders[k].axis)
+                phi, n = self.sdf(k, xI)
                 if phi < 0:
                     v = contact_velocity(v, n, v * 0.0, self.colliders[k].contact, self.col_friction[k])
         # walls last: confinement to the domain wins over everything else

@@ -1,15 +1,23 @@
 """MPM configuration: solver options and material models (pydantic, no Taichi).
 
-The kernel half of each material is its constitutive law in ``constitutive.py``.
+The kernel half of each material is its constitutive law in ``constitutive.py`` (elastic laws),
+``plasticity.py`` (elasto-plastic, sand, snow) and ``fluids_muscle.py`` (liquid, muscle).
+
+Names and defaults follow Genesis (``gs.materials.MPM.*``) where Genesis's are right; where
+they differ it is said in the field's description.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+import math
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from simcli.scene.material_base import _Solid
+from simcli.scene.material_base import _Material, _Solid
+from simcli.scene.morphs import Region
+
+Vec = list[float]
 
 
 class _Options(BaseModel):
@@ -23,8 +31,11 @@ class MPMOptions(_Options):
         gt=0,
         description="Particle spacing of the sampling lattice [m]. Default 0.64/grid_density (0.01 m at 64 cells/m).",
     )
-    sampling: Literal["lattice", "jitter"] = Field(
-        "lattice", description="Particle sampling: regular lattice, or lattice with a random jitter."
+    sampling: Literal["lattice", "jitter", "poisson"] = Field(
+        "lattice",
+        description="Particle sampling: regular lattice; lattice with a random jitter; or Poisson-disk "
+        "(blue noise, no lattice directions: for sand and snow). Poisson-disk samples keep a minimum distance "
+        "of about 0.85 particle_size and hold about as many particles as the lattice.",
     )
     cfl: float = Field(0.3, gt=0, le=1, description="CFL number used by substeps: auto [-].")
 
@@ -35,6 +46,9 @@ class MPMOptions(_Options):
     @property
     def spacing(self) -> float:
         return self.particle_size if self.particle_size is not None else 0.64 / self.grid_density
+
+
+# ------------------------------------------------------------------------------ solids
 
 
 class MPMElastic(_Solid):
@@ -48,5 +62,226 @@ class MPMElastic(_Solid):
     )
 
 
+class MPMElastoPlastic(_Solid):
+    """Elasto-plastic solid (metal, clay, dough): von Mises or singular-value clamping."""
+
+    type: Literal["MPM.ElastoPlastic"]
+    E: float = Field(1.0e6, gt=0, description="Young's modulus [Pa] (Genesis's default 1e6).")
+    use_von_mises: bool = Field(
+        True,
+        description="true: von Mises (J2) plasticity on the Hencky (logarithmic) strain with Hencky "
+        "elasticity, radial return; the von Mises equivalent Cauchy stress never exceeds "
+        "von_mises_yield_stress (uniaxial stress saturates at it, pure shear at it / sqrt(3)). "
+        "false: the singular values of the elastic deformation gradient are clamped into "
+        "[1 - yield_lower, 1 + yield_higher] (Stomakhin et al. 2013 without hardening), fixed corotated "
+        "elasticity.",
+    )
+    von_mises_yield_stress: float = Field(
+        1.0e4, gt=0, description="Von Mises yield stress [Pa] (uniaxial Cauchy stress at yield)."
+    )
+    yield_lower: float = Field(
+        2.5e-2, ge=0, lt=1, description="Critical compression theta_c [-]: singular values >= 1 - yield_lower "
+        "(use_von_mises: false only)."
+    )
+    yield_higher: float = Field(
+        4.5e-3, ge=0, description="Critical stretch theta_s [-]: singular values <= 1 + yield_higher "
+        "(use_von_mises: false only)."
+    )
+
+
+class MPMSand(_Solid):
+    """Granular material: Drucker-Prager plasticity on the Hencky strain (Klar et al. 2016)."""
+
+    type: Literal["MPM.Sand"]
+    E: float = Field(1.0e6, gt=0, description="Young's modulus [Pa] of the grain skeleton (Genesis's default 1e6).")
+    friction_angle: float = Field(
+        45.0, gt=0, lt=90, description="Internal friction angle phi [deg] (Genesis's default 45; dry sand 30-35)."
+    )
+    cohesion: float = Field(
+        0.0, ge=0, description="Cohesion c [Pa] (Mohr-Coulomb): the cone's apex moves to the tensile mean "
+        "stress c / tan(phi). 0 = cohesionless sand."
+    )
+    volume_correction: bool = Field(
+        True, description="Keep the volume gained when grains separate and give it back on compression "
+        "(Tampubolon et al. 2017, sec. 4.3.2), so piles do not lose volume."
+    )
+
+    @property
+    def alpha(self) -> float:
+        """Drucker-Prager cone slope (Klar et al. 2016, eq. 25): sqrt(2/3) 2 sin(phi) / (3 - sin(phi))."""
+        s = math.sin(math.radians(self.friction_angle))
+        return math.sqrt(2.0 / 3.0) * 2.0 * s / (3.0 - s)
+
+
+class MPMSnow(_Solid):
+    """Snow (Stomakhin et al. 2013): clamped singular values, hardening exp(xi (1 - J_p))."""
+
+    type: Literal["MPM.Snow"]
+    E: float = Field(1.0e6, gt=0, description="Young's modulus [Pa] (Genesis's default 1e6; Stomakhin et al. "
+                     "2013 use 1.4e5).")
+    yield_lower: float = Field(
+        2.5e-2, ge=0, lt=1, description="Critical compression theta_c [-]: singular values >= 1 - yield_lower."
+    )
+    yield_higher: float = Field(
+        4.5e-3, ge=0, description="Critical stretch theta_s [-]: singular values <= 1 + yield_higher "
+        "(Stomakhin et al. use 7.5e-3)."
+    )
+    hardening: float = Field(
+        10.0, ge=0, description="Hardening coefficient xi [-]: mu and lambda are scaled by exp(xi (1 - J_p)), "
+        "J_p the plastic volume ratio (Stomakhin et al. 2013: 10; Genesis hard-codes 10)."
+    )
+
+
+# ------------------------------------------------------------------------------ liquid
+
+
+class MPMLiquid(_Material):
+    """Weakly compressible liquid: only J of F is kept; optional Newtonian viscosity."""
+
+    type: Literal["MPM.Liquid"]
+    E: float = Field(
+        1.0e6, gt=0, description="Young's modulus [Pa] (Genesis's parametrisation): with nu it sets the bulk "
+        "modulus lambda = E nu / ((1 + nu)(1 - 2 nu)) of the equation of state p = lambda (1 - J); "
+        "speed of sound sqrt(lambda / rho)."
+    )
+    nu: float = Field(0.2, gt=-1.0, lt=0.5, description="Poisson's ratio [-]; only sets lambda with E.")
+    rho: float = Field(1000.0, gt=0, description="Rest density [kg/m^3].")
+    viscous: bool = Field(
+        False,
+        description="Add the Newtonian viscous stress 2 mu dev(D), D the symmetric velocity gradient "
+        "(Genesis's 'viscous' adds an elastic shear term whose viscosity depends on the time step instead).",
+    )
+    mu: float = Field(1.0e-3, ge=0, description="Dynamic viscosity [Pa s] (water 1e-3), used when viscous.")
+
+    @property
+    def lam(self) -> float:
+        return self.E * self.nu / ((1.0 + self.nu) * (1.0 - 2.0 * self.nu))
+
+    @property
+    def bulk_modulus(self) -> float:
+        """dp/dJ at rest [Pa]."""
+        return self.lam
+
+
+# ------------------------------------------------------------------------------ muscle
+
+
+class _Signal(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class ConstantSignal(_Signal):
+    type: Literal["constant"]
+    value: float = Field(0.0, description="Activation [-] (active stress = stiffness x activation).")
+
+    def __call__(self, t: float) -> float:
+        return self.value
+
+
+class SineSignal(_Signal):
+    type: Literal["sine"]
+    amplitude: float = Field(1.0, description="Amplitude [-] of the activation.")
+    frequency: float = Field(1.0, gt=0, description="Frequency [Hz].")
+    phase: float = Field(0.0, description="Phase [rad].")
+    offset: float = Field(0.0, description="Offset [-] added to the sine.")
+
+    def __call__(self, t: float) -> float:
+        return self.offset + self.amplitude * math.sin(2.0 * math.pi * self.frequency * t + self.phase)
+
+
+class TableSignal(_Signal):
+    type: Literal["table"]
+    times: Vec = Field(description="Times [s], strictly increasing.")
+    values: Vec = Field(description="Activation [-] at each time; piecewise linear between, held outside.")
+    periodic: bool = Field(False, description="Repeat the table with period times[-1] - times[0].")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if len(self.times) != len(self.values) or not self.times:
+            raise ValueError("times and values need the same, non-zero length")
+        if any(b <= a for a, b in zip(self.times, self.times[1:])):
+            raise ValueError("times must be strictly increasing")
+        if self.periodic and len(self.times) < 2:
+            raise ValueError("a periodic table needs at least two points")
+        return self
+
+    def __call__(self, t: float) -> float:
+        ts = self.times
+        if self.periodic:
+            t = ts[0] + math.fmod(t - ts[0], ts[-1] - ts[0])
+            if t < ts[0]:
+                t += ts[-1] - ts[0]
+        if t <= ts[0]:
+            return self.values[0]
+        if t >= ts[-1]:
+            return self.values[-1]
+        k = max(i for i in range(len(ts)) if ts[i] <= t)
+        a = (t - ts[k]) / (ts[k + 1] - ts[k])
+        return (1.0 - a) * self.values[k] + a * self.values[k + 1]
+
+
+Signal = Annotated[ConstantSignal | SineSignal | TableSignal, Field(discriminator="type")]
+
+
+class MuscleGroup(_Signal):
+    region: Region | list[Region] | None = Field(
+        None, description="Where this group's particles are (initial positions). A particle belongs to the first "
+        "group whose region holds it; a group without a region takes every particle no earlier group took."
+    )
+    fiber_direction: Vec | None = Field(
+        None, description="Fibre direction in the initial configuration [-] (normalised; default the material's)."
+    )
+    actuation: Signal = Field(
+        default_factory=lambda: ConstantSignal(type="constant", value=0.0),
+        description="Activation a(t) [-]: constant, sine or piecewise-linear table over time.",
+    )
+
+    @property
+    def regions(self) -> list:
+        if self.region is None:
+            return []
+        return list(self.region) if isinstance(self.region, list) else [self.region]
+
+
+class MPMMuscle(_Solid):
+    """Elastic solid with active fibre stress: tau_active = stiffness a(t) (F f0)(F f0)^T."""
+
+    type: Literal["MPM.Muscle"]
+    E: float = Field(1.0e6, gt=0, description="Young's modulus [Pa] (Genesis's default 1e6).")
+    model: Literal["corotation", "neohooken"] = Field(
+        "neohooken", description="Passive elastic model (Genesis's default for muscle: neohooken)."
+    )
+    stiffness: float | None = Field(
+        None, gt=0, description="Active stress per unit activation [Pa] (default E, as in Genesis). Positive "
+        "activation is tension along the fibre: the muscle contracts."
+    )
+    n_groups: int = Field(1, ge=1, le=64, description="Number of independently actuated groups.")
+    fiber_direction: Vec | None = Field(
+        None, description="Default fibre direction [-] of every group (default the last axis: z in 3D, y in 2D)."
+    )
+    groups: list[MuscleGroup] = Field(
+        default_factory=list, description="One entry per group (n_groups of them): region, fibre direction and "
+        "actuation signal. Empty: one group holding the whole body, no actuation."
+    )
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.groups and len(self.groups) != self.n_groups:
+            raise ValueError(f"groups has {len(self.groups)} entries but n_groups is {self.n_groups}")
+        if not self.groups and self.n_groups != 1:
+            raise ValueError("give one entry in groups per muscle group (n_groups > 1)")
+        for d in [self.fiber_direction] + [g.fiber_direction for g in self.groups]:
+            if d is not None and not any(abs(c) > 0 for c in d):
+                raise ValueError("fiber_direction must not be zero")
+        return self
+
+    @property
+    def active_stiffness(self) -> float:
+        return self.stiffness if self.stiffness is not None else self.E
+
+    def group_list(self) -> list[MuscleGroup]:
+        return list(self.groups) if self.groups else [MuscleGroup()]
+
+
 # Every MPM material type; the scene's material union is built from these.
-MATERIALS = (MPMElastic,)
+MATERIALS = (MPMElastic, MPMElastoPlastic, MPMSand, MPMSnow, MPMLiquid, MPMMuscle)

@@ -2,19 +2,25 @@
 
 Each law is a small ``@ti.data_oriented`` class:
 
-* ``key``: the name the scene uses for it (``MPMElastic.model``; later e.g. ``"sand"``);
-* per-particle state it owns (e.g. the warm-start rotation of the corotated law, later the
-  plastic ``Jp`` of snow or the hardening state of Drucker-Prager sand), allocated in
+* ``key``: the name the solver files it under (:func:`law_key` maps a material config to it:
+  ``corotation``, ``neohooken``, ``von_mises``, ``clamp``, ``sand``, ``snow``, ``liquid``,
+  ``liquid_viscous``, ``muscle_corotation``, ``muscle_neohooken``);
+* per-particle state it owns (the warm-start rotation of the corotated law, the plastic volume
+  ratio ``Jp`` of snow, the volume correction of sand, muscle groups and fibres), allocated in
   :meth:`allocate` for the whole particle range and saved in restart files;
+* per-material parameters beyond mu and lambda (yield stress, friction angle, hardening,
+  viscosity) in fields indexed by material id (:meth:`allocate_materials`): run-time data;
 * ``kirchhoff(p, F, J, mu, lam, update)``: Kirchhoff stress tau = P F^T = J sigma, the quantity
   MLS-MPM scatters (Hu et al. 2018, eq. 29 with tau instead of P F^T);
-* ``return_mapping(p, F, mid)``: projection of the elastic deformation gradient after the
-  update F <- (I + dt C) F. Elastic laws return F unchanged and set ``plastic = False`` so the
-  solver does not even compile the call; plastic laws (von Mises clamp, Drucker-Prager,
-  snow hardening) implement it with their own state.
+* ``return_mapping(p, F, mid, mu, lam)``: projection of the elastic deformation gradient after
+  the update F <- (I + dt C) F. Elastic laws set ``plastic = False`` so the solver does not even
+  compile the call. Laws whose return mapping needs an SVD (``stores_stress = True``) compute the
+  Kirchhoff stress there, from the same singular values, and keep it per particle: the next
+  p2g reads it instead of decomposing F again.
 
-Numbers (mu, lambda, later yield stress...) are run-time data indexed by material id; the
-solver compiles in only the laws of the materials present (``ti.static`` unrolling).
+The plastic laws live in ``plasticity.py``, liquid and muscle in ``fluid_muscle.py``; the
+registry :data:`LAWS` at the end of this module lists them all. The solver compiles in only the
+laws of the materials present (``ti.static`` unrolling).
 """
 
 
@@ -143,6 +149,9 @@ class ConstitutiveLaw:
 
     key: ClassVar[str] = ""
     plastic: ClassVar[bool] = False  # True when return_mapping changes F
+    stores_stress: ClassVar[bool] = False  # True when return_mapping computes and stores tau
+    tracks_jp: ClassVar[bool] = False  # True when the law keeps the plastic volume ratio J_p
+    hardens: ClassVar[bool] = False  # True when stiffness_factor can exceed 1 (stable_dt asks)
 
     def __init__(self, dim: int, dtype: Any, rotation_iters: int = 8) -> None:
         self.dim = dim
@@ -152,6 +161,7 @@ class ConstitutiveLaw:
         # far below the strains an explicit MPM resolves; near the precision's resolution in f64
         self.rotation_tol = 1.0e-6 if dtype == ti.f32 else 1.0e-12
         self.n = 0
+        self.n_materials = 0
 
     # ---- per-particle state (host side)
     def allocate(self, n: int) -> None:
@@ -175,10 +185,23 @@ class ConstitutiveLaw:
         A law with parameters of its own (yield stress, friction angle, hardening...) allocates a
         field per parameter here and fills the entries of the materials that use it; its funcs
         index them with the ``mid`` they receive. Elastic laws need nothing beyond mu, lambda."""
+        self.n_materials = len(materials)
+
+    def bind(self, solver: Any) -> None:
+        """Called once in build, after the solver's fields exist and the bodies are uploaded: a
+        law that reads solver fields (the affine velocity C) or the bodies (muscle groups by
+        region) takes what it needs here."""
+
+    def host_update(self, t: float) -> None:
+        """Called by the solver before each substep with the time t [s] at its start (actuation)."""
+
+    def max_wave_factor(self, materials: list) -> float:
+        """Extra stiffness (x (lambda + 2 mu)) the law may add at most, for stable_dt (muscle)."""
+        return 1.0
 
     # ---- kernel side
     @ti.func
-    def return_mapping(self, p, F, mid):
+    def return_mapping(self, p, F, mid, mu, lam):
         return F
 
     @ti.func
@@ -186,15 +209,41 @@ class ConstitutiveLaw:
         return F * 0.0  # overridden by every law
 
     @ti.func
-    def tau_zz(self, F, J, mu, lam):
+    def tau_zz(self, p, F, J, mu, lam):
         """Out-of-plane Kirchhoff stress of a 2D (plane strain, F_zz = 1) particle."""
         return 0.0
+
+    @ti.func
+    def energy_density(self, p, F, J, mu, lam):
+        """Stored elastic energy per unit reference volume [J/m^3] of the elastic part F."""
+        return 0.0
+
+    @ti.func
+    def plastic_J(self, p):
+        """Plastic volume ratio J_p = J / J_E (1 where plastic flow keeps the volume)."""
+        return 1.0
+
+    @ti.func
+    def elastic_J(self, p, J):
+        """Elastic volume ratio J_E given J = det F (2D plane-strain plasticity adds F_zz^E)."""
+        return J
+
+    @ti.func
+    def total_J(self, p, J):
+        """Total volume ratio J = J_p J_E of the particle, given J = det F (F the elastic part)."""
+        return self.elastic_J(p, J) * self.plastic_J(p)
+
+    @ti.func
+    def stiffness_factor(self, p):
+        """Current stiffness over the initial one (snow hardening; 1 for the others)."""
+        return 1.0
 
 
 @ti.data_oriented
 class CorotatedLaw(ConstitutiveLaw):
     """Fixed corotated elasticity (Stomakhin et al. 2012):
-    tau = 2 mu (F - R) F^T + lambda (J - 1) J I, R the polar rotation of F.
+    tau = 2 mu (F - R) F^T + lambda (J - 1) J I, R the polar rotation of F;
+    energy psi = mu |F - R|^2 + lambda / 2 (J - 1)^2.
 
     3D: R by the warm-started rotation extraction of Mueller et al. 2016; the quaternion of each
     particle is state (``corotation_q``) so a restart continues bit-for-bit. 2D: closed form.
@@ -243,13 +292,19 @@ class CorotatedLaw(ConstitutiveLaw):
         return 2.0 * mu * (F - R) @ F.transpose() + ti.Matrix.identity(self.dtype, self.dim) * (lam * (J - 1.0) * J)
 
     @ti.func
-    def tau_zz(self, F, J, mu, lam):
+    def tau_zz(self, p, F, J, mu, lam):
         return lam * (J - 1.0) * J
+
+    @ti.func
+    def energy_density(self, p, F, J, mu, lam):
+        R = self.rotation(p, F, False)
+        return mu * ((F - R) * (F - R)).sum() + 0.5 * lam * (J - 1.0) ** 2
 
 
 @ti.data_oriented
 class NeoHookeanLaw(ConstitutiveLaw):
-    """Compressible Neo-Hookean: tau = mu (F F^T - I) + lambda log(J) I.
+    """Compressible Neo-Hookean: tau = mu (F F^T - I) + lambda log(J) I;
+    energy psi = mu / 2 (tr(F^T F) - d) - mu log J + lambda / 2 log(J)^2.
 
     J is floored at 1e-6 inside the logarithm so an inverted particle gives a huge restoring
     pressure instead of NaN (the frame check still reports the blow-up through the velocities).
@@ -263,12 +318,21 @@ class NeoHookeanLaw(ConstitutiveLaw):
         return mu * (F @ F.transpose() - I) + I * (lam * ti.log(ti.max(J, 1.0e-6)))
 
     @ti.func
-    def tau_zz(self, F, J, mu, lam):
+    def tau_zz(self, p, F, J, mu, lam):
         return lam * ti.log(ti.max(J, 1.0e-6))
 
+    @ti.func
+    def energy_density(self, p, F, J, mu, lam):
+        lj = ti.log(ti.max(J, 1.0e-6))
+        return 0.5 * mu * ((F * F).sum() - self.dim) - mu * lj + 0.5 * lam * lj * lj
 
-# Registry: material model name -> law. Add new laws here (and their config in scene/materials.py).
-LAWS: dict[str, type[ConstitutiveLaw]] = {law.key: law for law in (CorotatedLaw, NeoHookeanLaw)}
+
+def elastic_moduli(material: Any) -> tuple[float, float]:
+    """(mu, lambda) [Pa] the solver keeps per material: the elastic Lame parameters (a liquid has
+    no shear modulus; its viscosity is a parameter of the liquid law)."""
+    if getattr(material, "type", "") == "MPM.Liquid":
+        return 0.0, float(material.lam)
+    return float(material.mu), float(material.lam)
 
 
 def law_key(material: Any) -> str:
@@ -276,8 +340,44 @@ def law_key(material: Any) -> str:
     mtype = getattr(material, "type", "")
     if mtype == "MPM.Elastic":
         return material.model
+    if mtype == "MPM.ElastoPlastic":
+        return "von_mises" if material.use_von_mises else "clamp"
+    if mtype == "MPM.Sand":
+        return "sand"
+    if mtype == "MPM.Snow":
+        return "snow"
+    if mtype == "MPM.Liquid":
+        return "liquid_viscous" if material.viscous else "liquid"
+    if mtype == "MPM.Muscle":
+        return "muscle_" + material.model
     raise ValueError(f"material type {mtype!r} is not an MPM material implemented by this solver")
 
 
 def _np_dtype(dtype: Any):
     return np.float64 if dtype == ti.f64 else np.float32
+
+
+def _registry() -> dict[str, type[ConstitutiveLaw]]:
+    from simcli.solvers.mpm.fluid_muscle import (
+        LiquidLaw,
+        MuscleCorotatedLaw,
+        MuscleNeoHookeanLaw,
+        ViscousLiquidLaw,
+    )
+    from simcli.solvers.mpm.plasticity import ClampLaw, SandLaw, SnowLaw, VonMisesLaw
+
+    return {
+        law.key: law
+        for law in (CorotatedLaw, NeoHookeanLaw, VonMisesLaw, ClampLaw, SandLaw, SnowLaw, LiquidLaw,
+                    ViscousLiquidLaw, MuscleCorotatedLaw, MuscleNeoHookeanLaw)
+    }
+
+
+def __getattr__(name: str):
+    # Registry: law key -> law (LAWS). Built on first use: the plastic, liquid and muscle laws
+    # live in modules that import the base classes above.
+    if name == "LAWS":
+        laws = _registry()
+        globals()["LAWS"] = laws
+        return laws
+    raise AttributeError(name)

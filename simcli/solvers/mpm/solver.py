@@ -37,7 +37,7 @@ import numpy as np
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver
 from simcli.solvers.mpm.boundary import GridBoundary
-from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, law_key
+from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, elastic_moduli, law_key
 
 with stdout_to_stderr():
     import taichi as ti
@@ -47,7 +47,9 @@ CHUNK_STRIDE = 512  # Taichi's smallest CPU range-for task (see module docstring
 MAX_PRIVATE_GRID_BYTES = 1 << 30  # memory allowed for the per-thread grid copies of P2G
 WAVE_SAFETY = 0.5  # dt <= WAVE_SAFETY * dx / c_p, c_p the P-wave speed (B1 runs at 0.47)
 
-OUTPUT_FIELDS = ("position", "velocity", "J", "stress", "material_id")
+OUTPUT_FIELDS = ("position", "velocity", "J", "stress", "pressure", "Jp", "elastic_energy", "material_id")
+# the fields the per-frame `outputs` kernel computes together
+DERIVED_FIELDS = ("J", "stress", "pressure", "Jp", "elastic_energy")
 
 
 class MPMSolver(Solver):
@@ -110,12 +112,18 @@ class MPMSolver(Solver):
         self.mat_law = [self.law_keys.index(law_key(m)) for m in self.materials]
         self.has_fixed = any(bool(np.any(b.fixed)) for b in bodies)
 
-        # P-wave speed of the stiffest material, for stable_dt
-        c_max = 0.0
+        # P-wave speed of each material at rest (hardening and muscle activation raise it: see
+        # stable_dt), and the explicit viscosity limit dt <= rho dx^2 / (2 d eta)
+        self.mat_wave = []
+        dt_visc = math.inf
         for m in self.materials:
-            E, nu, rho = float(m.E), float(m.nu), float(m.rho)
-            c_max = max(c_max, math.sqrt(E * (1 - nu) / ((1 + nu) * (1 - 2 * nu) * rho)))
-        self.c_max = c_max
+            mu, lam = elastic_moduli(m)
+            self.mat_wave.append(math.sqrt((lam + 2.0 * mu) / float(m.rho)))
+            if getattr(m, "viscous", False) and m.mu > 0:
+                dt_visc = min(dt_visc, float(m.rho) * self.dx**2 / (2.0 * self.dim * m.mu))
+        self.c_max = max(self.mat_wave)
+        self.dt_visc = dt_visc
+        self.time = 0.0  # simulated time [s] at the start of the next substep (muscle actuation)
         # "auto": private grid copies on the CPU, atomics elsewhere; "atomic" forces the GPU path
         # (tests run it on the CPU), "chunked" the CPU one
         self.p2g_mode = "auto"
@@ -176,8 +184,8 @@ class MPMSolver(Solver):
         self.body_offsets = ti.field(ti.i32, shape=nb + 1)
         self.stat_speed = ti.field(f, shape=nb)
         self.stat_bad = ti.field(ti.i32, shape=nb)
-        self.out_J = ti.field(f, shape=n)
-        self.out_vm = ti.field(f, shape=n)
+        self.stat_stiff = ti.field(f, shape=())  # largest stiffness factor (snow hardening)
+        self._out = None  # per-particle output fields, allocated when first written
 
         self.laws: list[ConstitutiveLaw] = [LAWS[k](dim, f) for k in self.law_keys]
         for law in self.laws:
@@ -187,6 +195,9 @@ class MPMSolver(Solver):
         self.boundary.allocate()
 
         self._upload()
+        for law in self.laws:
+            law.bind(self)
+        self.wave_factor = max(law.max_wave_factor(self.materials) for law in self.laws)
         self._make_kernels()
         self._compute_bbox()
         self._built = True
@@ -220,8 +231,8 @@ class MPMSolver(Solver):
         self.chunk_start.from_numpy((np.arange(self.T + 1, dtype=np.int64) * self.n // self.T).astype(np.int32))
         self.body_offsets.from_numpy(self.offsets.astype(np.int32))
         self.set_gravity(self.scene.sim.gravity_vec)
-        self.mat_mu.from_numpy(np.array([m.mu for m in self.materials], npf))
-        self.mat_lam.from_numpy(np.array([m.lam for m in self.materials], npf))
+        self.mat_mu.from_numpy(np.array([elastic_moduli(m)[0] for m in self.materials], npf))
+        self.mat_lam.from_numpy(np.array([elastic_moduli(m)[1] for m in self.materials], npf))
         self.mat_law_id.from_numpy(np.array(self.mat_law, np.int32))
         for law in self.laws:
             law.init_state()
@@ -384,12 +395,18 @@ class MPMSolver(Solver):
                     m = mid[p]
                     for k in ti.static(range(n_laws)):
                         if ti.static(laws[k].plastic):  # noqa: SIM102 - compile-time, then run-time test
-                            if mat_law_id[m] == k:
-                                Fp = laws[k].return_mapping(p, Fp, m)
+                            if ti.static(n_laws == 1) or mat_law_id[m] == k:
+                                Fp = laws[k].return_mapping(p, Fp, m, mat_mu[m], mat_lam[m])
                 F[p] = Fp
+                xp = x[p] + dt * new_v
+                if ti.static(boundary.n_colliders > 0):
+                    # a particle that ended inside a collider goes back to its surface (the grid
+                    # contact alone lets particles that start inside, or tunnel, stay there)
+                    xp, new_v = boundary.project_particle(xp, new_v)
+                xp = ti.min(ti.max(xp, dom_lo), dom_hi)
                 v[p] = new_v
                 C[p] = new_C
-                x[p] = ti.min(ti.max(x[p] + dt * new_v, dom_lo), dom_hi)
+                x[p] = xp
 
         @ti.func
         def particle_base(p):
@@ -547,7 +564,6 @@ class MPMSolver(Solver):
         # ---- per-frame kernels
         nb = len(self.bodies)
         body_offsets, stat_speed, stat_bad = self.body_offsets, self.stat_speed, self.stat_bad
-        out_J, out_vm = self.out_J, self.out_vm
         f64 = f == ti.f64
 
         @ti.func
@@ -574,11 +590,28 @@ class MPMSolver(Solver):
                         hi = m
             return lo
 
+        stat_stiff = self.stat_stiff
+        any_hardening = any(law.hardens for law in laws)
+
+        @ti.func
+        def law_call_scalar(p, which: ti.template()):
+            """A per-particle scalar of the particle's law (plastic_J, stiffness_factor)."""
+            r = 1.0
+            if ti.static(n_laws == 1):
+                r = ti.static(getattr(laws[0], which))(p)
+            else:
+                lid = mat_law_id[mid[p]]
+                for k in ti.static(range(n_laws)):
+                    if lid == k:
+                        r = ti.static(getattr(laws[k], which))(p)
+            return r
+
         @ti.kernel
         def frame_stats():
             for b in range(nb):
                 stat_speed[b] = 0.0
                 stat_bad[b] = 0
+            stat_stiff[None] = 1.0
             for p in range(n):
                 b = body_of(p)
                 vp = v[p]
@@ -586,47 +619,84 @@ class MPMSolver(Solver):
                     ti.atomic_max(stat_speed[b], vp.norm())
                 else:
                     ti.atomic_add(stat_bad[b], 1)
+                if ti.static(any_hardening):
+                    ti.atomic_max(stat_stiff[None], law_call_scalar(p, "stiffness_factor"))
 
-        @ti.kernel
-        def outputs():
-            for p in range(n):
-                Fp = F[p]
-                J = Fp.determinant()
-                tau = kirchhoff(p, Fp, J, False)
-                invJ = 0.0
-                if J != 0:
-                    invJ = 1.0 / J
-                s = tau * invJ  # Cauchy stress
-                vm = 0.0
-                if ti.static(dim == 3):
-                    dev = s - ti.Matrix.identity(f, 3) * (s.trace() / 3.0)
-                    vm = ti.sqrt(1.5 * (dev * dev).sum())
-                else:
-                    # plane strain: add the out-of-plane normal stress
-                    szz = 0.0
+        @ti.func
+        def law_scalar(p, Fp, J, m, which: ti.template()):
+            """tau_zz or energy_density of the particle's law."""
+            r = 0.0
+            if ti.static(n_laws == 1):
+                r = ti.static(getattr(laws[0], which))(p, Fp, J, mat_mu[m], mat_lam[m])
+            else:
+                for k in ti.static(range(n_laws)):
+                    if mat_law_id[m] == k:
+                        r = ti.static(getattr(laws[k], which))(p, Fp, J, mat_mu[m], mat_lam[m])
+            return r
+
+        @ti.func
+        def law_scalar2(p, J, which: ti.template()):
+            r = 0.0
+            if ti.static(n_laws == 1):
+                r = ti.static(getattr(laws[0], which))(p, J)
+            else:
+                lid = mat_law_id[mid[p]]
+                for k in ti.static(range(n_laws)):
+                    if lid == k:
+                        r = ti.static(getattr(laws[k], which))(p, J)
+            return r
+
+        def make_outputs(out):
+            out_J, out_vm, out_p, out_jp, out_e = out
+
+            @ti.kernel
+            def outputs():
+                for p in range(n):
+                    Fp = F[p]
                     m = mid[p]
-                    if ti.static(n_laws == 1):
-                        szz = laws[0].tau_zz(Fp, J, mat_mu[m], mat_lam[m]) * invJ
+                    J = Fp.determinant()
+                    tau = kirchhoff(p, Fp, J, False)
+                    Je = law_scalar2(p, J, "elastic_J")
+                    invJ = 0.0
+                    if Je != 0:
+                        invJ = 1.0 / Je
+                    s = tau * invJ  # Cauchy stress
+                    vm = 0.0
+                    pressure = 0.0
+                    if ti.static(dim == 3):
+                        pressure = -s.trace() / 3.0
+                        dev = s + ti.Matrix.identity(f, 3) * pressure
+                        vm = ti.sqrt(1.5 * (dev * dev).sum())
                     else:
-                        for k in ti.static(range(n_laws)):
-                            if mat_law_id[m] == k:
-                                szz = laws[k].tau_zz(Fp, J, mat_mu[m], mat_lam[m]) * invJ
-                    mean = (s[0, 0] + s[1, 1] + szz) / 3.0
-                    d0 = s[0, 0] - mean
-                    d1 = s[1, 1] - mean
-                    d2 = szz - mean
-                    vm = ti.sqrt(1.5 * (d0 * d0 + d1 * d1 + d2 * d2 + s[0, 1] * s[0, 1] + s[1, 0] * s[1, 0]))
-                out_J[p] = J
-                out_vm[p] = vm
+                        # plane strain: add the out-of-plane normal stress
+                        szz = law_scalar(p, Fp, J, m, "tau_zz") * invJ
+                        mean = (s[0, 0] + s[1, 1] + szz) / 3.0
+                        d0 = s[0, 0] - mean
+                        d1 = s[1, 1] - mean
+                        d2 = szz - mean
+                        vm = ti.sqrt(1.5 * (d0 * d0 + d1 * d1 + d2 * d2 + s[0, 1] * s[0, 1] + s[1, 0] * s[1, 0]))
+                        pressure = -mean
+                    jp = law_call_scalar(p, "plastic_J")
+                    out_J[p] = law_scalar2(p, J, "total_J")  # total volume ratio J = J_p J_E
+                    out_vm[p] = vm
+                    out_p[p] = pressure
+                    out_jp[p] = jp
+                    out_e[p] = law_scalar(p, Fp, J, m, "energy_density") * vol[p]
+
+            return outputs
 
         self._substep = substep
         self._stage_p2g, self._stage_grid_update, self._stage_g2p = stage_p2g, stage_grid_update, stage_g2p
-        self._compute_bbox, self._frame_stats, self._outputs = compute_bbox, frame_stats, outputs
+        self._compute_bbox, self._frame_stats, self._make_outputs = compute_bbox, frame_stats, make_outputs
+        self._outputs = None
 
     # ---------------------------------------------------------------- stepping
 
     def substep(self, dt: float) -> None:
+        for law in self.laws:  # muscle activations at the start of the substep (host, no sync)
+            law.host_update(self.time)
         self._substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
+        self.time += dt
         self._version += 1
 
     # ------------------------------------------------------------ frame checks
@@ -643,12 +713,16 @@ class MPMSolver(Solver):
         return out
 
     def stable_dt(self) -> float:
-        """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p) [s]; one reduction kernel."""
+        """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p, viscosity limit) [s]; one reduction
+        kernel. c_p is the P-wave speed of the stiffest material, raised by the largest current
+        hardening factor (snow) and the largest muscle activation."""
         self._frame_stats()
         vmax = float(np.max(self.stat_speed.to_numpy()))
-        dt_wave = WAVE_SAFETY * self.dx / self.c_max if self.c_max > 0 else math.inf
+        stiff = max(1.0, float(self.stat_stiff[None])) * self.wave_factor
+        c = self.c_max * math.sqrt(stiff)
+        dt_wave = WAVE_SAFETY * self.dx / c if c > 0 else math.inf
         dt_cfl = self.cfl * self.dx / vmax if vmax > 0 else math.inf
-        return float(min(dt_wave, dt_cfl))
+        return float(min(dt_wave, dt_cfl, WAVE_SAFETY * self.dt_visc))
 
     # ------------------------------------------------------------------ output
 
@@ -660,10 +734,13 @@ class MPMSolver(Solver):
             arr = self.x.to_numpy()
         elif key == "velocity":
             arr = self.v.to_numpy()
-        elif key in ("J", "stress"):
+        elif key in DERIVED_FIELDS:
+            if self._out is None:  # allocated on first use: only scenes that write them pay
+                self._out = tuple(ti.field(self.f, shape=self.n) for _ in DERIVED_FIELDS)
+                self._outputs = self._make_outputs(self._out)
             self._outputs()
-            self._cache["J"] = (self._version, self.out_J.to_numpy())
-            self._cache["stress"] = (self._version, self.out_vm.to_numpy())
+            for name, fld in zip(DERIVED_FIELDS, self._out):
+                self._cache[name] = (self._version, fld.to_numpy())
             return self._cache[key][1]
         elif key == "material_id":
             arr = self.mid.to_numpy()
@@ -680,7 +757,8 @@ class MPMSolver(Solver):
     # ------------------------------------------------------------------- state
 
     def get_state(self) -> dict[str, np.ndarray]:
-        state = {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "C": self.C.to_numpy(), "F": self.F.to_numpy()}
+        state = {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "C": self.C.to_numpy(), "F": self.F.to_numpy(),
+                 "time": np.array([self.time])}
         for law in self.laws:
             state.update(law.get_state())
         return state
@@ -696,6 +774,8 @@ class MPMSolver(Solver):
             fld.from_numpy(arr)
         for law in self.laws:
             law.set_state(state)
+        if "time" in state:
+            self.time = float(np.asarray(state["time"]).reshape(-1)[0])
         self._compute_bbox()
         self._version += 1
 
@@ -705,7 +785,7 @@ class MPMSolver(Solver):
     def output_fields(self) -> dict[str, tuple[int, str]]:
         d = self.dim
         return {"position": (d, "m"), "velocity": (d, "m/s"), "J": (1, "1"), "stress": (1, "Pa"),
-                "material_id": (1, "1")}
+                "pressure": (1, "Pa"), "Jp": (1, "1"), "elastic_energy": (1, "J"), "material_id": (1, "1")}
 
     # ------------------------------------------------------------------ counts
 

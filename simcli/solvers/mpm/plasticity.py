@@ -1,0 +1,403 @@
+"""Plastic MPM laws: von Mises and clamped elasto-plasticity, Drucker-Prager sand, snow.
+
+All four work on the singular values of the trial elastic deformation gradient
+F_E = U diag(s) V^T (``ti.svd``), after the update F <- (I + dt C) F of g2p:
+
+* ``von_mises`` (``MPM.ElastoPlastic``, ``use_von_mises: true``): Hencky elasticity
+  tau = U (2 mu eps + lambda tr(eps) I) U^T, eps = log(s), and J2 plasticity by radial return on
+  the deviatoric Hencky strain (Simo 1992; the return is exact for Hencky elasticity because the
+  deviatoric Kirchhoff stress is 2 mu dev(eps)). The von Mises equivalent *Cauchy* stress
+  sqrt(3/2) |dev tau| / J_E is kept <= sigma_y: in strain space |dev eps| <= sqrt(2/3) sigma_y J_E /
+  (2 mu). Plastic flow keeps the volume, so J_E = exp(tr eps) is not changed by the return and
+  the bound is exact: uniaxial stress saturates at sigma_y, pure shear at sigma_y / sqrt(3).
+  (Genesis bounds |dev eps| by sigma_y / (2 mu), which lets uniaxial stress reach
+  sqrt(3/2) sigma_y.)
+* ``clamp`` (``use_von_mises: false``): s clamped into [1 - theta_c, 1 + theta_s] (Stomakhin
+  et al. 2013 without hardening), fixed corotated elasticity with R = U V^T.
+* ``snow``: the same clamp, J_p <- J_p prod(s / s_clamped), and mu, lambda scaled by
+  exp(xi (1 - J_p)) (Stomakhin et al. 2013, eq. 1-3).
+* ``sand``: Drucker-Prager on the Hencky strain (Klar et al. 2016, sec. 6.3 and eq. 26-28),
+  cohesion by moving the cone's apex to the tensile mean stress c / tan(phi), and the volume
+  correction of Tampubolon et al. 2017 (sec. 4.3.2): the log-volume a particle gains when it is
+  projected to the apex (grains separating) is remembered and given back before it resists
+  compression again.
+
+Each law computes the Kirchhoff stress from the same decomposition and stores it per particle
+(``stores_stress``): p2g reads it, so F is decomposed once per substep. J_p, where tracked, obeys
+J_p J_E = J exactly up to round-off (clamp, snow, sand).
+
+2D is plane strain (F_zz = 1). The Hencky laws (von Mises, sand) keep the out-of-plane elastic
+log strain eps_zz per particle: plastic flow may change it (the total F_zz stays 1, so the
+plastic one compensates), and the return mappings work on the three principal strains
+(eps_1, eps_2, eps_zz), exactly as a 3D body in plane strain would; a 2D von Mises bar therefore
+yields at the same stresses as a 3D one. The clamp laws (clamp, snow) clamp the two in-plane
+singular values only (as Stomakhin et al. in 2D); their out-of-plane stress is lambda J (J - 1).
+"""
+
+
+import math
+from typing import Any, ClassVar
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.mpm.constitutive import ConstitutiveLaw, _np_dtype
+
+with stdout_to_stderr():
+    import taichi as ti
+
+
+@ti.func
+def principal(U, s, V):
+    """U diag(s) V^T."""
+    A = U * 0.0
+    for i in ti.static(range(s.n)):
+        for j in ti.static(range(s.n)):
+            acc = U[i, 0] * s[0] * V[j, 0]
+            for k in ti.static(range(1, s.n)):
+                acc += U[i, k] * s[k] * V[j, k]
+            A[i, j] = acc
+    return A
+
+
+@ti.func
+def singular_values(S):
+    return ti.Vector([S[i, i] for i in ti.static(range(S.n))])
+
+
+@ti.data_oriented
+class _SVDPlasticLaw(ConstitutiveLaw):
+    """Shared host side: the stored Kirchhoff stress and (optionally) J_p per particle."""
+
+    plastic: ClassVar[bool] = True
+    stores_stress: ClassVar[bool] = True
+    material_type: ClassVar[str] = ""
+
+    plane_strain_zz: ClassVar[bool] = False  # 2D: keeps the out-of-plane elastic log strain
+
+    def allocate(self, n: int) -> None:
+        self.n = n
+        self.tau = ti.Matrix.field(self.dim, self.dim, self.dtype, shape=n)
+        self.Jp = ti.field(self.dtype, shape=n) if self.tracks_jp else None
+        self.ezz = ti.field(self.dtype, shape=n) if (self.plane_strain_zz and self.dim == 2) else None
+
+    def _np(self):
+        return _np_dtype(self.dtype)
+
+    def _state_fields(self) -> dict:
+        fields = {f"{self.key}_tau": self.tau}
+        if self.Jp is not None:
+            fields[f"{self.key}_Jp"] = self.Jp
+        if self.ezz is not None:
+            fields[f"{self.key}_ezz"] = self.ezz
+        return fields
+
+    def state_names(self) -> list[str]:
+        return list(self._state_fields())
+
+    def init_state(self) -> None:
+        self.tau.from_numpy(np.zeros((self.n, self.dim, self.dim), self._np()))
+        if self.Jp is not None:
+            self.Jp.from_numpy(np.ones(self.n, self._np()))
+        if self.ezz is not None:
+            self.ezz.from_numpy(np.zeros(self.n, self._np()))
+
+    def get_state(self) -> dict[str, np.ndarray]:
+        return {k: f.to_numpy() for k, f in self._state_fields().items()}
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        for k, f in self._state_fields().items():
+            f.from_numpy(np.ascontiguousarray(state[k], dtype=self._np()))
+
+    def _param(self, materials: list, getter) -> Any:
+        """A per-material parameter field, filled for the materials of this law."""
+        fld = ti.field(self.dtype, shape=max(1, len(materials)))
+        arr = np.zeros(max(1, len(materials)), self._np())
+        for k, m in enumerate(materials):
+            if self.uses(m):
+                arr[k] = getter(m)
+        fld.from_numpy(arr)
+        return fld
+
+    def uses(self, material: Any) -> bool:
+        from simcli.solvers.mpm.constitutive import law_key
+
+        return law_key(material) == self.key
+
+    def bind(self, solver: Any) -> None:
+        self.mid = solver.mid
+
+    @ti.func
+    def kirchhoff(self, p, F, J, mu, lam, update: ti.template()):
+        return self.tau[p]
+
+    @ti.func
+    def plastic_J(self, p):
+        jp = 1.0
+        if ti.static(self.tracks_jp):
+            jp = self.Jp[p]
+        return jp
+
+    @ti.func
+    def elastic_J(self, p, J):
+        """det F_E; 2D: times the out-of-plane elastic stretch exp(eps_zz)."""
+        r = J
+        if ti.static(self.plane_strain_zz and self.dim == 2):
+            r *= ti.exp(self.ezz[p])
+        return r
+
+    # ---- Hencky laws: three principal log strains (2D: the third is eps_zz, plane strain)
+    @ti.func
+    def log_strains(self, p, s, floor):
+        """(eps_1, eps_2, eps_3) of the trial F_E; 2D: (eps_1, eps_2, eps_zz)."""
+        e = ti.log(ti.max(ti.abs(s), floor))
+        r = ti.Vector.zero(self.dtype, 3)
+        if ti.static(self.dim == 3):
+            r = e
+        else:
+            r = ti.Vector([e[0], e[1], self.ezz[p]])
+        return r
+
+    @ti.func
+    def in_plane(self, e3):
+        r = ti.Vector.zero(self.dtype, self.dim)
+        for i in ti.static(range(self.dim)):
+            r[i] = e3[i]
+        return r
+
+    @ti.func
+    def store_hencky(self, p, U, e3, mu, lam):
+        """Store the Kirchhoff stress U diag(2 mu eps + lambda tr eps) U^T (in-plane part in 2D)
+        and, in 2D, the out-of-plane elastic strain."""
+        tr = e3.sum()
+        self.tau[p] = principal(U, 2.0 * mu * self.in_plane(e3) + lam * tr, U)
+        if ti.static(self.dim == 2):
+            self.ezz[p] = e3[2]
+
+    @ti.func
+    def hencky_energy(self, p, F, mu, lam):
+        U, S, V = ti.svd(F, self.dtype)
+        eps = self.log_strains(p, singular_values(S), 1.0e-6)
+        tr = eps.sum()
+        return mu * eps.dot(eps) + 0.5 * lam * tr * tr
+
+    @ti.func
+    def hencky_tau_zz(self, p, J, mu, lam):
+        r = 0.0
+        if ti.static(self.dim == 2):
+            ezz = self.ezz[p]
+            r = 2.0 * mu * ezz + lam * (ti.log(ti.max(J, 1.0e-6)) + ezz)
+        return r
+
+    @ti.func
+    def corotated_principal_tau(self, U, s, mu, lam):
+        """Fixed corotated Kirchhoff stress for F = U diag(s) V^T, R = U V^T:
+        2 mu (F - R) F^T + lambda J (J - 1) I = U diag(2 mu (s - 1) s + lambda J (J - 1)) U^T."""
+        J = 1.0
+        for i in ti.static(range(s.n)):
+            J *= s[i]
+        return principal(U, 2.0 * mu * (s - 1.0) * s + lam * J * (J - 1.0), U)
+
+    @ti.func
+    def corotated_energy(self, F, J, mu, lam):
+        U, S, V = ti.svd(F, self.dtype)
+        s = singular_values(S)
+        return mu * (s - 1.0).dot(s - 1.0) + 0.5 * lam * (J - 1.0) ** 2
+
+
+@ti.data_oriented
+class VonMisesLaw(_SVDPlasticLaw):
+    """``MPM.ElastoPlastic`` with ``use_von_mises: true``: Hencky elasticity + J2 radial return."""
+
+    key = "von_mises"
+    plane_strain_zz = True
+
+    def allocate_materials(self, materials: list) -> None:
+        self.n_materials = len(materials)
+        self.yield_stress = self._param(materials, lambda m: m.von_mises_yield_stress)
+
+    @ti.func
+    def return_mapping(self, p, F, mid, mu, lam):
+        U, S, V = ti.svd(F, self.dtype)
+        s = singular_values(S)
+        # an inverted or nearly collapsed particle: no logarithm of s <= 0 (as Genesis: floor 0.05)
+        eps = self.log_strains(p, s, 0.05)
+        changed = False
+        for i in ti.static(range(self.dim)):
+            if s[i] < 0.05:
+                changed = True
+        tr = eps.sum()
+        ehat = eps - tr / 3.0
+        norm = ehat.norm()
+        # |dev eps| <= sqrt(2/3) sigma_y J_E / (2 mu): von Mises Cauchy stress <= sigma_y, J_E = exp(tr)
+        radius = ti.sqrt(2.0 / 3.0) * self.yield_stress[mid] * ti.exp(tr) / (2.0 * mu)
+        if norm > radius:
+            eps = tr / 3.0 + (radius / norm) * ehat
+            changed = True
+        Fn = F
+        if changed:
+            Fn = principal(U, ti.exp(self.in_plane(eps)), V)
+        self.store_hencky(p, U, eps, mu, lam)
+        return Fn
+
+    @ti.func
+    def tau_zz(self, p, F, J, mu, lam):
+        return self.hencky_tau_zz(p, J, mu, lam)
+
+    @ti.func
+    def energy_density(self, p, F, J, mu, lam):
+        return self.hencky_energy(p, F, mu, lam)
+
+
+@ti.data_oriented
+class ClampLaw(_SVDPlasticLaw):
+    """``MPM.ElastoPlastic`` with ``use_von_mises: false``: clamped singular values, corotated."""
+
+    key = "clamp"
+    tracks_jp = True
+
+    def allocate_materials(self, materials: list) -> None:
+        self.n_materials = len(materials)
+        self.lower = self._param(materials, lambda m: 1.0 - m.yield_lower)
+        self.upper = self._param(materials, lambda m: 1.0 + m.yield_higher)
+
+    @ti.func
+    def clamp(self, p, F, mid):
+        """Clamp the singular values; J_p takes the volume the clamp removes from F_E."""
+        U, S, V = ti.svd(F, self.dtype)
+        s = singular_values(S)
+        lo = self.lower[mid]
+        hi = self.upper[mid]
+        sc = ti.min(ti.max(s, lo), hi)
+        ratio = 1.0
+        for i in ti.static(range(self.dim)):
+            # s <= 0 (inverted) cannot be a volume ratio: count it as a tiny positive one
+            ratio *= ti.max(s[i], 1.0e-6) / sc[i]
+        jp = self.Jp[p] * ratio
+        self.Jp[p] = jp
+        return U, sc, V, jp
+
+    @ti.func
+    def return_mapping(self, p, F, mid, mu, lam):
+        U, sc, V, jp = self.clamp(p, F, mid)
+        self.tau[p] = self.corotated_principal_tau(U, sc, mu, lam)
+        return principal(U, sc, V)
+
+    @ti.func
+    def tau_zz(self, p, F, J, mu, lam):
+        return lam * (J - 1.0) * J
+
+    @ti.func
+    def energy_density(self, p, F, J, mu, lam):
+        return self.corotated_energy(F, J, mu, lam)
+
+
+@ti.data_oriented
+class SnowLaw(ClampLaw):
+    """``MPM.Snow``: the clamp of ``ClampLaw`` with hardening exp(xi (1 - J_p))."""
+
+    key = "snow"
+    hardens = True
+
+    def allocate_materials(self, materials: list) -> None:
+        super().allocate_materials(materials)
+        self.xi = self._param(materials, lambda m: m.hardening)
+
+    @ti.func
+    def hardening(self, mid, jp):
+        return ti.exp(self.xi[mid] * (1.0 - jp))
+
+    @ti.func
+    def return_mapping(self, p, F, mid, mu, lam):
+        U, sc, V, jp = self.clamp(p, F, mid)
+        h = self.hardening(mid, jp)
+        self.tau[p] = self.corotated_principal_tau(U, sc, mu * h, lam * h)
+        return principal(U, sc, V)
+
+    @ti.func
+    def tau_zz(self, p, F, J, mu, lam):
+        return self.hardening(self.mid[p], self.Jp[p]) * lam * (J - 1.0) * J
+
+    @ti.func
+    def energy_density(self, p, F, J, mu, lam):
+        h = self.hardening(self.mid[p], self.Jp[p])
+        return self.corotated_energy(F, J, mu * h, lam * h)
+
+    @ti.func
+    def stiffness_factor(self, p):
+        return self.hardening(self.mid[p], self.Jp[p])
+
+
+@ti.data_oriented
+class SandLaw(_SVDPlasticLaw):
+    """``MPM.Sand``: Drucker-Prager (Klar et al. 2016) with cohesion and volume correction."""
+
+    key = "sand"
+    tracks_jp = True
+    plane_strain_zz = True
+
+    def allocate(self, n: int) -> None:
+        super().allocate(n)
+        self.vc = ti.field(self.dtype, shape=n)  # log-volume gained while separated (Tampubolon 2017)
+
+    def _state_fields(self) -> dict:
+        return {**super()._state_fields(), "sand_vc": self.vc}
+
+    def init_state(self) -> None:
+        super().init_state()
+        self.vc.from_numpy(np.zeros(self.n, self._np()))
+
+    def allocate_materials(self, materials: list) -> None:
+        self.n_materials = len(materials)
+        self.alpha = self._param(materials, lambda m: m.alpha)
+        # mean Kirchhoff stress at the cone's apex: c cot(phi) (Mohr-Coulomb), 0 without cohesion
+        self.apex = self._param(materials, lambda m: m.cohesion / math.tan(math.radians(m.friction_angle)))
+        self.correct = self._param(materials, lambda m: 1.0 if m.volume_correction else 0.0)
+
+    @ti.func
+    def return_mapping(self, p, F, mid, mu, lam):
+        U, S, V = ti.svd(F, self.dtype)
+        s = singular_values(S)
+        eps = self.log_strains(p, s, 1.0e-4)
+        changed = False
+        for i in ti.static(range(self.dim)):
+            if s[i] <= 0.0:
+                changed = True  # inverted: rebuilt from |s|
+        vc = self.vc[p] * self.correct[mid]
+        tr = eps.sum() + vc  # volumetric strain with the remembered separation volume
+        ehat = eps - eps.sum() / 3.0
+        norm = ehat.norm()
+        bulk = 3.0 * lam + 2.0 * mu  # tr(tau) = bulk tr(eps)
+        tr_apex = 3.0 * self.apex[mid] / bulk
+        new_eps = eps
+        vc_new = 0.0
+        if tr >= tr_apex:
+            # beyond the apex (grains separating): stress-free up to the cohesion, remember the volume
+            new_eps = ti.Vector([tr_apex / 3.0] * 3)
+            vc_new = tr - tr_apex
+            changed = True
+        else:
+            corrected = ehat + tr / 3.0
+            dgamma = norm + bulk / (2.0 * mu) * self.alpha[mid] * (tr - tr_apex)  # Klar et al. eq. 27
+            if dgamma > 0.0:
+                new_eps = corrected - (dgamma / norm) * ehat
+                changed = True
+            elif vc != 0.0:
+                new_eps = corrected
+                changed = True
+        self.vc[p] = vc_new
+        # J_p J_E = J: the plastic volume ratio takes what the projection removed from J_E
+        self.Jp[p] = self.Jp[p] * ti.exp(eps.sum() - new_eps.sum())
+        Fn = F
+        if changed:
+            Fn = principal(U, ti.exp(self.in_plane(new_eps)), V)
+        self.store_hencky(p, U, new_eps, mu, lam)
+        return Fn
+
+    @ti.func
+    def tau_zz(self, p, F, J, mu, lam):
+        return self.hencky_tau_zz(p, J, mu, lam)
+
+    @ti.func
+    def energy_density(self, p, F, J, mu, lam):
+        return self.hencky_energy(p, F, mu, lam)
