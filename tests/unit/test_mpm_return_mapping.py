@@ -1,0 +1,380 @@
+"""Single-particle return mappings of the MPM plastic laws, against exact answers.
+
+Each law's ``return_mapping`` and ``kirchhoff`` run on a batch of independent particles in a
+small kernel (f32, the solver's default), so "exact" means to f32 round-off:
+
+* von Mises (Hencky + radial return): uniaxial stress saturates at the yield stress, pure shear
+  at yield / sqrt(3), the elastic range is Hencky's tau = E ln(stretch), and the von Mises
+  Cauchy stress never exceeds the yield stress for any trial F; 2D is plane strain;
+* clamp and snow: the singular values end in [1 - theta_c, 1 + theta_s], J_p J_E = J along a
+  random deformation path, snow's stress is the corotated one scaled by exp(xi (1 - J_p));
+* sand (Drucker-Prager): the stress ends on or inside the cone, separation is stress-free and
+  its volume is remembered and given back, the return keeps the volume (no dilatancy), J_p J_E = J;
+* liquid: F becomes J^(1/d) I; muscle: the active stress k a (F f0)(F f0)^T.
+"""
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+SY = 1.0e4  # yield stress [Pa]
+E, NU = 1.0e6, 0.3
+MU = E / (2 * (1 + NU))
+LAM = E * NU / ((1 + NU) * (1 - 2 * NU))
+
+
+def random_rotation(rng, n=3):
+    Q, R = np.linalg.qr(rng.normal(size=(n, n)))
+    Q = Q @ np.diag(np.sign(np.diag(R)))
+    if np.linalg.det(Q) < 0:
+        Q[:, 0] *= -1
+    return Q
+
+
+def mat(**kw):
+    from simcli.scene.models import Scene
+
+    kw.setdefault("E", E)
+    kw.setdefault("nu", NU)
+    s = Scene.model_validate({"entities": [{"name": "a", "material": kw,
+                                            "morph": {"type": "Sphere", "center": [0, 0, 0.5], "radius": 0.1}}]})
+    return s.entities[0].material
+
+
+class Harness:
+    """One law, n independent particles: F_E in, return mapping, F_E and tau out."""
+
+    def __init__(self, material, dim=3, n=64):
+        import taichi as ti
+
+        from simcli.solvers.mpm.constitutive import LAWS, elastic_moduli, law_key
+
+        self.ti = ti
+        self.n, self.dim = n, dim
+        self.mu, self.lam = elastic_moduli(material)
+        law = LAWS[law_key(material)](dim, ti.f32)
+        law.allocate(n)
+        law.allocate_materials([material])
+        self.C = ti.Matrix.field(dim, dim, ti.f32, shape=n)
+        body = SimpleNamespace(name="a", n=n, x=np.zeros((n, dim)))  # muscle groups are assigned per body
+        fake = SimpleNamespace(mid=ti.field(ti.i32, shape=n), C=self.C, n=n, bodies=[body], body_mid=[0],
+                               offsets=np.array([0, n]), materials=[material])
+        law.bind(fake)
+        law.init_state()
+        self.law = law
+        self.Fin = ti.Matrix.field(dim, dim, ti.f32, shape=n)
+        self.Fout = ti.Matrix.field(dim, dim, ti.f32, shape=n)
+        self.tau = ti.Matrix.field(dim, dim, ti.f32, shape=n)
+        self.tzz = ti.field(ti.f32, shape=n)
+        self.Je = ti.field(ti.f32, shape=n)
+        self.jp = ti.field(ti.f32, shape=n)
+        Fin, Fout, tau, tzz, Je, jp = self.Fin, self.Fout, self.tau, self.tzz, self.Je, self.jp
+
+        @ti.kernel
+        def step(mu: ti.f32, lam: ti.f32, plastic: ti.i32):
+            for p in range(n):
+                F = Fin[p]
+                if plastic:
+                    F = law.return_mapping(p, F, 0, mu, lam)
+                J = F.determinant()
+                Fout[p] = F
+                tau[p] = law.kirchhoff(p, F, J, mu, lam, True)
+                tzz[p] = law.tau_zz(p, F, J, mu, lam)
+                Je[p] = law.elastic_J(p, J)
+                jp[p] = law.plastic_J(p)
+
+        self._step = step
+
+    def run(self, F, plastic=True):
+        F = np.ascontiguousarray(np.broadcast_to(F, (self.n, self.dim, self.dim)), dtype=np.float32)
+        self.Fin.from_numpy(F)
+        self._step(self.mu, self.lam, int(plastic))
+        return self.Fout.to_numpy().astype(np.float64), self.tau.to_numpy().astype(np.float64)
+
+    def state(self):
+        return self.law.get_state()
+
+    def set_state(self, st):
+        self.law.set_state(st)
+
+
+def cauchy3(tau, tzz, Je):
+    """3x3 Cauchy stresses from (2D or 3D) Kirchhoff stresses (2D: plane strain, tau_zz)."""
+    n, d = tau.shape[:2]
+    s = np.zeros((n, 3, 3))
+    s[:, :d, :d] = tau
+    if d == 2:
+        s[:, 2, 2] = tzz
+    return s / Je[:, None, None]
+
+
+def von_mises(s):
+    dev = s - np.eye(3) * (np.trace(s, axis1=1, axis2=2) / 3)[:, None, None]
+    return np.sqrt(1.5 * (dev**2).sum(axis=(1, 2)))
+
+
+# ----------------------------------------------------------------------------- von Mises
+
+
+@pytest.fixture(scope="module")
+def vm3(ti_f32):
+    return Harness(mat(type="MPM.ElastoPlastic", von_mises_yield_stress=SY), dim=3, n=48)
+
+
+def uniaxial(h: Harness, stretch: np.ndarray, axis_rot=None):
+    """Uniaxial stress: for each axial stretch, the lateral stretch with zero lateral stress
+    (secant iterations on all particles at once). Returns (tau, F_out, tzz, Je)."""
+    d = h.dim
+    R = np.eye(d) if axis_rot is None else axis_rot
+    lat_a = np.full(h.n, 1.0)
+    lat_b = np.full(h.n, 0.97)
+    start = {k: v.copy() for k, v in h.state().items()}  # every trial starts from the same state
+
+    def lateral_stress(lat):
+        h.set_state(start)
+        F = np.zeros((h.n, d, d))
+        F[:, 0, 0] = stretch
+        for i in range(1, d):
+            F[:, i, i] = lat
+        F = R @ F @ R.T
+        _, tau = h.run(F)
+        return (R.T @ tau @ R)[:, 1, 1]
+
+    fa, fb = lateral_stress(lat_a), lateral_stress(lat_b)
+    for _ in range(40):
+        denom = np.where(fb != fa, fb - fa, 1.0)
+        lat_c = lat_b - fb * (lat_b - lat_a) / denom
+        lat_a, fa = lat_b, fb
+        lat_b, fb = lat_c, lateral_stress(lat_c)
+        if np.all(np.abs(fb) < 1e-6 * SY):
+            break
+    F = np.zeros((h.n, d, d))
+    F[:, 0, 0] = stretch
+    for i in range(1, d):
+        F[:, i, i] = lat_b
+    h.set_state(start)
+    Fo, tau = h.run(R @ F @ R.T)
+    return R.T @ tau @ R, Fo, h.tzz.to_numpy().astype(np.float64), h.Je.to_numpy().astype(np.float64)
+
+
+def test_von_mises_uniaxial_stress_saturates_at_the_yield_stress(vm3):
+    h = vm3
+    eps_y = SY / E  # Hencky uniaxial: tau_11 = E ln(stretch) until yield
+    logs = np.linspace(0.05 * eps_y, 40 * eps_y, h.n)
+    tau, _, _, Je = uniaxial(h, np.exp(logs), random_rotation(np.random.default_rng(1)))
+    sigma11 = tau[:, 0, 0] / Je
+    elastic = logs < 0.99 * eps_y
+    assert np.abs(tau[:, 1, 1]).max() < 1e-3 * SY and np.abs(tau[:, 2, 2]).max() < 1e-3 * SY
+    # Hencky: exact in ln(stretch), to f32 round-off (ln of a stretch 1 + 5e-4 carries ~2e-4 relative error)
+    assert np.allclose(tau[elastic, 0, 0], E * logs[elastic], rtol=1e-4, atol=1e-4 * SY)
+    plastic = logs > 1.01 * eps_y
+    assert plastic.sum() > 30
+    assert np.allclose(sigma11[plastic], SY, rtol=1e-4)  # saturates at the yield stress (Cauchy)
+
+
+def test_von_mises_pure_shear_saturates_at_yield_over_sqrt3(vm3):
+    h = vm3
+    rng = np.random.default_rng(2)
+    gam = np.linspace(0.02, 3.0, h.n) * SY / (2 * MU)
+    F = np.zeros((h.n, 3, 3))
+    F[:, 0, 0], F[:, 1, 1], F[:, 2, 2] = np.exp(gam), np.exp(-gam), 1.0
+    c, s = math.cos(math.pi / 4), math.sin(math.pi / 4)
+    R45 = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])  # principal axes at 45 deg: a shear in x-y
+    Q = random_rotation(rng)
+    _, tau = h.run(Q @ R45 @ F @ R45.T @ Q.T)
+    t = Q.T @ tau @ Q  # back to the shear frame
+    shear = np.abs(t[:, 0, 1])
+    yield_at = SY / math.sqrt(3)
+    elastic = 2 * MU * gam < 0.99 * yield_at
+    assert np.allclose(shear[elastic], 2 * MU * gam[elastic], rtol=1e-4, atol=1e-4 * SY)  # 2 mu gamma (Hencky)
+    assert np.allclose(shear[~elastic & (2 * MU * gam > 1.01 * yield_at)], yield_at, rtol=1e-4)
+    assert np.abs(t[:, 0, 0]).max() < 1e-4 * SY and np.abs(t[:, 2, 2]).max() < 1e-4 * SY
+
+
+def test_von_mises_never_exceeds_the_yield_surface_and_keeps_volume(vm3):
+    h = vm3
+    rng = np.random.default_rng(3)
+    F = np.stack([random_rotation(rng) @ np.diag(rng.uniform(0.9, 1.1, 3)) @ random_rotation(rng)
+                  for _ in range(h.n)])
+    Fo, tau = h.run(F)
+    Je = h.Je.to_numpy().astype(np.float64)
+    vm = von_mises(tau / Je[:, None, None])
+    assert vm.max() <= SY * (1 + 1e-4)
+    yielded = vm > 0.999 * SY
+    assert yielded.sum() > h.n // 2  # these trial strains are far beyond yield: most project
+    # plastic flow is isochoric: det F_E unchanged by the return
+    assert np.allclose(np.linalg.det(Fo), np.linalg.det(F), rtol=1e-5)
+    # the projection keeps the principal directions: tau commutes with F F^T
+    b = Fo @ Fo.transpose(0, 2, 1)
+    comm = tau @ b - b @ tau
+    assert np.abs(comm).max() < 1e-4 * SY
+    # a second return mapping of a projected state changes nothing (consistency)
+    Fo2, tau2 = h.run(Fo)
+    assert np.allclose(Fo2, Fo, atol=2e-6) and np.allclose(tau2, tau, atol=1e-3 * SY)
+
+
+def test_von_mises_2d_is_plane_strain(ti_f32):
+    """2D: uniaxial in-plane stress with F_zz = 1; the out-of-plane stress is what plane strain
+    gives, and the von Mises stress of the full 3D tensor saturates at the yield stress."""
+    h = Harness(mat(type="MPM.ElastoPlastic", von_mises_yield_stress=SY), dim=2, n=32)
+    logs = np.linspace(0.05, 40, h.n) * SY / E
+    tau, _, tzz, Je = uniaxial(h, np.exp(logs))
+    s = cauchy3(tau, tzz, Je)
+    vm = von_mises(s)
+    assert np.abs(tau[:, 1, 1]).max() < 1e-3 * SY
+    plastic = logs > 3 * SY / E
+    assert np.allclose(vm[plastic], SY, rtol=1e-4)
+    # elastic plane strain: sigma_zz = nu sigma_xx
+    elastic = logs < 0.5 * SY / E
+    assert np.allclose(tzz[elastic], NU * tau[elastic, 0, 0], rtol=1e-3)
+
+
+# --------------------------------------------------------------------- clamp and snow
+
+
+@pytest.mark.parametrize("kind", ["clamp", "snow"])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_clamp_keeps_singular_values_in_range_and_jp_je_equals_j(ti_f32, kind, dim):
+    tc, ts, xi = 2.5e-2, 7.5e-3, 10.0
+    m = (mat(type="MPM.ElastoPlastic", use_von_mises=False, yield_lower=tc, yield_higher=ts) if kind == "clamp"
+         else mat(type="MPM.Snow", yield_lower=tc, yield_higher=ts, hardening=xi))
+    h = Harness(m, dim=dim, n=32)
+    rng = np.random.default_rng(4)
+    FE = np.broadcast_to(np.eye(dim), (h.n, dim, dim)).copy()
+    J = np.ones(h.n)  # total volume ratio: product of det(I + dt C)
+    jp = np.ones(h.n)
+    for _ in range(30):
+        dF = np.stack([np.eye(dim) + 0.03 * rng.normal(size=(dim, dim)) for _ in range(h.n)])
+        J *= np.linalg.det(dF)
+        trial = (dF @ FE).astype(np.float32).astype(np.float64)
+        jp_old = jp
+        FE, tau = h.run(trial)
+        sv = np.linalg.svd(FE, compute_uv=False)
+        assert sv.min() >= (1 - tc) * (1 - 1e-6) and sv.max() <= (1 + ts) * (1 + 1e-6)
+        jp = h.jp.to_numpy().astype(np.float64)
+        # J_p J_E = J: exact in each return (f32 round-off), and along the whole path
+        assert np.allclose(jp * np.linalg.det(FE), jp_old * np.linalg.det(trial), rtol=3e-6)
+        assert np.allclose(jp * np.linalg.det(FE), J, rtol=1e-4)
+    # stress: fixed corotated of F_E (x exp(xi (1 - J_p)) for snow)
+    jp = h.jp.to_numpy().astype(np.float64)
+    hard = np.exp(xi * (1 - jp)) if kind == "snow" else np.ones(h.n)
+    for p in range(h.n):
+        U, s, Vt = np.linalg.svd(FE[p])
+        R = U @ Vt
+        Je = np.linalg.det(FE[p])
+        ref = hard[p] * (2 * MU * (FE[p] - R) @ FE[p].T + LAM * Je * (Je - 1) * np.eye(dim))
+        assert np.allclose(tau[p], ref, atol=2e-4 * np.abs(ref).max() + 1e-3), p
+    assert (jp < 0.95).any() and (jp > 1.05).any()  # the path did both compact and stretch
+
+
+# ---------------------------------------------------------------------------------- sand
+
+
+def dp_yield(tau, alpha, apex=0.0):
+    """Drucker-Prager f = |dev tau| + alpha (tr tau - 3 apex) (<= 0 admissible), 3x3 Kirchhoff."""
+    tr = np.trace(tau, axis1=1, axis2=2)
+    dev = tau - np.eye(3) * (tr / 3)[:, None, None]
+    return np.sqrt((dev**2).sum(axis=(1, 2))) + alpha * (tr - 3 * apex)
+
+
+@pytest.mark.parametrize("cohesion", [0.0, 2.0e3])
+def test_sand_ends_on_or_inside_the_cone(ti_f32, cohesion):
+    m = mat(type="MPM.Sand", friction_angle=30.0, cohesion=cohesion)
+    h = Harness(m, dim=3, n=64)
+    rng = np.random.default_rng(5)
+    # compressive and tensile trial strains with large shear
+    F = np.stack([random_rotation(rng) @ np.diag(rng.uniform(0.95, 1.03, 3)) @ random_rotation(rng)
+                  for _ in range(h.n)])
+    Fo, tau = h.run(F)
+    apex = cohesion / math.tan(math.radians(30.0))
+    f = dp_yield(tau, m.alpha, apex)
+    scale = np.abs(tau).max() + 1.0
+    assert f.max() <= 1e-4 * scale
+    on_cone = f > -1e-4 * scale
+    assert on_cone.sum() > h.n // 4
+    tr = np.trace(tau, axis1=1, axis2=2) / 3
+    assert tr.max() <= apex * (1 + 1e-4) + 1e-3  # mean stress never beyond the apex
+    # no dilatancy: where the return lands on the cone (not the apex), det F_E is unchanged
+    at_apex = np.isclose(np.linalg.svd(Fo, compute_uv=False).std(axis=1), 0.0, atol=1e-6)
+    sel = on_cone & ~at_apex
+    assert np.allclose(np.linalg.det(Fo[sel]), np.linalg.det(F[sel]), rtol=1e-5)
+    # J_p J_E = J (one step from F = I: J = det F)
+    jp = h.jp.to_numpy().astype(np.float64)
+    assert np.allclose(jp * np.linalg.det(Fo), np.linalg.det(F), rtol=1e-5)
+
+
+def test_sand_separation_is_stress_free_and_its_volume_comes_back(ti_f32):
+    """Stretch by 3% (separation: projected to the apex, stress-free, the log-volume gained is
+    remembered), then compress by 2%: still stress-free; compress by 2% more: only the remaining
+    1% is elastic compression (Tampubolon et al. 2017 volume correction)."""
+    m = mat(type="MPM.Sand", friction_angle=35.0)
+    h = Harness(m, dim=3, n=4)
+    s = np.exp(0.03 / 3)
+    Fo, tau = h.run(np.eye(3) * s)
+    assert np.abs(tau).max() == 0.0 and np.allclose(Fo, np.eye(3), atol=1e-6)
+    vc = h.state()["sand_vc"]
+    assert np.allclose(vc, 0.03, rtol=1e-5)
+    Fo, tau = h.run(Fo @ (np.eye(3) * np.exp(-0.02 / 3)))
+    assert np.abs(tau).max() == 0.0
+    assert np.allclose(h.state()["sand_vc"], 0.01, rtol=1e-4)
+    Fo, tau = h.run(Fo @ (np.eye(3) * np.exp(-0.02 / 3)))
+    bulk = LAM + 2 * MU / 3
+    assert np.allclose(np.log(np.linalg.det(Fo)), -0.01, rtol=1e-3)  # only 1% of it is elastic
+    assert np.allclose(np.trace(tau, axis1=1, axis2=2) / 3, bulk * -0.01, rtol=1e-3)
+    jp = h.jp.to_numpy()
+    assert np.allclose(jp * np.linalg.det(Fo), math.exp(0.03 - 0.04), rtol=1e-5)  # J_p J_E = J
+
+
+def test_sand_without_volume_correction_forgets_the_separation(ti_f32):
+    m = mat(type="MPM.Sand", friction_angle=35.0, volume_correction=False)
+    h = Harness(m, dim=3, n=4)
+    Fo, _ = h.run(np.eye(3) * math.exp(0.01))
+    Fo, tau = h.run(Fo @ (np.eye(3) * math.exp(-0.01 / 3)))
+    assert np.allclose(np.log(np.linalg.det(Fo)), -0.01, rtol=1e-3)  # all of the compression is elastic
+
+
+# ------------------------------------------------------------------------ liquid, muscle
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_liquid_keeps_only_the_volume(ti_f32, dim):
+    h = Harness(mat(type="MPM.Liquid"), dim=dim, n=16)
+    rng = np.random.default_rng(6)
+    F = np.stack([random_rotation(rng, dim) @ np.diag(rng.uniform(0.8, 1.2, dim)) @ random_rotation(rng, dim)
+                  for _ in range(h.n)])
+    Fo, tau = h.run(F)
+    J = np.linalg.det(F)
+    assert np.allclose(Fo, J[:, None, None] ** (1 / dim) * np.eye(dim), rtol=1e-5, atol=1e-6)
+    lam = mat(type="MPM.Liquid").lam
+    assert np.allclose(tau, (lam * J * (J - 1))[:, None, None] * np.eye(dim), rtol=1e-4, atol=1e-2)
+
+
+def test_viscous_liquid_stress_is_2_mu_dev_D(ti_f32):
+    eta = 2.5
+    h = Harness(mat(type="MPM.Liquid", viscous=True, mu=eta), dim=3, n=8)
+    rng = np.random.default_rng(7)
+    C = rng.normal(size=(h.n, 3, 3)).astype(np.float32)
+    h.C.from_numpy(C)
+    _, tau = h.run(np.eye(3), plastic=False)
+    D = 0.5 * (C + C.transpose(0, 2, 1))
+    ref = 2 * eta * (D - np.eye(3) * (np.trace(D, axis1=1, axis2=2) / 3)[:, None, None])
+    assert np.allclose(tau, ref, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("model", ["neohooken", "corotation"])
+def test_muscle_active_stress_along_the_fibre(ti_f32, model):
+    f0 = np.array([1.0, 2.0, 2.0]) / 3.0
+    m = mat(type="MPM.Muscle", model=model, fiber_direction=f0.tolist(),
+            groups=[{"actuation": {"type": "constant", "value": 0.1}}])
+    h = Harness(m, dim=3, n=8)
+    h.law.host_update(0.0)
+    rng = np.random.default_rng(8)
+    F = np.stack([random_rotation(rng) @ np.diag(rng.uniform(0.9, 1.1, 3)) for _ in range(h.n)])
+    _, tau_on = h.run(F, plastic=False)
+    h.law._set_actuation(h.ti.Vector([0.0]))
+    _, tau_off = h.run(F, plastic=False)
+    a = F @ f0
+    ref = 0.1 * m.E * a[:, :, None] * a[:, None, :]
+    assert np.allclose(tau_on - tau_off, ref, rtol=1e-4, atol=1e-3)
