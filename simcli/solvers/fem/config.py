@@ -1,0 +1,128 @@
+"""FEM configuration: solver options and the tetrahedral solid materials (pydantic, no Taichi).
+
+Names follow Genesis (``gs.options.FEMOptions``, ``gs.materials.FEM.Elastic``): ``E``, ``nu``,
+``rho``, ``model`` (linear | linear_corotated | stable_neohookean). Where simcli differs it says so
+in the field's description (lumped masses, tolerance-based Newton/PCG stopping).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from simcli.scene.material_base import _Solid
+from simcli.scene.morphs import Region
+
+Vec = list[float]
+
+
+class _Options(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class FEMOptions(_Options):
+    integrator: Literal["explicit", "implicit"] = Field(
+        "explicit",
+        description="explicit: symplectic Euler with lumped vertex masses (substep limited by the elastic wave "
+        "speed: use substeps: auto). implicit: backward Euler, each substep minimises the incremental potential "
+        "with Newton's method, PCG (3x3 block-Jacobi) linear solves and Armijo back-tracking.",
+    )
+    resolution: float = Field(
+        20.0, gt=0,
+        description="Box morphs: cells per metre of the structured tetrahedral subdivision (each cell is split "
+        "into 6 tetrahedra); at least one cell per axis.",
+    )
+    max_volume: float | None = Field(
+        None, gt=0,
+        description="Sphere, Cylinder and surface Mesh morphs: largest tetrahedron volume [m^3] of the "
+        "tetrahedralisation (default: about resolution^-3 / 6, i.e. Box-like element sizes).",
+    )
+    min_dihedral: float = Field(
+        10.0, ge=0, lt=70,
+        description="Sphere, Cylinder and surface Mesh morphs: smallest dihedral angle [deg] the tetrahedraliser "
+        "aims for (TetGen's -q quality bound).",
+    )
+    surface_resolution: float | None = Field(
+        None, gt=0,
+        description="Sphere and Cylinder morphs: triangles' edge length per metre on the surface before "
+        "tetrahedralisation (default: resolution).",
+    )
+    newton_tol: float = Field(
+        1.0e-5, gt=0,
+        description="Implicit: Newton stops when the residual (incremental-potential gradient, free vertices) "
+        "has fallen below newton_tol times its value at the start of the substep, or below newton_atol.",
+    )
+    newton_atol: float = Field(
+        1.0e-6, gt=0,
+        description="Implicit: absolute Newton stop [m/s^2]: largest residual force per vertex mass.",
+    )
+    newton_max_iter: int = Field(
+        50, ge=1, description="Implicit: safety cap on Newton iterations per substep (hitting it is reported).")
+    pcg_tol: float = Field(
+        1.0e-4, gt=0, description="Implicit: PCG stops at this relative residual ||r|| / ||b|| [-].")
+    pcg_max_iter: int = Field(
+        1000, ge=1, description="Implicit: safety cap on PCG iterations per Newton step (hitting it is reported).")
+    line_search: bool = Field(True, description="Implicit: Armijo back-tracking line search on the incremental "
+                              "potential (c = 1e-4, halving, at most 20 halvings).")
+    damping: float = Field(
+        0.0, ge=0,
+        description="Stiffness-proportional (Rayleigh beta) damping [s]: viscous stress beta (2 mu sym(L) + "
+        "lambda tr(L) I), L the spatial velocity gradient. Rigid motion, free fall and rigid rotation are "
+        "not damped. Both integrators.",
+    )
+    contact_stiffness: float = Field(
+        1.0e3, gt=0,
+        description="Implicit: floor, wall and collider contact is a penalty in the incremental potential of "
+        "stiffness contact_stiffness x vertex mass / substep^2 [-] (penetration about g substep^2 / this).",
+    )
+    cfl: float = Field(0.4, gt=0, le=1, description="Explicit, substeps: auto: substep = cfl x smallest element "
+                       "height / P-wave speed [-].")
+
+
+class FEMBoundaryCondition(_Options):
+    """A boundary condition on the vertices (or boundary faces) inside a region of the initial shape."""
+
+    region: Region = Field(description="Vertices inside this region (initial positions) are concerned.")
+    axes: list[Literal["x", "y", "z"]] | None = Field(
+        None,
+        description="Held components (rollers: e.g. [x] holds x only). With velocity: the components moved; "
+        "default all.",
+    )
+    velocity: Vec | None = Field(
+        None, description="Prescribed velocity [m/s] of the held components: the vertices move on the path "
+        "x0 + velocity t (default: held in place).",
+    )
+    traction: Vec | None = Field(
+        None, description="Instead of holding: a dead-load surface traction [Pa] (force per initial area) on "
+        "the boundary faces whose vertices all lie in the region.",
+    )
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.traction is not None and (self.velocity is not None or self.axes is not None):
+            raise ValueError("a traction condition takes no axes or velocity")
+        return self
+
+
+class _FEMSolid(_Solid):
+    model: Literal["linear", "linear_corotated", "stable_neohookean"] = Field(
+        "stable_neohookean",
+        description="Constitutive model: 'linear' (small-strain, not rotation invariant), 'linear_corotated' "
+        "(linear in the stretch S of F = R S), 'stable_neohookean' (Smith, de Goes and Kim 2018, Lame "
+        "parameters reparameterised to match linear elasticity at small strain; robust to inversion).",
+    )
+    boundary_conditions: list[FEMBoundaryCondition] = Field(
+        default_factory=list,
+        description="Rollers, prescribed motion and surface tractions (entity.fixed holds every component).",
+    )
+
+
+class FEMElastic(_FEMSolid):
+    """Hyperelastic tetrahedral solid (linear tetrahedra)."""
+
+    type: Literal["FEM.Elastic"]
+
+
+# Every FEM material type; the scene's material union is built from these.
+MATERIALS = (FEMElastic,)

@@ -1,0 +1,207 @@
+"""Constitutive models of linear tetrahedra: energy density psi(F), first Piola-Kirchhoff stress
+P = dpsi/dF and the stress derivative dP/dF, as Taichi funcs.
+
+dP/dF is never stored as a 9x9 matrix. Every model gives it in the "singular-value frame" of
+Teran et al. 2005 / Smith et al. 2018: with F = U diag(s) V^T (signed, U and V rotations),
+
+* ``Hs`` (3x3): d^2 psi / ds_i ds_j, acting on the diagonal of dF' = U^T dF V;
+* for each pair (i, j) (order (0,1), (1,2), (0,2)), on (dF'_ij, dF'_ji), the 2x2 block with
+  eigenvalue ``ls`` on (1, 1) ("flip", (psi_i - psi_j)/(s_i - s_j)) and ``lt`` on (1, -1)
+  ("twist", (psi_i + psi_j)/(s_i + s_j)),
+
+and dP = U dP' V^T. Projecting dP/dF to positive semi-definite is clamping the eigenvalues of Hs
+and ls, lt at zero. The linear model fits the same form with U = V = I (Hs = 2 mu I + lambda 1 1^T,
+ls = 2 mu, lt = 0).
+
+Models (mu, lam are the Lame parameters passed at run time):
+
+* ``linear``: psi = mu eps:eps + lam/2 tr(eps)^2, eps = sym(F) - I. Not rotation invariant.
+* ``linear_corotated``: psi = mu |S - I|^2 + lam/2 tr(S - I)^2 with F = R S (polar, R a rotation;
+  inversion-aware through the signed SVD).
+* ``stable_neohookean`` (Smith, de Goes and Kim 2018, the form without the log term, as in their
+  HOBAK code): psi = mu/2 (I_C - 3) - mu (J - 1) + lam'/2 (J - 1)^2 with lam' = lam + mu, so that it
+  linearises to 2 mu eps + lam tr(eps) I at rest (Smith et al. sec. 3.4: the Lame reparameterisation);
+  the solver passes lam' (see ``lame_for``).
+"""
+
+
+from simcli.backend import stdout_to_stderr
+
+with stdout_to_stderr():
+    import taichi as ti
+
+MODELS = ("linear", "linear_corotated", "stable_neohookean")
+TWIST_EPS = 1e-6  # |s_i + s_j| below this: the twist eigenvalue's denominator is clamped
+
+
+def lame_for(model: str, mu: float, lam: float) -> tuple[float, float]:
+    """The (mu, lambda) a model's kernel gets for a material with Lame parameters (mu, lam)."""
+    if model == "stable_neohookean":
+        return mu, lam + mu
+    return mu, lam
+
+
+@ti.func
+def cofactor(F):
+    """cof(F) = dJ/dF = J F^-T, from cross products of F's columns (defined for any F)."""
+    c0 = ti.Vector([F[0, 1], F[1, 1], F[2, 1]]).cross(ti.Vector([F[0, 2], F[1, 2], F[2, 2]]))
+    c1 = ti.Vector([F[0, 2], F[1, 2], F[2, 2]]).cross(ti.Vector([F[0, 0], F[1, 0], F[2, 0]]))
+    c2 = ti.Vector([F[0, 0], F[1, 0], F[2, 0]]).cross(ti.Vector([F[0, 1], F[1, 1], F[2, 1]]))
+    return ti.Matrix.cols([c0, c1, c2])
+
+
+@ti.func
+def signed_svd(F):
+    """F = U diag(s) V^T with U, V proper rotations; an inverted F gets a negative s[2]."""
+    U, S, V = ti.svd(F)
+    if U.determinant() < 0:
+        for i in ti.static(range(3)):
+            U[i, 2] = -U[i, 2]
+        S[2, 2] = -S[2, 2]
+    if V.determinant() < 0:
+        for i in ti.static(range(3)):
+            V[i, 2] = -V[i, 2]
+        S[2, 2] = -S[2, 2]
+    return U, ti.Vector([S[0, 0], S[1, 1], S[2, 2]]), V
+
+
+@ti.func
+def _project_sym3(H):
+    """Clamp the eigenvalues of a symmetric 3x3 matrix at zero."""
+    lam, Q = ti.sym_eig(H)
+    return Q @ ti.Matrix([[ti.max(lam[0], 0.0), 0.0, 0.0], [0.0, ti.max(lam[1], 0.0), 0.0],
+                          [0.0, 0.0, ti.max(lam[2], 0.0)]]) @ Q.transpose()
+
+
+@ti.func
+def apply_dP(U, V, Hs, ls, lt, dF):
+    """dP = (dP/dF) : dF in the singular-value frame form (see the module docstring)."""
+    d = U.transpose() @ dF @ V
+    r = ti.Matrix.zero(float, 3, 3)
+    for i in ti.static(range(3)):
+        acc = 0.0 * d[0, 0]
+        for j in ti.static(range(3)):
+            acc += Hs[i, j] * d[j, j]
+        r[i, i] = acc
+    for k in ti.static(range(3)):
+        i, j = ti.static([(0, 1), (1, 2), (0, 2)][k])
+        a = 0.5 * (ls[k] + lt[k])
+        b = 0.5 * (ls[k] - lt[k])
+        r[i, j] = a * d[i, j] + b * d[j, i]
+        r[j, i] = b * d[i, j] + a * d[j, i]
+    return U @ r @ V.transpose()
+
+
+@ti.func
+def _twist(gi, gj, si, sj):
+    den = si + sj
+    if ti.abs(den) < TWIST_EPS:
+        den = TWIST_EPS if den >= 0 else -TWIST_EPS
+    return (gi + gj) / den
+
+
+class Linear:
+    name = "linear"
+
+    @staticmethod
+    @ti.func
+    def energy(F, mu, lam):
+        eps = 0.5 * (F + F.transpose()) - ti.Matrix.identity(float, 3)
+        tr = eps.trace()
+        return mu * (eps * eps).sum() + 0.5 * lam * tr * tr
+
+    @staticmethod
+    @ti.func
+    def pk1(F, mu, lam):
+        eps = 0.5 * (F + F.transpose()) - ti.Matrix.identity(float, 3)
+        return 2.0 * mu * eps + lam * eps.trace() * ti.Matrix.identity(float, 3)
+
+    @staticmethod
+    @ti.func
+    def hessian(F, mu, lam, project: ti.template()):
+        Id = ti.Matrix.identity(float, 3)
+        Hs = 2.0 * mu * Id + lam * ti.Matrix([[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]], float)
+        ls = ti.Vector([2.0 * mu, 2.0 * mu, 2.0 * mu], float)
+        lt = ti.Vector.zero(float, 3)
+        return Id, Id, Hs, ls, lt
+
+
+class LinearCorotated:
+    name = "linear_corotated"
+
+    @staticmethod
+    @ti.func
+    def energy(F, mu, lam):
+        U, s, V = signed_svd(F)
+        e = s - 1.0
+        tr = e.sum()
+        return mu * e.dot(e) + 0.5 * lam * tr * tr
+
+    @staticmethod
+    @ti.func
+    def pk1(F, mu, lam):
+        U, s, V = signed_svd(F)
+        R = U @ V.transpose()
+        tr = s.sum() - 3.0
+        return 2.0 * mu * (F - R) + lam * tr * R
+
+    @staticmethod
+    @ti.func
+    def hessian(F, mu, lam, project: ti.template()):
+        U, s, V = signed_svd(F)
+        tr = s.sum() - 3.0
+        g = 2.0 * mu * (s - 1.0) + lam * tr
+        Hs = 2.0 * mu * ti.Matrix.identity(float, 3) + lam * ti.Matrix(
+            [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]], float)
+        ls = ti.Vector([2.0 * mu, 2.0 * mu, 2.0 * mu], float)
+        lt = ti.Vector([_twist(g[0], g[1], s[0], s[1]), _twist(g[1], g[2], s[1], s[2]),
+                        _twist(g[0], g[2], s[0], s[2])], float)
+        if ti.static(project):
+            Hs = _project_sym3(Hs)
+            ls = ti.max(ls, 0.0)
+            lt = ti.max(lt, 0.0)
+        return U, V, Hs, ls, lt
+
+
+class StableNeoHookean:
+    name = "stable_neohookean"
+
+    @staticmethod
+    @ti.func
+    def energy(F, mu, lam):
+        J = F.determinant()
+        return 0.5 * mu * ((F * F).sum() - 3.0) - mu * (J - 1.0) + 0.5 * lam * (J - 1.0) * (J - 1.0)
+
+    @staticmethod
+    @ti.func
+    def pk1(F, mu, lam):
+        J = F.determinant()
+        return mu * F + (lam * (J - 1.0) - mu) * cofactor(F)
+
+    @staticmethod
+    @ti.func
+    def hessian(F, mu, lam, project: ti.template()):
+        U, s, V = signed_svd(F)
+        J = s[0] * s[1] * s[2]
+        c = lam * (J - 1.0) - mu
+        o = ti.Vector([s[1] * s[2], s[0] * s[2], s[0] * s[1]])  # J / s_i
+        Hs = ti.Matrix.zero(float, 3, 3)
+        for i in ti.static(range(3)):
+            for j in ti.static(range(3)):
+                if ti.static(i == j):
+                    Hs[i, j] = mu + lam * o[i] * o[i]
+                else:
+                    k = ti.static(3 - i - j)
+                    Hs[i, j] = s[k] * (lam * (2.0 * J - 1.0) - mu)
+        # pairs (0,1), (1,2), (0,2): the third index 2, 0, 1
+        sk = ti.Vector([s[2], s[0], s[1]])
+        ls = mu - c * sk
+        lt = mu + c * sk
+        if ti.static(project):
+            Hs = _project_sym3(Hs)
+            ls = ti.max(ls, 0.0)
+            lt = ti.max(lt, 0.0)
+        return U, V, Hs, ls, lt
+
+
+LAWS = {"linear": Linear, "linear_corotated": LinearCorotated, "stable_neohookean": StableNeoHookean}
