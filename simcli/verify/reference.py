@@ -58,6 +58,20 @@ def reference_series(case: Case, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return tt, vv
 
 
+def period_mean(t: np.ndarray, v: np.ndarray) -> float:
+    """Time average of an oscillation over its largest whole number of periods in [t0, t1]."""
+    sign = np.sign(v - v.mean())
+    cross = t[1:][sign[1:] != sign[:-1]]
+    if len(cross) >= 3:
+        period = 2.0 * float(np.median(np.diff(cross)))
+        k = int((t[-1] - t[0]) // period)
+        if k >= 1:
+            w = t <= t[0] + k * period
+            return float(np.trapezoid(v[w], t[w]) / (t[w][-1] - t[0]))
+    half = t >= t[0] + 0.5 * (t[-1] - t[0])
+    return float(v[half].mean())
+
+
 def compute_error(case: Case, t: np.ndarray, measured: np.ndarray) -> dict:
     spec: ErrorSpec = case.error
     t_ref, ref = reference_series(case, t)
@@ -93,6 +107,11 @@ def compute_error(case: Case, t: np.ndarray, measured: np.ndarray) -> dict:
         err = np.abs(diff).mean()
     elif m == "mean_rel":
         err = (np.abs(diff) / (scale or np.maximum(np.abs(ref), 1e-300))).mean()
+    elif m == "period_mean_rel":
+        # the static state an undamped oscillation swings about: its time average over the largest
+        # whole number of periods in the window (period from the crossings of its mean); a
+        # settled, non-oscillating series: the mean of the window's second half
+        err = abs(period_mean(tt, meas) - ref.mean()) / (scale or abs(ref.mean()))
     elif m == "midrange_rel":
         # (max + min) / 2 of an oscillation about a static state: the static value, whatever
         # the period, once the window holds a full period

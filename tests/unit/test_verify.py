@@ -49,6 +49,14 @@ def test_midrange_of_an_oscillation_is_the_static_value(tmp_path):
     assert compute_error(c, t, z)["error"] < 1e-3
 
 
+def test_period_mean_of_an_oscillation_with_a_higher_mode(tmp_path):
+    c = _case(tmp_path, "measure: {quantity: com}\nreference: {value: -2.0}\n"
+                        "error: {metric: period_mean_rel, window: [0.0, 0.6]}\ntolerance: 0.01\n")
+    t = np.linspace(0, 0.6, 601)
+    z = -2.0 * (1 - np.cos(2 * math.pi * t / 0.196)) + 0.1 * np.sin(2 * math.pi * t / 0.031)
+    assert compute_error(c, t, z)["error"] < 5e-3
+
+
 def test_table_reference_from_shared(tmp_path):
     tab = read_table(shared_dir() / "reference" / "martin_moyce_1952_n2_2_front.csv")
     assert tab.shape[1] >= 2 and len(tab) > 5
