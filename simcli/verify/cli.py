@@ -26,7 +26,9 @@ from simcli.errors import EXIT_INVALID_SCENE, SceneError
               help="Also write the Markdown report here (e.g. docs/VALIDATION.md).")
 @click.option("--backend", default=None, help="Compute backend for the runs.")
 @click.option("--list", "list_", is_flag=True, help="List the cases and exit.")
-def verify(cases, all_, tag, refine, root, out, report, backend, list_):
+@click.option("--reuse", is_flag=True, help="Reuse finished runs in OUT whose resolved scene is unchanged "
+              "(regenerate a report without rerunning).")
+def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse):
     """Run validation cases against their references; exit 1 when a case fails."""
     from simcli.verify.cases import discover, select
     from simcli.verify.report import markdown_table, plot_refinement, write_csv
@@ -49,7 +51,8 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_):
     t0 = time.perf_counter()
     for c in chosen:
         click.echo(f"verify: {c.name} ...", err=True)
-        rs = run_refinement(c, refine, out, backend) if refine > 1 else [run_case(c, 0, out, backend)]
+        rs = (run_refinement(c, refine, out, backend, reuse=reuse) if refine > 1
+              else [run_case(c, 0, out, backend, reuse=reuse)])
         for r in rs:
             state = "pass" if r.passed else ("FAIL" if r.passed is False else "-")
             click.echo(f"verify:   level {r.level} ({r.resolution}): error {r.error if r.error is None else f'{r.error:.4g}'}"
