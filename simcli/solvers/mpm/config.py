@@ -35,7 +35,7 @@ class MPMOptions(_Options):
         "lattice",
         description="Particle sampling: regular lattice; lattice with a random jitter; or Poisson-disk "
         "(blue noise, no lattice directions: for sand and snow). Poisson-disk samples keep a minimum distance "
-        "of about 0.85 particle_size and hold about as many particles as the lattice.",
+        "of 0.80 (2D) or 0.87 (3D) particle_size and hold about as many particles as the lattice.",
     )
     cfl: float = Field(0.3, gt=0, le=1, description="CFL number used by substeps: auto [-].")
 
@@ -105,12 +105,24 @@ class MPMSand(_Solid):
         True, description="Keep the volume gained when grains separate and give it back on compression "
         "(Tampubolon et al. 2017, sec. 4.3.2), so piles do not lose volume."
     )
+    cone: Literal["plane_strain", "compression"] = Field(
+        "plane_strain",
+        description="How the Drucker-Prager cone |dev tau| + alpha tr(tau) <= 0 is fitted to the Mohr-Coulomb "
+        "friction angle. plane_strain: the material fails at friction_angle under plane strain (slopes, heaps, "
+        "column collapses; alpha = sqrt(2) sin(phi) / 3). compression: Klar et al. 2016 and Genesis, exact in "
+        "triaxial compression (alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi))); under plane strain it acts like "
+        "a larger angle (44 deg for 30) and never yields in shear beyond 41.8 deg.",
+    )
 
     @property
     def alpha(self) -> float:
-        """Drucker-Prager cone slope (Klar et al. 2016, eq. 25): sqrt(2/3) 2 sin(phi) / (3 - sin(phi))."""
+        """Drucker-Prager cone slope alpha (see ``cone``)."""
         s = math.sin(math.radians(self.friction_angle))
-        return math.sqrt(2.0 / 3.0) * 2.0 * s / (3.0 - s)
+        if self.cone == "compression":
+            return math.sqrt(2.0 / 3.0) * 2.0 * s / (3.0 - s)  # Klar et al. 2016, eq. 25
+        # plane strain, zero dilatancy: sigma_zz is the mean in-plane stress at failure, so
+        # |dev tau| = sqrt(2) R and tr tau = 3 c (Mohr circle radius R, centre c): R = -(3 alpha / sqrt 2) c
+        return math.sqrt(2.0) * s / 3.0
 
 
 class MPMSnow(_Solid):
