@@ -125,3 +125,125 @@ def run_measurement(h5_path, quantity: str, entity: str | None, axis: int | None
     with h5py.File(h5_path, "r", swmr=True) as f:
         t, v = MEASUREMENTS[quantity](f, entity, **kw)
     return np.asarray(t, dtype=np.float64), np.asarray(v, dtype=np.float64)
+
+
+# ------------------------------------------------------------------ MPM validation measures
+
+
+def _stack(f, entity, field: str = "position") -> np.ndarray:
+    """``field`` of one entity, or of every entity side by side when ``entity`` is ``"*"``:
+    (frames, particles, ...) as float64."""
+    if entity == "*":
+        groups = list(f["entities"].values())
+        return np.concatenate([np.asarray(g[field][...], dtype=np.float64) for g in groups], axis=1)
+    _, g = _entity(f, entity)
+    return np.asarray(g[field][...], dtype=np.float64)
+
+
+@measurement("pressure_at_depth")
+def pressure_at_depth(f, entity, depth, axis=None, band=None, spacing=None, **_):
+    """Mean particle pressure [Pa] at ``depth`` [m] below the free surface (a hydrostatic column):
+    particles within ``band`` (default ``spacing``) of that depth along the vertical ``axis``
+    (default the last). The surface is the median height of the top layer of particles plus half the
+    particle ``spacing``."""
+    x = _stack(f, entity)
+    p = _stack(f, entity, "pressure")
+    ax = x.shape[2] - 1 if axis is None else axis
+    z = x[:, :, ax]
+    if spacing is None:
+        levels = np.unique(np.round(z[0], 9))
+        spacing = float(np.median(np.diff(levels))) if len(levels) > 1 else 0.0
+    band = spacing if band is None else band
+    # the top layer's median height (not the highest particle: one displaced particle would move it)
+    top = z.max(axis=1, keepdims=True)
+    surface = np.array([[np.median(zf[zf >= tf[0] - 0.5 * spacing])] for zf, tf in zip(z, top)]) + 0.5 * spacing
+    sel = np.abs((surface - z) - depth) <= 0.5 * band
+    counts = sel.sum(axis=1)
+    if np.any(counts == 0):
+        raise ValueError(f"pressure_at_depth: no particle within {band} m of depth {depth} m in some frame")
+    return f["time"][...], (p * sel).sum(axis=1) / counts
+
+
+@measurement("surge_front")
+def surge_front(f, entity, axis=0, q=99.0, wall=0.0, spacing=0.0, time_shift=0.0, **_):
+    """Surge front [m] from a ``wall`` along ``axis``: the q-th percentile of the particle coordinate
+    plus half a particle ``spacing`` (the liquid's edge), so one splashed particle does not count.
+    ``time_shift`` [s] is added to the times (an experiment's gate-opening delay)."""
+    x = _stack(f, entity)[:, :, axis]
+    return f["time"][...] + time_shift, np.percentile(x, q, axis=1) + 0.5 * spacing - wall
+
+
+@measurement("runout")
+def runout(f, entity, width, axis=0, wall=0.0, q=99.5, spacing=0.0, **_):
+    """Normalised run-out (L - L0) / L0 of a collapsing column of initial ``width`` L0 [m] against a
+    ``wall``: L is the q-th percentile of the coordinate along ``axis`` plus half a ``spacing``."""
+    x = _stack(f, entity)[:, :, axis]
+    front = np.percentile(x, q, axis=1) + 0.5 * spacing - wall
+    return f["time"][...], (front - width) / width
+
+
+@measurement("surface_angle")
+def surface_angle(f, entity, axis=0, up=None, bin=0.01, lo=0.2, hi=0.8, **_):
+    """Slope [deg] of a heap's free surface: the highest particle per ``bin`` [m] along ``axis``,
+    fitted by a line over the part of the heap between ``lo`` and ``hi`` of its height; positive
+    for a surface that falls along +axis. ``up``: the vertical axis (default the last)."""
+    x = _stack(f, entity)
+    up = x.shape[2] - 1 if up is None else up
+    out = []
+    for frame in x:
+        a, z = frame[:, axis], frame[:, up]
+        k = np.floor((a - a.min()) / bin).astype(np.int64)
+        top = np.full(k.max() + 1, -np.inf)
+        np.maximum.at(top, k, z)
+        centres = a.min() + (np.arange(len(top)) + 0.5) * bin
+        base = z.min()
+        h = top - base
+        sel = np.isfinite(h) & (h >= lo * h.max()) & (h <= hi * h.max())
+        if sel.sum() < 3:
+            out.append(np.nan)
+            continue
+        slope = np.polyfit(centres[sel], h[sel], 1)[0]
+        out.append(np.degrees(np.arctan(-slope)))
+    return f["time"][...], np.asarray(out)
+
+
+@measurement("min_separation")
+def min_separation(f, entity, other, spacing, **_):
+    """Smallest distance between a particle of ``entity`` and one of ``other``, in particle
+    ``spacing`` units (0 or less would be interpenetration; two bodies in contact through one MPM
+    grid stay about a cell apart)."""
+    a = _stack(f, entity)
+    b = _stack(f, other)
+    out = []
+    for xa, xb in zip(a, b):
+        best = np.inf
+        for k in range(0, len(xa), 512):  # blocks: memory stays small
+            d2 = ((xa[k:k + 512, None, :] - xb[None, :, :]) ** 2).sum(axis=2)
+            best = min(best, float(d2.min()))
+        out.append(np.sqrt(best) / spacing)
+    return f["time"][...], np.asarray(out)
+
+
+@measurement("energy")
+def energy(f, entity="*", part="total", gravity=None, relative=True, **_):
+    """Energy of the entity (``"*"``: all) [J, per metre in 2D]: ``part`` kinetic (sum m v^2 / 2),
+    potential (-sum m g.x, ``gravity`` default -9.81 along the last axis), elastic (the
+    ``elastic_energy`` output field) or total; ``relative``: divided by the total at t = 0.
+    Needs the ``mass`` and (for elastic/total) ``elastic_energy`` output fields."""
+    x = _stack(f, entity)
+    v = _stack(f, entity, "velocity")
+    m = _stack(f, entity, "mass")
+    g = np.zeros(x.shape[2])
+    g[-1] = -9.81
+    if gravity is not None:
+        g = np.asarray(gravity, dtype=np.float64)
+    kin = 0.5 * (m * (v * v).sum(axis=2)).sum(axis=1)
+    pot = -(m * (x @ g)).sum(axis=1)
+    parts = {"kinetic": kin, "potential": pot}
+    if part in ("elastic", "total"):
+        parts["elastic"] = _stack(f, entity, "elastic_energy").sum(axis=1)
+    val = parts[part] if part != "total" else kin + pot + parts["elastic"]
+    if relative:
+        e0 = kin[0] + pot[0] + (parts["elastic"][0] if "elastic" in parts else 0.0)
+        val = val / e0
+    return f["time"][...], val

@@ -47,7 +47,7 @@ CHUNK_STRIDE = 512  # Taichi's smallest CPU range-for task (see module docstring
 MAX_PRIVATE_GRID_BYTES = 1 << 30  # memory allowed for the per-thread grid copies of P2G
 WAVE_SAFETY = 0.5  # dt <= WAVE_SAFETY * dx / c_p, c_p the P-wave speed (B1 runs at 0.47)
 
-OUTPUT_FIELDS = ("position", "velocity", "J", "stress", "pressure", "Jp", "elastic_energy", "material_id")
+OUTPUT_FIELDS = ("position", "velocity", "J", "stress", "pressure", "Jp", "elastic_energy", "mass", "material_id")
 # the fields the per-frame `outputs` kernel computes together
 DERIVED_FIELDS = ("J", "stress", "pressure", "Jp", "elastic_energy")
 
@@ -744,6 +744,8 @@ class MPMSolver(Solver):
             return self._cache[key][1]
         elif key == "material_id":
             arr = self.mid.to_numpy()
+        elif key == "mass":
+            arr = self.mass.to_numpy()
         else:
             raise KeyError(f"unknown MPM output field {key!r}; known: {', '.join(OUTPUT_FIELDS)}")
         self._cache[key] = (self._version, arr)
@@ -785,7 +787,8 @@ class MPMSolver(Solver):
     def output_fields(self) -> dict[str, tuple[int, str]]:
         d = self.dim
         return {"position": (d, "m"), "velocity": (d, "m/s"), "J": (1, "1"), "stress": (1, "Pa"),
-                "pressure": (1, "Pa"), "Jp": (1, "1"), "elastic_energy": (1, "J"), "material_id": (1, "1")}
+                "pressure": (1, "Pa"), "Jp": (1, "1"), "elastic_energy": (1, "J"), "mass": (1, "kg"),
+                "material_id": (1, "1")}
 
     # ------------------------------------------------------------------ counts
 
