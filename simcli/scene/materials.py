@@ -15,9 +15,11 @@ from pydantic import Field
 from simcli.scene.material_base import _Material, _Solid  # noqa: F401  (re-exported)
 from simcli.solvers.mpm.config import MATERIALS as _MPM
 from simcli.solvers.sph.config import MATERIALS as _SPH
+from simcli.solvers.sf.config import MATERIALS as _SF
+from simcli.solvers.fem.config import MATERIALS as _FEM
 
 # Registry: every material type a solver family implements, from each family's config module.
-MATERIAL_TYPES: tuple[type[_Material], ...] = (*_MPM, *_SPH)
+MATERIAL_TYPES: tuple[type[_Material], ...] = (*_MPM, *_SPH, *_FEM, *_SF)
 if len(MATERIAL_TYPES) > 1:
     Material = Annotated[Union[MATERIAL_TYPES], Field(discriminator="type")]  # type: ignore[valid-type]  # noqa: UP007
 else:
@@ -25,9 +27,8 @@ else:
 
 # Types of the contract that are not implemented yet: named in a clear error.
 PLANNED_TYPES = (
-    "FEM.Elastic", "FEM.Muscle", "FEM.Cloth",
+    "FEM.Muscle", "FEM.Cloth",
     "PBD.Cloth", "PBD.Elastic", "PBD.Liquid", "PBD.Particle",
-    "SF.Smoke",
 )
 
 

@@ -13,7 +13,9 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from simcli.scene.materials import Material
 from simcli.scene.morphs import Morph, Region
 from simcli.solvers.mpm.config import MPMOptions
+from simcli.solvers.sf.config import Jet, SFOptions
 from simcli.solvers.sph.config import SPHOptions
+from simcli.solvers.fem.config import FEMOptions
 
 FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
@@ -81,10 +83,12 @@ class Sim(Strict):
 
 
 class Boundary(Strict):
-    type: Literal["slip", "sticky", "separate"] = Field(
+    type: Literal["slip", "sticky", "separate", "open", "periodic"] = Field(
         "slip",
         description="slip: normal velocity zeroed, tangential kept (minus Coulomb friction); sticky: all "
-        "velocity zeroed (or set to the face velocity); separate: like slip but only when moving into the wall.",
+        "velocity zeroed (or set to the face velocity); separate: like slip but only when moving into the wall. "
+        "Grid fluids (SF) only: open (outflow: zero pressure on the face, fluid leaves or enters freely); "
+        "periodic (leaving through this face re-enters through the opposite one; give both faces of an axis).",
     )
     friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient [-].")
     velocity: Vec | None = Field(
@@ -160,6 +164,8 @@ Collider = Annotated[
 class Solvers(Strict):
     mpm: MPMOptions = Field(default_factory=MPMOptions, description="MPM solver options.")
     sph: SPHOptions = Field(default_factory=SPHOptions, description="SPH solver options (WCSPH / DFSPH liquids).")
+    sf: SFOptions = Field(default_factory=SFOptions, description="Stable-fluids grid solver options (SF.Smoke).")
+    fem: FEMOptions = Field(default_factory=FEMOptions, description="FEM solver options (tetrahedral solids).")
 
 
 # ---------------------------------------------------------------------- entities
@@ -168,11 +174,38 @@ class Solvers(Strict):
 class Entity(Strict):
     name: str = Field(description="Unique name; names the output groups and files.", min_length=1)
     material: Material = Field(description="Material; its `type` selects the solver family and model.")
-    morph: Morph = Field(description="Initial shape.")
+    morph: Morph | None = Field(
+        None, description="Initial shape. Required for every family except SF, where it is optional and marks "
+        "where smoke starts (the SF fluid fills the whole domain)."
+    )
     velocity: Vec | None = Field(None, description="Initial velocity [m/s], one component per dimension.")
     fixed: Region | list[Region] | None = Field(
         None, description="Region (or list of regions): particles/vertices inside are held in place."
     )
+    jets: list[Jet] = Field(
+        default_factory=list, description="SF only: sources of smoke, heat and momentum (a ball each, fixed or "
+        "moving on a path)."
+    )
+    velocity_field: list[str] | None = Field(
+        None, description="SF only: initial velocity [m/s], one numpy expression of x, y[, z] [m] per component "
+        "(e.g. ['sin(x) * cos(y)', '-cos(x) * sin(y)']; pi, sin, cos, exp, sqrt, tanh, abs, where), added to "
+        "`velocity`."
+    )
+
+    @model_validator(mode="after")
+    def _check_family(self):
+        fam = self.family
+        if fam != "SF":
+            if self.morph is None:
+                raise ValueError(f"morph is required for {self.material.type} entities (only SF.Smoke entities "
+                                 "may omit it)")
+            if self.jets:
+                raise ValueError(f"jets are for SF.Smoke entities only (this one is {self.material.type})")
+            if self.velocity_field is not None:
+                raise ValueError(f"velocity_field is for SF.Smoke entities only (this one is {self.material.type})")
+        elif self.fixed is not None:
+            raise ValueError("fixed regions are not available for SF.Smoke entities (use colliders)")
+        return self
 
     @property
     def family(self) -> str:

@@ -12,6 +12,8 @@ import importlib
 FAMILIES: dict[str, str] = {
     "MPM": "simcli.solvers.mpm.solver:MPMSolver",
     "SPH": "simcli.solvers.sph.solver:SPHSolver",
+    "SF": "simcli.solvers.sf.solver:SFSolver",
+    "FEM": "simcli.solvers.fem.solver:FEMSolver",
 }
 
 

@@ -49,13 +49,14 @@ class FEMOptions(_Options):
         "tetrahedralisation (default: resolution).",
     )
     newton_tol: float = Field(
-        1.0e-5, gt=0,
+        1.0e-4, gt=0,
         description="Implicit: Newton stops when the residual (incremental-potential gradient, free vertices) "
         "has fallen below newton_tol times its value at the start of the substep, or below newton_atol.",
     )
     newton_atol: float = Field(
-        1.0e-6, gt=0,
-        description="Implicit: absolute Newton stop [m/s^2]: largest residual force per vertex mass.",
+        1.0e-2, gt=0,
+        description="Implicit: absolute Newton stop [m/s^2]: largest residual force per vertex mass (1e-2 is "
+        "1e-3 g). Newton also stops when the line search finds no decrease (round-off reached; counted).",
     )
     newton_max_iter: int = Field(
         50, ge=1, description="Implicit: safety cap on Newton iterations per substep (hitting it is reported).")

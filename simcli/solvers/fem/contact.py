@@ -1,0 +1,75 @@
+"""Contact of FEM vertices with the domain walls and the colliders (kernel side).
+
+Every obstacle is a signed-distance function (``simcli.colliders``); the domain's faces are planes.
+``nearest(x)`` gives the most penetrated obstacle at x: (phi, normal, contact kind id, friction).
+The explicit integrator projects penetrating vertices out (``project_out``); the implicit one adds
+a penalty to the incremental potential and applies Coulomb friction to the velocity afterwards.
+"""
+
+from simcli.backend import stdout_to_stderr
+from simcli.colliders import collider_specs, sdf_box, sdf_cylinder, sdf_plane, sdf_sphere, wall_specs
+
+with stdout_to_stderr():
+    import taichi as ti
+
+KIND_ID = {"slip": 0, "sticky": 1, "separate": 2}
+
+
+def make_nearest(scene, dim: int = 3):
+    """A ti.func x -> (phi, n, kind id, friction) over the walls and colliders of the scene."""
+    lo, hi = scene.domain.bounds(dim)
+    obstacles = []  # (kind, a, b, radius, half_height, axis, contact, friction)
+    for w in wall_specs(scene, dim):
+        n = [0.0] * dim
+        n[w.axis] = -float(w.side)  # pointing into the domain
+        p = [0.0] * dim
+        p[w.axis] = lo[w.axis] if w.side < 0 else hi[w.axis]
+        obstacles.append(("Plane", tuple(p), tuple(n), 0.0, 0.0, 0, w.contact, w.friction))
+    for c in collider_specs(scene, dim):
+        obstacles.append((c.kind, c.a, c.b, c.radius, c.half_height, c.axis, c.contact, c.friction))
+    kinds = [o[0] for o in obstacles]
+
+    @ti.func
+    def nearest(x):
+        phi_min = 1e30
+        n_min = ti.Vector.zero(float, 3)
+        kind = 0
+        mu = 0.0
+        for k in ti.static(range(len(obstacles))):
+            o = ti.static(obstacles[k])
+            phi = 0.0
+            nrm = ti.Vector.zero(float, 3)
+            if ti.static(kinds[k] == "Plane"):
+                phi, nrm = sdf_plane(x, ti.Vector(o[1], float), ti.Vector(o[2], float))
+            elif ti.static(kinds[k] == "Sphere"):
+                phi, nrm = sdf_sphere(x, ti.Vector(o[1], float), o[3])
+            elif ti.static(kinds[k] == "Box"):
+                phi, nrm = sdf_box(x, ti.Vector(o[1], float), ti.Vector(o[2], float))
+            else:
+                phi, nrm = sdf_cylinder(x, ti.Vector(o[1], float), o[3], o[4], o[5])
+            if phi < phi_min:
+                phi_min = phi
+                n_min = nrm
+                kind = ti.static(KIND_ID[o[6]])
+                mu = ti.static(float(o[7]))
+        return phi_min, n_min, kind, mu
+
+    return nearest
+
+
+@ti.func
+def friction_velocity(v, n, kind, mu, dvn):
+    """Velocity after contact: the normal part into the obstacle removed (already done by the caller
+    through dvn >= 0, the removed normal speed), Coulomb friction mu dvn on the tangential part;
+    sticky stops the vertex."""
+    vo = v
+    if kind == 1:
+        vo = v * 0.0
+    else:
+        vn = v.dot(n)
+        vt = v - vn * n
+        vtn = vt.norm()
+        if vtn > 0 and mu > 0:
+            vt *= ti.max(0.0, 1.0 - mu * dvn / vtn)
+        vo = vt + vn * n
+    return vo

@@ -1,0 +1,65 @@
+"""Explicit FEM: symplectic Euler with lumped vertex masses, one kernel launch per substep::
+
+    element forces (per element, into a buffer) -> vertex update (gather, gravity, held components,
+    contact projection, position update)
+
+Optional stiffness-proportional damping adds the viscous stress beta (2 mu sym(L) + lam tr(L) I), L the
+spatial velocity gradient: zero for any rigid motion, so gravity and spinning are not damped.
+"""
+
+from simcli.backend import stdout_to_stderr
+from simcli.colliders import project_out
+from simcli.solvers.fem.contact import make_nearest
+from simcli.solvers.fem.models import cofactor
+
+with stdout_to_stderr():
+    import taichi as ti
+
+
+class ExplicitIntegrator:
+    def __init__(self, s) -> None:
+        f = s.f
+        x, v, xr, free, vfix, fext, mass = s.x, s.v, s.xr, s.free_f, s.vfix_f, s.fext_f, s.mass_f
+        vol, B, tet, mid, mat_mu, mat_lam = s.vol_f, s.B_f, s.tet_f, s.mid_f, s.mat_mu, s.mat_lam
+        gravity = s.gravity
+        deformation, law_call, scatter, gather = s.deformation, s.law_call, s.scatter_columns, s.gather
+        nearest = make_nearest(s.scene)
+        n, m = s.n, s.m
+        beta = float(s.opts.damping)
+
+        @ti.kernel
+        def substep(dt: f, t: f):
+            for e in range(m):
+                F = deformation(e, x)
+                P = law_call(e, F, "pk1")
+                if ti.static(beta > 0):
+                    Fdot = deformation(e, v)
+                    C = cofactor(F)
+                    J = ti.max(F.determinant(), 1e-3)
+                    L = Fdot @ C.transpose() / J
+                    k = mid[e]
+                    sig = beta * (mat_mu[k] * (L + L.transpose()) + mat_lam[k] * L.trace() * ti.Matrix.identity(float, 3))
+                    P += sig @ C
+                scatter(e, -vol[e] * P @ B[e].transpose())
+            for i in range(n):
+                fi = gather(i) + fext[i]
+                vi = v[i] + dt * (fi / mass[i] + gravity[None])
+                xi = x[i] + dt * vi
+                phi, nrm, kind, mu = nearest(xi)
+                if phi < 0:
+                    if kind == 1:
+                        xi, vi = project_out(xi, vi, phi, nrm, "sticky", mu)
+                    else:
+                        xi, vi = project_out(xi, vi, phi, nrm, "slip", mu)
+                fr = free[i]
+                for c in ti.static(range(3)):
+                    if fr[c] == 0:
+                        vi[c] = vfix[i][c]
+                        xi[c] = xr[i][c] + vfix[i][c] * (t + dt)
+                v[i] = vi
+                x[i] = xi
+
+        self._substep = substep
+
+    def substep(self, dt: float, t: float) -> None:
+        self._substep(dt, t)

@@ -1,0 +1,284 @@
+"""Implicit FEM: backward Euler as minimisation of the incremental potential
+
+    E(x) = sum_i m_i / (2 h^2) |x_i - xhat_i|^2 + sum_e V_e psi(F_e(x)) - f_ext . x + contact penalty,
+    xhat = x_n + h v_n + h^2 g,
+
+by Newton's method: each Newton step solves H dx = -grad E with PCG (3x3 block-Jacobi preconditioner,
+the element Hessians projected to positive semi-definite, applied matrix-free from the per-element
+singular-value-frame data), then an Armijo back-tracking line search on E. Newton stops when the
+residual has fallen by ``newton_tol`` relative to the substep's first one or below ``newton_atol``
+(largest |residual| / vertex mass); PCG at relative residual ``pcg_tol``. Both have safety caps that
+are counted when hit. Held components are removed from the system (their residual and search
+direction are zero). Contact: a penalty kappa_i / 2 phi^2 (phi < 0) per vertex, kappa_i =
+contact_stiffness m_i / h^2; Coulomb friction is applied to the velocity afterwards.
+
+Convergence tests need the residual on the host: one small read-back per PCG and Newton iteration
+(the only host syncs inside a substep in simcli; the explicit integrator has none).
+"""
+
+import math
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.fem.contact import friction_velocity, make_nearest
+from simcli.solvers.fem.models import apply_dP
+
+with stdout_to_stderr():
+    import taichi as ti
+
+ARMIJO_C = 1e-4
+MAX_HALVINGS = 20
+
+
+class ImplicitIntegrator:
+    def __init__(self, s) -> None:
+        self.s = s
+        f = s.f
+        n, m = s.n, s.m
+        V3 = lambda k: ti.Vector.field(3, f, shape=k)  # noqa: E731
+        M3 = lambda k: ti.Matrix.field(3, 3, f, shape=k)  # noqa: E731
+        self.xn, self.xhat, self.g, self.d, self.r, self.z, self.p, self.q = (V3(n) for _ in range(8))
+        self.Pinv = M3(n)
+        self.hU, self.hV, self.hS = M3(m), M3(m), M3(m)
+        self.hls, self.hlt = V3(m), V3(m)
+        self.db = M3(4 * m)  # per element corner: diagonal block of the element Hessian
+        self.cn = V3(n)  # contact normal x kappa-sqrt marker (zero when not in contact)
+        self.ck = ti.field(f, shape=n)  # contact stiffness in effect
+        self.red = ti.field(ti.f64, shape=4)
+        self.opts = s.opts
+        self._make()
+
+    def _make(self) -> None:
+        s = self.s
+        f = s.f
+        n, m = s.n, s.m
+        x, v, xr, free, vfix, fext, mass = s.x, s.v, s.xr, s.free_f, s.vfix_f, s.fext_f, s.mass_f
+        vol, B, gravity = s.vol_f, s.B_f, s.gravity
+        deformation, law_call, law_hessian, scatter, gather = (s.deformation, s.law_call, s.law_hessian,
+                                                               s.scatter_columns, s.gather)
+        xn, xhat, g, d, r, z, p, q, Pinv = self.xn, self.xhat, self.g, self.d, self.r, self.z, self.p, self.q, self.Pinv
+        hU, hV, hS, hls, hlt, db, cn, ck, red = (self.hU, self.hV, self.hS, self.hls, self.hlt, self.db, self.cn,
+                                                self.ck, self.red)
+        fe = s.fe
+        nearest = make_nearest(s.scene)
+        kc = float(self.opts.contact_stiffness)
+
+        @ti.kernel
+        def begin(dt: f, t: f):
+            for i in range(n):
+                xn[i] = x[i]
+                xhat[i] = x[i] + dt * v[i] + dt * dt * gravity[None]
+                xi = xhat[i]
+                fr = free[i]
+                for c in ti.static(range(3)):
+                    if fr[c] == 0:
+                        xi[c] = xr[i][c] + vfix[i][c] * (t + dt)
+                x[i] = xi
+
+        @ti.kernel
+        def assemble(dt: f):
+            """Gradient g, element Hessian data, preconditioner; red[0] = |g|^2, red[1] = max |g_i| / m_i."""
+            for e in range(m):
+                F = deformation(e, x)
+                P = law_call(e, F, "pk1")
+                U, V, Hs, ls, lt = law_hessian(e, F)
+                hU[e], hV[e], hS[e], hls[e], hlt[e] = U, V, Hs, ls, lt
+                scatter(e, vol[e] * P @ B[e].transpose())
+                Bt = B[e].transpose()
+                for a in range(4):
+                    ga = ti.Vector.zero(float, 3)  # gradient of corner a's shape function
+                    if a == 0:
+                        for j in ti.static(range(3)):
+                            ga[j] = -(Bt[0, j] + Bt[1, j] + Bt[2, j])
+                    else:
+                        for j in ti.static(range(3)):
+                            ga[j] = Bt[a - 1, j]
+                    blk = ti.Matrix.zero(float, 3, 3)
+                    for c in range(3):
+                        E = ti.Matrix.zero(float, 3, 3)
+                        for j in ti.static(range(3)):
+                            E[c, j] = ga[j]
+                        dP = apply_dP(U, V, Hs, ls, lt, E)
+                        col = vol[e] * dP @ ga
+                        for rr in ti.static(range(3)):
+                            blk[rr, c] = col[rr]
+                    db[4 * e + a] = blk
+            red[0] = 0.0
+            red[1] = 0.0
+            for i in range(n):
+                mi = mass[i]
+                gi = mi / (dt * dt) * (x[i] - xhat[i]) + gather(i) - fext[i]
+                D = ti.Matrix.identity(float, 3) * (mi / (dt * dt))
+                for qq in range(s.adj_start_f[i], s.adj_start_f[i + 1]):
+                    D += db[s.adj_f[qq]]
+                phi, nrm, kind, mu = nearest(x[i])
+                k = 0.0
+                if phi < 0:
+                    k = kc * mi / (dt * dt)
+                    gi += k * phi * nrm
+                    D += k * nrm.outer_product(nrm)
+                cn[i] = nrm
+                ck[i] = k
+                fr = free[i]
+                gi = gi * fr
+                for a in ti.static(range(3)):
+                    if fr[a] == 0:
+                        for b in ti.static(range(3)):
+                            D[a, b] = 0.0
+                            D[b, a] = 0.0
+                        D[a, a] = 1.0
+                Pinv[i] = D.inverse()
+                g[i] = gi
+                red[0] += ti.cast(gi.dot(gi), ti.f64)
+                ti.atomic_max(red[1], ti.cast(gi.norm() / mi, ti.f64))
+
+        @ti.kernel
+        def pcg_init() -> ti.f64:
+            red[2] = 0.0
+            rz = ti.cast(0.0, ti.f64)
+            for i in range(n):
+                d[i] = ti.Vector.zero(float, 3)
+                r[i] = -g[i]
+                z[i] = Pinv[i] @ r[i]
+                p[i] = z[i]
+                rz += ti.cast(r[i].dot(z[i]), ti.f64)
+                red[2] += ti.cast(r[i].dot(r[i]), ti.f64)
+            return rz
+
+        @ti.kernel
+        def matvec(beta: f, first: ti.i32, dt: f) -> ti.f64:
+            """p = z + beta p (after the first iteration), q = H p; returns p . q."""
+            if first == 0:
+                for i in range(n):
+                    p[i] = z[i] + beta * p[i]
+            for e in range(m):
+                dF = deformation(e, p)
+                dP = apply_dP(hU[e], hV[e], hS[e], hls[e], hlt[e], dF)
+                scatter(e, vol[e] * dP @ B[e].transpose())
+            pq = ti.cast(0.0, ti.f64)
+            for i in range(n):
+                pi = p[i]
+                qi = mass[i] / (dt * dt) * pi + gather(i)
+                if ck[i] > 0:
+                    qi += ck[i] * cn[i].dot(pi) * cn[i]
+                qi = qi * free[i]
+                q[i] = qi
+                pq += ti.cast(pi.dot(qi), ti.f64)
+            return pq
+
+        @ti.kernel
+        def pcg_update(alpha: f) -> ti.f64:
+            red[2] = 0.0
+            rz = ti.cast(0.0, ti.f64)
+            for i in range(n):
+                d[i] += alpha * p[i]
+                r[i] -= alpha * q[i]
+                z[i] = Pinv[i] @ r[i]
+                rz += ti.cast(r[i].dot(z[i]), ti.f64)
+                red[2] += ti.cast(r[i].dot(r[i]), ti.f64)
+            return rz
+
+        @ti.kernel
+        def energy(alpha: f, dt: f) -> ti.f64:
+            """E(x + alpha d), with red[3] = g . d."""
+            red[3] = 0.0
+            E = ti.cast(0.0, ti.f64)
+            for i in range(n):
+                q[i] = x[i] + alpha * d[i]  # q is free after PCG: the trial positions
+                red[3] += ti.cast(g[i].dot(d[i]), ti.f64)
+            for e in range(m):
+                F = deformation(e, q)
+                E += ti.cast(vol[e] * law_call(e, F, "energy"), ti.f64)
+            for i in range(n):
+                dx = q[i] - xhat[i]
+                Ei = 0.5 * mass[i] / (dt * dt) * dx.dot(dx) - fext[i].dot(q[i])
+                phi, nrm, kind, mu = nearest(q[i])
+                if phi < 0:
+                    Ei += 0.5 * kc * mass[i] / (dt * dt) * phi * phi
+                E += ti.cast(Ei, ti.f64)
+            return E
+
+        @ti.kernel
+        def apply(alpha: f):
+            for i in range(n):
+                x[i] += alpha * d[i]
+
+        @ti.kernel
+        def finish(dt: f):
+            for i in range(n):
+                vi = (x[i] - xn[i]) / dt
+                phi, nrm, kind, mu = nearest(x[i])
+                if ck[i] > 0 or phi < 0:
+                    # normal speed the contact took away over the substep: penalty force x dt / m
+                    dvn = ti.max(0.0, -phi) * kc / dt
+                    vi = friction_velocity(vi, nrm, kind, mu, dvn)
+                fr = free[i]
+                for c in ti.static(range(3)):
+                    if fr[c] == 0:
+                        vi[c] = vfix[i][c]
+                v[i] = vi
+
+        self.k = dict(begin=begin, assemble=assemble, pcg_init=pcg_init, matvec=matvec, pcg_update=pcg_update,
+                      energy=energy, apply=apply, finish=finish)
+
+    def substep(self, dt: float, t: float) -> None:
+        k, o, st = self.k, self.opts, self.s.stats
+        k["begin"](dt, t)
+        newton_it, pcg_total = 0, 0
+        res0 = None
+        while True:
+            k["assemble"](dt)
+            red = self.red.to_numpy()
+            res, acc = math.sqrt(red[0]), red[1]
+            if res0 is None:
+                res0 = res
+            if acc <= o.newton_atol or res <= o.newton_tol * res0 or res == 0.0:
+                break
+            if newton_it >= o.newton_max_iter:
+                st["newton_capped"] += 1
+                break
+            newton_it += 1
+            # PCG: H d = -g
+            rz = k["pcg_init"]()
+            b2 = float(self.red[2])
+            it, beta = 0, 0.0
+            while it < o.pcg_max_iter:
+                pq = k["matvec"](beta, 1 if it == 0 else 0, dt)
+                if not pq > 0:
+                    break
+                alpha = rz / pq
+                rz_new = k["pcg_update"](alpha)
+                it += 1
+                if float(self.red[2]) <= o.pcg_tol**2 * b2:
+                    break
+                beta = rz_new / rz
+                rz = rz_new
+            else:
+                st["pcg_capped"] += 1
+            pcg_total += it
+            # Armijo back-tracking on the incremental potential
+            alpha = 1.0
+            if o.line_search:
+                E0 = k["energy"](0.0, dt)
+                gd = float(self.red[3])
+                tol = 1e-6 * abs(E0) if self.s.f == ti.f32 else 1e-12 * abs(E0)
+                ok = False
+                for _ in range(MAX_HALVINGS):
+                    if k["energy"](alpha, dt) <= E0 + ARMIJO_C * alpha * gd + tol:
+                        ok = True
+                        break
+                    alpha *= 0.5
+                    st["ls_halvings"] += 1
+                if not ok:  # no decrease along a descent direction: round-off level reached
+                    st["stagnated"] = st.get("stagnated", 0) + 1
+                    break
+            k["apply"](alpha)
+        k["finish"](dt)
+        st["newton"].append(newton_it)
+        st["pcg"].append(pcg_total)
+        if len(st["newton"]) > 100000:
+            del st["newton"][:50000], st["pcg"][:50000]
+
+
+__all__ = ["ImplicitIntegrator", "np"]

@@ -1,0 +1,407 @@
+"""FEM solver: linear tetrahedra, explicit (symplectic Euler) or implicit (backward Euler, Newton-PCG).
+
+Every FEM entity is meshed at construction (``mesh.py``); the meshes are concatenated into one
+vertex and one element array. Element forces are computed per element into a buffer and gathered
+per vertex through a vertex -> (element, corner) adjacency list: no atomics, deterministic.
+
+Lumped masses: each vertex gets a quarter of the mass of every adjacent tetrahedron (Genesis
+divides by element mass instead).
+"""
+
+import math
+from typing import Any
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+from simcli.geometry.regions import points_in_regions, points_in_shape
+from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.fem.mesh import boundary_faces, mesh_for_entity, signed_volumes
+from simcli.solvers.fem.models import LAWS, lame_for
+
+with stdout_to_stderr():
+    import taichi as ti
+
+OUTPUT_FIELDS = ("position", "velocity", "displacement", "von_mises", "J")
+
+
+class FEMSolver(Solver):
+    family = "fem"
+
+    def __init__(self, scene: Any, bodies: list[Body], scene_dir=None) -> None:
+        super().__init__(scene, bodies)
+        if scene.sim.dim != 3:
+            raise ValueError("FEM entities need a 3D scene (sim.dim: 3)")
+        self.opts = scene.solvers.fem
+        self.implicit = self.opts.integrator == "implicit"
+        self.entities = [e for e in scene.entities if e.family == "FEM"]
+        xs, ts, self.offsets, self.toffsets = [], [], [0], [0]
+        self.materials, mids, self.models = [], [], []
+        for e in self.entities:
+            m = mesh_for_entity(e, self.opts, scene_dir)
+            ts.append(m.tets + self.offsets[-1])
+            xs.append(m.x)
+            self.offsets.append(self.offsets[-1] + m.x.shape[0])
+            self.toffsets.append(self.toffsets[-1] + m.tets.shape[0])
+            if e.material not in self.materials:
+                self.materials.append(e.material)
+            mids.append(np.full(m.tets.shape[0], self.materials.index(e.material), np.int32))
+        self.x0 = np.concatenate(xs)
+        self.tets = np.concatenate(ts).astype(np.int64)
+        self.mid = np.concatenate(mids)
+        self.n, self.m = self.x0.shape[0], self.tets.shape[0]
+        self.models = []
+        for mat in self.materials:
+            if mat.model not in self.models:
+                self.models.append(mat.model)
+        self._index = {e.name: k for k, e in enumerate(self.entities)}
+        self._prepare_host()
+        self._built = False
+        self.time = 0.0
+        self.stats = {"newton": [], "pcg": [], "ls_halvings": 0, "newton_capped": 0, "pcg_capped": 0}
+
+    # ---------------------------------------------------------------- host side
+    def _prepare_host(self) -> None:
+        x, T = self.x0, self.tets
+        vol = signed_volumes(x, T)
+        self.vol0 = vol
+        Dm = np.stack([x[T[:, 1]] - x[T[:, 0]], x[T[:, 2]] - x[T[:, 0]], x[T[:, 3]] - x[T[:, 0]]], axis=2)
+        self.B = np.linalg.inv(Dm)
+        rho = np.array([float(self.materials[k].rho) for k in self.mid])
+        mass = np.zeros(self.n)
+        for a in range(4):
+            np.add.at(mass, T[:, a], 0.25 * rho * vol)
+        self.mass = mass
+        # adjacency vertex -> element corners (e * 4 + a)
+        flat = T.reshape(-1)
+        order = np.argsort(flat, kind="stable")
+        self.adj = order.astype(np.int32)
+        self.adj_start = np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=self.n))]).astype(np.int32)
+        # velocities, fixed components, prescribed velocity, dead loads
+        v = np.zeros((self.n, 3))
+        free = np.ones((self.n, 3))
+        vfix = np.zeros((self.n, 3))
+        fext = np.zeros((self.n, 3))
+        self.warnings = []
+        for k, e in enumerate(self.entities):
+            lo, hi = self.offsets[k], self.offsets[k + 1]
+            xe = x[lo:hi]
+            if e.velocity is not None:
+                v[lo:hi] = np.asarray(e.velocity, dtype=np.float64)
+            held = points_in_regions(e.fixed_regions, xe)
+            free[lo:hi][held] = 0.0
+            v[lo:hi][held] = 0.0
+            if e.fixed_regions and not held.any():
+                self.warnings.append(f"{e.name}: fixed region holds no vertex")
+            tk = T[self.toffsets[k]:self.toffsets[k + 1]] - lo
+            faces = None
+            for bc in e.material.boundary_conditions:
+                inside = points_in_shape(bc.region, xe)
+                if bc.traction is not None:
+                    if faces is None:
+                        faces = boundary_faces(tk, xe)
+                    sel = faces[inside[faces].all(axis=1)]
+                    if len(sel) == 0:
+                        self.warnings.append(f"{e.name}: traction region holds no boundary face")
+                    area = 0.5 * np.linalg.norm(np.cross(xe[sel[:, 1]] - xe[sel[:, 0]], xe[sel[:, 2]] - xe[sel[:, 0]]),
+                                                axis=1)
+                    for a in range(3):
+                        np.add.at(fext[lo:hi], sel[:, a], (area / 3.0)[:, None] * np.asarray(bc.traction)[None, :])
+                    continue
+                axes = ["xyz".index(c) for c in (bc.axes or ["x", "y", "z"])]
+                idx = np.nonzero(inside)[0] + lo
+                for c in axes:
+                    free[idx, c] = 0.0
+                    vel = 0.0 if bc.velocity is None else float(bc.velocity[c])
+                    vfix[idx, c] = vel
+                    v[idx, c] = vel
+        self.v0, self.free, self.vfix, self.fext = v, free, vfix, fext
+        # smallest element height (explicit stability) and mean edge length
+        faces_area = []
+        for (i, j, k_) in ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)):
+            faces_area.append(0.5 * np.linalg.norm(np.cross(x[T[:, j]] - x[T[:, i]], x[T[:, k_]] - x[T[:, i]]), axis=1))
+        height = 3.0 * vol / np.max(np.stack(faces_area), axis=0)
+        self.h_min = float(height.min())
+        self.c_p = max(math.sqrt((m.E * (1 - m.nu) / ((1 + m.nu) * (1 - 2 * m.nu))) / m.rho) for m in self.materials)
+        self.edge = float(np.mean(np.linalg.norm(x[T[:, 1]] - x[T[:, 0]], axis=1)))
+        self.extent = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+
+    # --------------------------------------------------------------------- build
+    def build(self) -> None:
+        if self._built:
+            return
+        f = ti.f64 if self.scene.sim.precision == "f64" else ti.f32
+        self.f = f
+        self.npf = np.float64 if f == ti.f64 else np.float32
+        n, m = self.n, self.m
+        V3 = lambda k: ti.Vector.field(3, f, shape=k)  # noqa: E731
+        self.x, self.v, self.xr = V3(n), V3(n), V3(n)
+        self.free_f, self.vfix_f, self.fext_f = V3(n), V3(n), V3(n)
+        self.mass_f = ti.field(f, shape=n)
+        self.tet_f = ti.Vector.field(4, ti.i32, shape=m)
+        self.B_f = ti.Matrix.field(3, 3, f, shape=m)
+        self.vol_f = ti.field(f, shape=m)
+        self.mid_f = ti.field(ti.i32, shape=m)
+        self.fe = V3(4 * m)
+        self.adj_f = ti.field(ti.i32, shape=4 * m)
+        self.adj_start_f = ti.field(ti.i32, shape=n + 1)
+        nm = len(self.materials)
+        self.mat_mu = ti.field(f, shape=nm)
+        self.mat_lam = ti.field(f, shape=nm)
+        self.mat_law = ti.field(ti.i32, shape=nm)
+        self.gravity = ti.Vector.field(3, f, shape=())
+        nb = len(self.entities)
+        self.body_off = ti.field(ti.i32, shape=nb + 1)
+        self.stat_speed = ti.field(f, shape=nb)
+        self.stat_bad = ti.field(ti.i32, shape=nb)
+        self.out_vm = ti.field(f, shape=n)
+        self.out_J = ti.field(f, shape=n)
+
+        npf = self.npf
+        self.x.from_numpy(self.x0.astype(npf))
+        self.xr.from_numpy(self.x0.astype(npf))
+        self.v.from_numpy(self.v0.astype(npf))
+        self.free_f.from_numpy(self.free.astype(npf))
+        self.vfix_f.from_numpy(self.vfix.astype(npf))
+        self.fext_f.from_numpy(self.fext.astype(npf))
+        self.mass_f.from_numpy(self.mass.astype(npf))
+        self.tet_f.from_numpy(self.tets.astype(np.int32))
+        self.B_f.from_numpy(self.B.astype(npf))
+        self.vol_f.from_numpy(self.vol0.astype(npf))
+        self.mid_f.from_numpy(self.mid)
+        self.adj_f.from_numpy(self.adj)
+        self.adj_start_f.from_numpy(self.adj_start)
+        mus, lams = [], []
+        for mat in self.materials:
+            mu, lam = lame_for(mat.model, mat.mu, mat.lam)
+            mus.append(mu)
+            lams.append(lam)
+        self.mat_mu.from_numpy(np.array(mus, npf))
+        self.mat_lam.from_numpy(np.array(lams, npf))
+        self.mat_law.from_numpy(np.array([self.models.index(mt.model) for mt in self.materials], np.int32))
+        self.gravity[None] = [float(c) for c in self.scene.sim.gravity_vec]
+        self.body_off.from_numpy(np.array(self.offsets, np.int32))
+        self._make_common()
+        if self.implicit:
+            from simcli.solvers.fem.implicit import ImplicitIntegrator
+
+            self.integrator = ImplicitIntegrator(self)
+        else:
+            from simcli.solvers.fem.explicit import ExplicitIntegrator
+
+            self.integrator = ExplicitIntegrator(self)
+        self._built = True
+        self._version = 0
+        self.frame_check()
+
+    # ------------------------------------------------------------ shared funcs
+    def _make_common(self) -> None:
+        laws = [LAWS[k] for k in self.models]
+        nl = len(laws)
+        x, tet, B, mid, mat_mu, mat_lam, mat_law = (self.x, self.tet_f, self.B_f, self.mid_f, self.mat_mu,
+                                                    self.mat_lam, self.mat_law)
+
+        @ti.func
+        def deformation(e, xf: ti.template()):
+            t = tet[e]
+            x0 = xf[t[0]]
+            Ds = ti.Matrix.cols([xf[t[1]] - x0, xf[t[2]] - x0, xf[t[3]] - x0])
+            return Ds @ B[e]
+
+        @ti.func
+        def law_call(e, F, which: ti.template()):
+            """energy or pk1 of element e's law (compiled only for the laws present)."""
+            k = mid[e]
+            mu, lam = mat_mu[k], mat_lam[k]
+            r = ti.static(getattr(laws[0], which))(F, mu, lam)
+            if ti.static(nl > 1):
+                lid = mat_law[k]
+                for q in ti.static(range(1, nl)):
+                    if lid == q:
+                        r = ti.static(getattr(laws[q], which))(F, mu, lam)
+            return r
+
+        @ti.func
+        def law_hessian(e, F):
+            k = mid[e]
+            mu, lam = mat_mu[k], mat_lam[k]
+            U, V, Hs, ls, lt = laws[0].hessian(F, mu, lam, True)
+            if ti.static(nl > 1):
+                lid = mat_law[k]
+                for q in ti.static(range(1, nl)):
+                    if lid == q:
+                        U, V, Hs, ls, lt = laws[q].hessian(F, mu, lam, True)
+            return U, V, Hs, ls, lt
+
+        @ti.func
+        def scatter_columns(e, H):
+            """Corner vectors of an element: columns of H (corners 1..3) and minus their sum (corner 0)."""
+            c1 = ti.Vector([H[0, 0], H[1, 0], H[2, 0]])
+            c2 = ti.Vector([H[0, 1], H[1, 1], H[2, 1]])
+            c3 = ti.Vector([H[0, 2], H[1, 2], H[2, 2]])
+            self.fe[4 * e] = -(c1 + c2 + c3)
+            self.fe[4 * e + 1] = c1
+            self.fe[4 * e + 2] = c2
+            self.fe[4 * e + 3] = c3
+
+        @ti.func
+        def gather(i):
+            s = ti.Vector.zero(float, 3)
+            for q in range(self.adj_start_f[i], self.adj_start_f[i + 1]):
+                s += self.fe[self.adj_f[q]]
+            return s
+
+        self.deformation, self.law_call, self.law_hessian = deformation, law_call, law_hessian
+        self.scatter_columns, self.gather = scatter_columns, gather
+
+        nb = len(self.entities)
+        v, stat_speed, stat_bad, body_off = self.v, self.stat_speed, self.stat_bad, self.body_off
+        n, m = self.n, self.m
+        f64 = self.f == ti.f64
+        vol, xr, out_vm, out_J = self.vol_f, self.xr, self.out_vm, self.out_J
+
+        @ti.func
+        def finite(a):
+            ok = True
+            for d in ti.static(range(3)):
+                if ti.static(f64):
+                    ok = ok and ((ti.bit_cast(a[d], ti.i64) >> 52) & 0x7FF) != 0x7FF
+                else:
+                    ok = ok and ((ti.bit_cast(a[d], ti.i32) >> 23) & 0xFF) != 0xFF
+            return ok
+
+        @ti.kernel
+        def frame_stats():
+            for b in range(nb):
+                stat_speed[b] = 0.0
+                stat_bad[b] = 0
+            for b in range(nb):
+                for i in range(body_off[b], body_off[b + 1]):
+                    if finite(x[i]) and finite(v[i]):
+                        stat_speed[b] = ti.max(stat_speed[b], v[i].norm())
+                    else:
+                        stat_bad[b] += 1
+
+        @ti.kernel
+        def outputs():
+            """Per vertex: the volume-weighted mean of the adjacent elements' von Mises Cauchy stress and J."""
+            for e in range(m):
+                F = deformation(e, x)
+                J = F.determinant()
+                P = law_call(e, F, "pk1")
+                s = P @ F.transpose()  # J x Cauchy stress
+                if J > 0:
+                    s /= J
+                p = s.trace() / 3.0
+                dev = s - p * ti.Matrix.identity(float, 3)
+                vm = ti.sqrt(1.5 * (dev * dev).sum())
+                self.fe[4 * e] = ti.Vector([vm * vol[e], J * vol[e], vol[e]])
+            for i in range(n):
+                acc = ti.Vector.zero(float, 3)
+                for q in range(self.adj_start_f[i], self.adj_start_f[i + 1]):
+                    acc += self.fe[4 * (self.adj_f[q] // 4)]
+                out_vm[i] = acc[0] / acc[2]
+                out_J[i] = acc[1] / acc[2]
+
+        self._frame_stats, self._outputs = frame_stats, outputs
+
+    # -------------------------------------------------------------- stepping
+    def substep(self, dt: float) -> None:
+        self.integrator.substep(dt, self.time)
+        self.time += dt
+        self._version += 1
+
+    def frame_check(self) -> dict[str, FrameStats]:
+        self._frame_stats()
+        speed, bad = self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
+        return {e.name: FrameStats(finite=int(bad[k]) == 0,
+                                   max_speed=float(speed[k]) if bad[k] == 0 else float("inf"), n_bad=int(bad[k]))
+                for k, e in enumerate(self.entities)}
+
+    def stable_dt(self) -> float:
+        if self.implicit:
+            return math.inf
+        return self.opts.cfl * self.h_min / self.c_p
+
+    def length_scale(self) -> float:
+        # explicit: a vertex crossing more than two elements per substep is a blow-up; implicit
+        # backward Euler is not limited by element size: only a body crossing itself is
+        return self.extent if self.implicit else self.edge
+
+    # ---------------------------------------------------------------- output
+    def entity_kind(self, name: str) -> str:
+        return "tets"
+
+    def entity_cells(self, name: str):
+        k = self._index[name]
+        return self.tets[self.toffsets[k]:self.toffsets[k + 1]] - self.offsets[k]
+
+    def entity_size(self, name: str) -> int:
+        k = self._index[name]
+        return int(self.offsets[k + 1] - self.offsets[k])
+
+    def owns(self, name: str) -> bool:
+        return name in self._index
+
+    def default_fields(self, name: str) -> list[str]:
+        return ["position", "velocity", "displacement", "von_mises", "J"]
+
+    def output_fields(self) -> dict[str, tuple[int, str]]:
+        return {"position": (3, "m"), "velocity": (3, "m/s"), "displacement": (3, "m"), "von_mises": (1, "Pa"),
+                "J": (1, "1")}
+
+    def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
+        k = self._index[name]
+        lo, hi = self.offsets[k], self.offsets[k + 1]
+        out = {}
+        if any(f in ("von_mises", "J") for f in fields):
+            self._outputs()
+        for fld in fields:
+            if fld == "position":
+                a = self.x.to_numpy()
+            elif fld == "velocity":
+                a = self.v.to_numpy()
+            elif fld == "displacement":
+                a = self.x.to_numpy() - self.x0
+            elif fld == "von_mises":
+                a = self.out_vm.to_numpy()
+            elif fld == "J":
+                a = self.out_J.to_numpy()
+            else:
+                raise KeyError(f"unknown FEM output field {fld!r}; known: {', '.join(OUTPUT_FIELDS)}")
+            out[fld] = np.array(a[lo:hi])
+        return out
+
+    def positions(self) -> np.ndarray:
+        return self.x.to_numpy().astype(np.float64)
+
+    # ----------------------------------------------------------------- state
+    def get_state(self) -> dict[str, np.ndarray]:
+        return {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "time": np.array([self.time])}
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        for key, fld in (("x", self.x), ("v", self.v)):
+            arr = np.ascontiguousarray(state[key], dtype=self.npf)
+            if arr.shape != (self.n, 3):
+                raise ValueError(f"FEM state {key!r}: shape {arr.shape}, expected {(self.n, 3)}")
+            fld.from_numpy(arr)
+        if "time" in state:
+            self.time = float(np.asarray(state["time"]).reshape(-1)[0])
+        self._version += 1
+
+    def counts(self) -> dict[str, int]:
+        return {"vertices": self.n, "tets": self.m}
+
+    def info(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"integrator": self.opts.integrator, "models": list(self.models), "vertices": self.n,
+                             "tets": self.m, "mass_lumping": "1/4 of each adjacent tet",
+                             "smallest_element_height_m": self.h_min, "warnings": self.warnings}
+        s = self.stats
+        if self.implicit and s["newton"]:
+            nw, pc = np.asarray(s["newton"]), np.asarray(s["pcg"])
+            d.update(newton_iterations_per_step={"mean": float(nw.mean()), "max": int(nw.max())},
+                     pcg_iterations_per_step={"mean": float(pc.mean()), "max": int(pc.max())},
+                     pcg_iterations_per_newton=float(pc.sum() / max(1, nw.sum())),
+                     line_search_halvings=s["ls_halvings"], newton_capped=s["newton_capped"],
+                     pcg_capped=s["pcg_capped"], newton_stagnated=s.get("stagnated", 0), steps_measured=len(nw))
+        return d
