@@ -247,3 +247,18 @@ def energy(f, entity="*", part="total", gravity=None, relative=True, **_):
         e0 = kin[0] + pot[0] + (parts["elastic"][0] if "elastic" in parts else 0.0)
         val = val / e0
     return f["time"][...], val
+
+
+@measurement("interpenetration")
+def interpenetration(f, entity, other, **_):
+    """How far [m] the outermost particle of ``entity`` lies beyond the outermost particle of
+    ``other`` along the line joining their centroids (0 while the two particle sets stay apart
+    along it; two convex bodies colliding head-on interpenetrate exactly when this is > 0)."""
+    a = _stack(f, entity)
+    b = _stack(f, other)
+    out = []
+    for xa, xb in zip(a, b):
+        n = xb.mean(axis=0) - xa.mean(axis=0)
+        n /= np.linalg.norm(n)
+        out.append(max(0.0, float((xa @ n).max() - (xb @ n).min())))
+    return f["time"][...], np.asarray(out)
