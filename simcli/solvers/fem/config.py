@@ -113,6 +113,10 @@ class _FEMSolid(_Solid):
         "(linear in the stretch S of F = R S), 'stable_neohookean' (Smith, de Goes and Kim 2018, Lame "
         "parameters reparameterised to match linear elasticity at small strain; robust to inversion).",
     )
+    angular_velocity: Vec | None = Field(
+        None, description="Initial angular velocity [rad/s] about the body's centroid, added to the entity's "
+        "velocity (a spinning body).",
+    )
     boundary_conditions: list[FEMBoundaryCondition] = Field(
         default_factory=list,
         description="Rollers, prescribed motion and surface tractions (entity.fixed holds every component).",

@@ -17,6 +17,8 @@ Convergence tests need the residual on the host: one small read-back per PCG and
 """
 
 import math
+import os
+import sys
 
 import numpy as np
 
@@ -29,6 +31,7 @@ with stdout_to_stderr():
 
 ARMIJO_C = 1e-4
 MAX_HALVINGS = 20
+DEBUG = bool(os.environ.get("SIMCLI_FEM_DEBUG"))
 
 
 class ImplicitIntegrator:
@@ -231,6 +234,8 @@ class ImplicitIntegrator:
             k["assemble"](dt)
             red = self.red.to_numpy()
             res, acc = math.sqrt(red[0]), red[1]
+            if DEBUG:
+                print("newton", newton_it, res, acc, file=sys.stderr)
             if res0 is None:
                 res0 = res
             if acc <= o.newton_atol or res <= o.newton_tol * res0 or res == 0.0:

@@ -67,10 +67,17 @@ def signed_svd(F):
 
 @ti.func
 def _project_sym3(H):
-    """Clamp the eigenvalues of a symmetric 3x3 matrix at zero."""
-    lam, Q = ti.sym_eig(H)
-    return Q @ ti.Matrix([[ti.max(lam[0], 0.0), 0.0, 0.0], [0.0, ti.max(lam[1], 0.0), 0.0],
-                          [0.0, 0.0, ti.max(lam[2], 0.0)]]) @ Q.transpose()
+    """Clamp the eigenvalues of a symmetric 3x3 matrix at zero. A positive definite H (Sylvester's
+    criterion) is returned as it is: the eigen-solver is only used when needed (it is also the least
+    accurate step when eigenvalues repeat, as at rest)."""
+    m1 = H[0, 0]
+    m2 = H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0]
+    r = H
+    if not (m1 > 0 and m2 > 0 and H.determinant() > 0):
+        lam, Q = ti.sym_eig(H)
+        r = Q @ ti.Matrix([[ti.max(lam[0], 0.0), 0.0, 0.0], [0.0, ti.max(lam[1], 0.0), 0.0],
+                           [0.0, 0.0, ti.max(lam[2], 0.0)]]) @ Q.transpose()
+    return r
 
 
 @ti.func
@@ -156,8 +163,7 @@ class LinearCorotated:
         ls = ti.Vector([2.0 * mu, 2.0 * mu, 2.0 * mu], float)
         lt = ti.Vector([_twist(g[0], g[1], s[0], s[1]), _twist(g[1], g[2], s[1], s[2]),
                         _twist(g[0], g[2], s[0], s[2])], float)
-        if ti.static(project):
-            Hs = _project_sym3(Hs)
+        if ti.static(project):  # Hs = 2 mu I + lam 1 1^T is positive definite (bulk modulus > 0)
             ls = ti.max(ls, 0.0)
             lt = ti.max(lt, 0.0)
         return U, V, Hs, ls, lt

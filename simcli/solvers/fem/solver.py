@@ -88,6 +88,10 @@ class FEMSolver(Solver):
             xe = x[lo:hi]
             if e.velocity is not None:
                 v[lo:hi] = np.asarray(e.velocity, dtype=np.float64)
+            if e.material.angular_velocity is not None:
+                w = np.asarray(e.material.angular_velocity, dtype=np.float64)
+                c = (self.mass[lo:hi, None] * xe).sum(0) / self.mass[lo:hi].sum()
+                v[lo:hi] += np.cross(w[None, :], xe - c)
             held = points_in_regions(e.fixed_regions, xe)
             free[lo:hi][held] = 0.0
             v[lo:hi][held] = 0.0
