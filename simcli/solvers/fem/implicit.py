@@ -72,7 +72,7 @@ class ImplicitIntegrator:
             for i in range(n):
                 xn[i] = x[i]
                 xhat[i] = x[i] + dt * v[i] + dt * dt * gravity[None]
-                xi = xhat[i]
+                xi = x[i]  # Newton starts from x_n: xhat can be far off (large dt) and invert elements
                 fr = free[i]
                 for c in ti.static(range(3)):
                     if fr[c] == 0:

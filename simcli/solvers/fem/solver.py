@@ -262,6 +262,7 @@ class FEMSolver(Solver):
         v, stat_speed, stat_bad, body_off = self.v, self.stat_speed, self.stat_bad, self.body_off
         n, m = self.n, self.m
         f64 = self.f == ti.f64
+        f = self.f
         vol, xr, out_vm, out_J = self.vol_f, self.xr, self.out_vm, self.out_J
 
         @ti.func
@@ -307,7 +308,21 @@ class FEMSolver(Solver):
                 out_vm[i] = acc[0] / acc[2]
                 out_J[i] = acc[1] / acc[2]
 
-        self._frame_stats, self._outputs = frame_stats, outputs
+        hmin_cur = self.hmin_cur = ti.field(f, shape=())
+
+        @ti.kernel
+        def min_height():
+            """Smallest current element height 3 |V| / largest face area (explicit stability)."""
+            hmin_cur[None] = 1e30
+            for e in range(m):
+                t = self.tet_f[e]
+                a, b, c, d = x[t[0]], x[t[1]], x[t[2]], x[t[3]]
+                V = ti.abs((b - a).dot((c - a).cross(d - a))) / 6.0
+                A = ti.max(ti.max((c - b).cross(d - b).norm(), (c - a).cross(d - a).norm()),
+                           ti.max((b - a).cross(d - a).norm(), (b - a).cross(c - a).norm())) * 0.5
+                ti.atomic_min(hmin_cur[None], 3.0 * V / ti.max(A, 1e-30))
+
+        self._frame_stats, self._outputs, self._min_height = frame_stats, outputs, min_height
 
     # -------------------------------------------------------------- stepping
     def substep(self, dt: float) -> None:
@@ -323,9 +338,15 @@ class FEMSolver(Solver):
                 for k, e in enumerate(self.entities)}
 
     def stable_dt(self) -> float:
+        """Explicit: cfl x (smallest current element height, at least a quarter of the rest one) / (P-wave
+        speed + largest vertex speed). Implicit: unlimited."""
         if self.implicit:
             return math.inf
-        return self.opts.cfl * self.h_min / self.c_p
+        self._frame_stats()
+        self._min_height()
+        vmax = float(np.max(self.stat_speed.to_numpy()))
+        h = max(float(self.hmin_cur[None]), 0.25 * self.h_min)
+        return self.opts.cfl * min(h, self.h_min) / (self.c_p + vmax)
 
     def length_scale(self) -> float:
         # explicit: a vertex crossing more than two elements per substep is a blow-up; implicit
