@@ -238,6 +238,10 @@ class ConstitutiveLaw:
         """Current stiffness over the initial one (snow hardening; 1 for the others)."""
         return 1.0
 
+    def max_stiffness_factor(self, materials: list) -> float:
+        """Largest stiffness factor the law can ever reach (stable_dt's cap)."""
+        return 1.0
+
 
 @ti.data_oriented
 class CorotatedLaw(ConstitutiveLaw):

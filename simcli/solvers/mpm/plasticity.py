@@ -126,6 +126,7 @@ class _SVDPlasticLaw(ConstitutiveLaw):
 
     def bind(self, solver: Any) -> None:
         self.mid = solver.mid
+        self.C = solver.C
 
     @ti.func
     def kirchhoff(self, p, F, J, mu, lam, update: ti.template()):
@@ -326,6 +327,9 @@ class SnowLaw(ClampLaw):
     @ti.func
     def stiffness_factor(self, p):
         return self.hardening(self.mid[p], self.Jp[p])
+
+    def max_stiffness_factor(self, materials: list) -> float:
+        return max([math.exp(m.hardening) for m in materials if self.uses(m)] + [1.0])
 
 
 @ti.data_oriented

@@ -198,6 +198,11 @@ class MPMSolver(Solver):
         for law in self.laws:
             law.bind(self)
         self.wave_factor = max(law.max_wave_factor(self.materials) for law in self.laws)
+        self.stiff_cap = max(law.max_stiffness_factor(self.materials) for law in self.laws)
+        # a hardening law (snow) can stiffen a hundredfold within one frame of an impact, which the
+        # runner's once-per-frame choice cannot foresee: with substeps: auto the solver then checks
+        # every substep and subdivides it when the hardening made it unstable
+        self.guard_hardening = self.stiff_cap > 1.0 and self.scene.sim.substeps == "auto"
         self._make_kernels()
         self._compute_bbox()
         self._built = True
@@ -693,6 +698,15 @@ class MPMSolver(Solver):
     # ---------------------------------------------------------------- stepping
 
     def substep(self, dt: float) -> None:
+        if self.guard_hardening:
+            # one reduction and a host read per substep, only in scenes with hardening and auto substeps
+            n = max(1, math.ceil(dt / self.stable_dt() - 1e-9))
+            for _ in range(n):
+                self._advance(dt / n)
+        else:
+            self._advance(dt)
+
+    def _advance(self, dt: float) -> None:
         for law in self.laws:  # muscle activations at the start of the substep (host, no sync)
             law.host_update(self.time)
         self._substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
@@ -715,10 +729,10 @@ class MPMSolver(Solver):
     def stable_dt(self) -> float:
         """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p, viscosity limit) [s]; one reduction
         kernel. c_p is the P-wave speed of the stiffest material, raised by the largest current
-        hardening factor (snow) and the largest muscle activation."""
+        hardening factor (snow) and by the largest muscle activation."""
         self._frame_stats()
         vmax = float(np.max(self.stat_speed.to_numpy()))
-        stiff = max(1.0, float(self.stat_stiff[None])) * self.wave_factor
+        stiff = min(self.stiff_cap, max(1.0, float(self.stat_stiff[None]))) * self.wave_factor
         c = self.c_max * math.sqrt(stiff)
         dt_wave = WAVE_SAFETY * self.dx / c if c > 0 else math.inf
         dt_cfl = self.cfl * self.dx / vmax if vmax > 0 else math.inf
