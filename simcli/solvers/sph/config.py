@@ -1,0 +1,114 @@
+"""SPH configuration: solver options and the liquid material (pydantic, no Taichi).
+
+Names follow Genesis (``gs.options.SPHOptions``, ``gs.materials.SPH.Liquid``): ``particle_size``,
+``pressure_solver``, ``stiffness``, ``exponent``, ``mu``, ``gamma``. Unlike Genesis, ``mu`` is the
+physical dynamic viscosity [Pa s] and the DFSPH tolerances are those of SPlisHSPlasH.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from simcli.scene.material_base import _Material
+
+
+class _Options(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class SPHOptions(_Options):
+    particle_size: float = Field(
+        0.02,
+        gt=0,
+        description="Particle spacing [m]: liquids are sampled on a lattice of this spacing, each particle "
+        "carries volume particle_size^dim; the kernel support radius is 2 x particle_size.",
+    )
+    pressure_solver: Literal["WCSPH", "DFSPH"] = Field(
+        "WCSPH",
+        description="WCSPH: weakly compressible, Tait equation of state (Becker & Teschner 2007). DFSPH: "
+        "divergence-free SPH (Bender & Koschier 2015/2017), iterated to the tolerances below.",
+    )
+    max_density_error_percent: float = Field(
+        0.01,
+        gt=0,
+        description="DFSPH: the density solve iterates until the average density error is at or below this "
+        "[% of rho0] (SPlisHSPlasH's default 0.01 %).",
+    )
+    max_divergence_error_percent: float = Field(
+        0.1,
+        gt=0,
+        description="DFSPH: the divergence solve iterates until the average density change rate times the "
+        "substep is at or below this [% of rho0] (SPlisHSPlasH's default 0.1 %).",
+    )
+    max_density_iterations: int = Field(
+        100, ge=1, description="DFSPH: iteration cap of the density solve [-]."
+    )
+    max_divergence_iterations: int = Field(
+        100, ge=1, description="DFSPH: iteration cap of the divergence solve [-]."
+    )
+    divergence_solve: bool = Field(
+        True, description="DFSPH: run the divergence solve (keeps the velocity field divergence-free)."
+    )
+    warm_start: bool = Field(
+        True, description="DFSPH: start both solves from the previous substep's pressure (stiffness) values."
+    )
+    clamp_pressure: bool = Field(
+        True,
+        description="Free-surface treatment: no negative pressure (density below rho0 gives zero pressure; "
+        "DFSPH corrects only compression). Set false for a liquid that fills a closed box (Taylor-Green).",
+    )
+    background_pressure: float = Field(
+        0.0,
+        ge=0,
+        description="WCSPH: pressure added everywhere [Pa] (with clamp_pressure false, keeps a confined "
+        "flow free of tension).",
+    )
+    cfl: float = Field(
+        0.4,
+        gt=0,
+        le=1,
+        description="CFL number for substeps: auto [-]: substep <= cfl x particle_size / v, with v the largest "
+        "particle speed (plus the sound speed sqrt(stiffness exponent / rho) for WCSPH).",
+    )
+    max_substep: float = Field(
+        5.0e-3,
+        gt=0,
+        description="Upper bound of the automatic substep [s] (a liquid at rest has no CFL limit).",
+    )
+
+    @property
+    def support_radius(self) -> float:
+        return 2.0 * self.particle_size
+
+
+class SPHLiquid(_Material):
+    """Liquid simulated by the SPH solver."""
+
+    type: Literal["SPH.Liquid"]
+    rho: float = Field(1000.0, gt=0, description="Rest density rho0 [kg/m^3].")
+    stiffness: float = Field(
+        50000.0,
+        gt=0,
+        description="WCSPH: Tait stiffness k [Pa] in p = k ((rho / rho0)^exponent - 1); the sound speed is "
+        "sqrt(k exponent / rho0) (50 kPa with exponent 7: 18.7 m/s). DFSPH ignores it.",
+    )
+    exponent: float = Field(7.0, gt=0, description="WCSPH: Tait exponent n [-] (7 for water).")
+    mu: float = Field(
+        0.001,
+        ge=0,
+        description="Dynamic viscosity [Pa s] (water at 20 C: 0.001), a physical viscosity: the SPH "
+        "Laplacian of Monaghan (2005), a = 2 (dim + 2) (mu / rho) sum_j V_j (v_ij . x_ij) / (|x_ij|^2 + "
+        "0.01 h^2) grad W_ij.",
+    )
+    gamma: float = Field(
+        0.0,
+        ge=0,
+        description="Surface tension / cohesion coefficient [N/m] of Akinci et al. (2013) (cohesion kernel "
+        "plus curvature term); 0 disables it.",
+    )
+
+
+# Every SPH material type; the scene's material union is built from these.
+MATERIALS = (SPHLiquid,)

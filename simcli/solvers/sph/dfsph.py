@@ -1,0 +1,233 @@
+"""DFSPH (Bender & Koschier 2015, "Divergence-free smoothed particle hydrodynamics"; 2017, "Divergence-free
+SPH for incompressible and viscous fluids"), as in SPlisHSPlasH's DFSPH.cpp. A substep::
+
+    neighbours -> density + alpha -> divergence_solve -> non_pressure -> density_solve (pressure) -> advect
+
+* alpha_i = 1 / (|sum_j V_j grad W_ij + sum_b V_b grad W_ib|^2 + sum_j |V_j grad W_ij|^2), V_j = m_j / rho0
+  (the factor of eq. 9 of the 2017 paper, per unit rho0).
+* A Jacobi iteration with stiffness k_i (velocity update, then the new density change):
+  v_i -= dt (sum_j (k_i + k_j) V_j grad W_ij + k_i sum_b V_b grad W_ib) (boundary term as SPlisHSPlasH's).
+  Divergence solve: s_i = D rho_i / Dt / rho0 (compression only, and only with enough neighbours),
+  k_i = s_i alpha_i / dt, until mean(s_i) dt <= max_divergence_error_percent / 100.
+  Density solve: s_i = max(rho_i / rho0 + dt D rho_i / Dt / rho0, 1) - 1 (the predicted density error),
+  k_i = s_i alpha_i / dt^2, until mean(s_i) <= max_density_error_percent / 100, at least 2 iterations.
+* Warm start: each solve first applies the previous substep's total stiffness to the particles it would act
+  on: the density solve's k as it was (a liquid at rest needs the same k for any dt), the divergence
+  solve's k dt / dt_now, halved (as in SPlisHSPlasH).
+* Non-pressure accelerations (gravity, viscosity, surface tension) are computed from this substep's
+  divergence-free velocities and applied once, before the density solve. Nothing of a previous substep's
+  acceleration is re-applied (Genesis 1.4.5 advects with the acceleration stored by the previous substep).
+* Pressure output: p_i = k_i rho_i^2 / rho0 with k_i the density solve's total stiffness, the pressure whose
+  symmetric SPH force equals the density solve's velocity correction over the substep.
+* The error of an iteration is summed in 40-bit fixed point (an integer add is associative), so the
+  iteration count does not depend on thread scheduling.
+
+The iteration loops run on the host: one kernel launch per iteration and one scalar read to test the
+tolerance (a few microseconds on the CPU, where a launch is synchronous anyway).
+"""
+
+import math
+
+FIXED = float(2**40)  # fixed-point scale of the error sums
+WARM = 0.5  # fraction of the previous divergence stiffness a warm start applies (SPlisHSPlasH)
+RELAX = 0.5  # Jacobi relaxation: the unclamped (projected) iteration diverges without it
+BFAC = 1.0  # boundary term of the velocity update: k_i alone, as Akinci et al. 2012 and SPlisHSPlasH
+MIN_NEIGHBOURS = {2: 7, 3: 20}  # SPlisHSPlasH: no divergence correction for particles with fewer
+
+
+def make_dfsph(S):
+    ti = S.ti
+    f, dim = S.f, S.dim
+    rho, p, mass, mid, v, vnew = S.rho, S.p, S.mass, S.mid, S.v, S.vnew
+    nb_cnt, nb_j, nb_g, B, Sb, nbb_cnt = S.nb_cnt, S.nb_j, S.nb_g, S.B, S.Sb, S.nbb_cnt
+    alpha, kk, kacc, kappa, kappav, sres = S.alpha, S.kk, S.kacc, S.kappa, S.kappav, S.sres
+    mat_rho0 = S.mat_rho0
+    err_acc = S.err_acc
+    clamp = S.opts.clamp_pressure
+    warm = S.opts.warm_start
+    n = S.n
+    min_nb = MIN_NEIGHBOURS[dim]
+    DIV, DENS = 0, 1
+
+    @ti.func
+    def density_rate(i):
+        """(D rho_i / Dt) / rho0 from the current velocities [1/s]."""
+        vi = v[i]
+        s = vi.dot(B[i]) - Sb[i]
+        for k in range(nb_cnt[i]):
+            j = nb_j[i, k]
+            s += (mass[j] / mat_rho0[mid[j]]) * (vi - v[j]).dot(nb_g[i, k])
+        return s
+
+    @ti.func
+    def density_change(i, dt, mode: ti.template(), first: ti.template()):
+        """Residual s_i of particle i (added to the error sum where it is a compression) and its stiffness
+        increment k_i. With a free surface (clamp_pressure) the total stiffness of a solve is projected onto
+        k >= 0 (projected Jacobi): a residual expansion lowers a particle's stiffness down to zero but never
+        pulls. On the first pass of a warm-started solve, k_i is the warm-start stiffness instead."""
+        s = density_rate(i) * dt  # per substep: the density change this substep, in units of rho0
+        if ti.static(mode == DENS):
+            s += rho[i] / mat_rho0[mid[i]] - 1.0
+        elif ti.static(clamp):  # noqa: SIM102 - compile-time, then run-time test
+            if nb_cnt[i] + nbb_cnt[i] < min_nb:  # a deficient neighbourhood: no divergence correction
+                s = ti.min(s, 0.0)
+        err = s
+        if ti.static(clamp):
+            err = ti.max(s, 0.0)
+        sres[i] = err
+        ti.atomic_add(err_acc[None], ti.cast(ti.abs(err) * FIXED, ti.i64))
+        ki = RELAX * s * alpha[i] / (dt * dt)
+        if ti.static(clamp):
+            ki = ti.max(ki, -kacc[i])  # total stiffness kacc + k stays >= 0
+        if ti.static(first and warm):
+            if ti.static(mode == DIV):
+                ki = WARM * kappav[i] / dt
+            else:
+                ki = kappa[i]
+        kk[i] = ki
+
+    @ti.func
+    def velocity_update(i, dt):
+        ki = kk[i]
+        dv = BFAC * ki * B[i]
+        for k in range(nb_cnt[i]):
+            j = nb_j[i, k]
+            dv += (ki + kk[j]) * (mass[j] / mat_rho0[mid[j]]) * nb_g[i, k]
+        v[i] -= dt * dv
+        kacc[i] += ki
+
+    @ti.func
+    def solve_begin(dt, mode: ti.template()):
+        """First residual, then (warm start) the previous substep's stiffness and the residual after it."""
+        err_acc[None] = 0
+        for i in range(n):
+            kacc[i] = 0.0
+            density_change(i, dt, mode, True)
+        if ti.static(warm):
+            for i in range(n):
+                velocity_update(i, dt)
+            err_acc[None] = 0
+            for i in range(n):
+                density_change(i, dt, mode, False)
+
+    @ti.func
+    def iteration(dt, mode: ti.template()):
+        for i in range(n):
+            velocity_update(i, dt)
+        err_acc[None] = 0
+        for i in range(n):
+            density_change(i, dt, mode, False)
+
+    @ti.kernel
+    def divergence_begin(dt: f):
+        S.sort(n)
+        for i in range(n):
+            S.neighbours_density(i)
+        solve_begin(dt, DIV)
+
+    @ti.kernel
+    def divergence_iteration(dt: f):
+        iteration(dt, DIV)
+
+    @ti.kernel
+    def density_begin(dt: f, after_divergence: ti.template()):
+        if ti.static(after_divergence):
+            for i in range(n):
+                kappav[i] = kacc[i] * dt  # total divergence stiffness, dt independent
+        else:
+            S.sort(n)
+            for i in range(n):
+                S.neighbours_density(i)
+        for i in range(n):
+            vnew[i] = v[i] + dt * S.non_pressure(i)
+        for i in range(n):
+            v[i] = vnew[i]
+        solve_begin(dt, DENS)
+
+    @ti.kernel
+    def density_iteration(dt: f):
+        iteration(dt, DENS)
+
+    @ti.kernel
+    def finish(dt: f):
+        for i in range(n):
+            kappa[i] = kacc[i]  # an acceleration-level stiffness: steady under gravity for any dt
+            r = rho[i]
+            p[i] = kacc[i] * r * r / mat_rho0[mid[i]]
+            S.advect(i, v[i], dt)
+
+    def error() -> float:
+        return float(err_acc[None]) / FIXED / n
+
+    stats = S.dfsph_stats
+
+    def substep(dt: float) -> None:
+        o = S.opts
+        if o.divergence_solve:
+            divergence_begin(dt)
+            eta = o.max_divergence_error_percent / 100.0
+            it, err = 0, error()
+            while (err > eta or it < 1) and it < o.max_divergence_iterations:
+                divergence_iteration(dt)
+                it += 1
+                err = error()
+            stats.add("divergence", it, err, it >= o.max_divergence_iterations and err > eta)
+            density_begin(dt, True)
+        else:
+            density_begin(dt, False)
+        eta = o.max_density_error_percent / 100.0
+        it, err = 0, error()
+        while (err > eta or it < 2) and it < o.max_density_iterations:
+            density_iteration(dt)
+            it += 1
+            err = error()
+        stats.add("density", it, err, it >= o.max_density_iterations and err > eta)
+        finish(dt)
+
+    return substep
+
+
+class SolveStats:
+    """Iterations and final average errors of the DFSPH solves, per substep (host side)."""
+
+    def __init__(self) -> None:
+        self.d: dict[str, dict] = {}
+
+    def add(self, solve: str, iterations: int, err: float, capped: bool) -> None:
+        s = self.d.setdefault(
+            solve,
+            {
+                "substeps": 0,
+                "iterations": 0,
+                "max_iterations": 0,
+                "capped": 0,
+                "max_error": 0.0,
+                "sum_error": 0.0,
+                "last_error": 0.0,
+            },
+        )
+        s["substeps"] += 1
+        s["iterations"] += iterations
+        s["max_iterations"] = max(s["max_iterations"], iterations)
+        s["capped"] += int(capped)
+        if math.isfinite(err):
+            s["max_error"] = max(s["max_error"], err)
+            s["sum_error"] += err
+        else:
+            s["max_error"] = math.inf
+        s["last_error"] = err
+
+    def report(self) -> dict:
+        out = {}
+        for k, s in self.d.items():
+            m = max(1, s["substeps"])
+            out[k] = {
+                "substeps": s["substeps"],
+                "iterations_per_substep": round(s["iterations"] / m, 3),
+                "max_iterations": s["max_iterations"],
+                "substeps_at_cap": s["capped"],
+                "average_error_percent_max": 100.0 * s["max_error"],
+                "average_error_percent_mean": 100.0 * s["sum_error"] / m,
+                "average_error_percent_last": 100.0 * s["last_error"],
+            }
+        return out
