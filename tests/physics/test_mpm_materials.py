@@ -119,7 +119,7 @@ def test_energy_budget_of_a_bouncing_elastic_body(ti_f32):
     def total(st):
         return _apic_ke(m, st["v"], st["C"], dx) - float((m * (st["x"] @ g)).sum()) + elastic(st["F"])
 
-    sums = dict(p2g=0.0, g2p=0.0, wall=0.0)
+    sums = {"p2g": 0.0, "g2p": 0.0, "wall": 0.0}
     st = {k: a.astype(np.float64) for k, a in solver.get_state().items()}
     e0 = total(st)
     lo, hi = solver.lo_node, solver.hi_node

@@ -261,7 +261,7 @@ def test_clamp_keeps_singular_values_in_range_and_jp_je_equals_j(ti_f32, kind, d
     jp = h.jp.to_numpy().astype(np.float64)
     hard = np.exp(xi * (1 - jp)) if kind == "snow" else np.ones(h.n)
     for p in range(h.n):
-        U, s, Vt = np.linalg.svd(FE[p])
+        U, _, Vt = np.linalg.svd(FE[p])
         R = U @ Vt
         Je = np.linalg.det(FE[p])
         ref = hard[p] * (2 * MU * (FE[p] - R) @ FE[p].T + LAM * Je * (Je - 1) * np.eye(dim))
@@ -331,7 +331,7 @@ def test_sand_without_volume_correction_forgets_the_separation(ti_f32):
     m = mat(type="MPM.Sand", friction_angle=35.0, volume_correction=False)
     h = Harness(m, dim=3, n=4)
     Fo, _ = h.run(np.eye(3) * math.exp(0.01))
-    Fo, tau = h.run(Fo @ (np.eye(3) * math.exp(-0.01 / 3)))
+    Fo, _ = h.run(Fo @ (np.eye(3) * math.exp(-0.01 / 3)))
     assert np.allclose(np.log(np.linalg.det(Fo)), -0.01, rtol=1e-3)  # all of the compression is elastic
 
 

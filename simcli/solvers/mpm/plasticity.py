@@ -177,7 +177,7 @@ class _SVDPlasticLaw(ConstitutiveLaw):
 
     @ti.func
     def hencky_energy(self, p, F, mu, lam):
-        U, S, V = ti.svd(F, self.dtype)
+        _U, S, _V = ti.svd(F, self.dtype)
         eps = self.log_strains(p, singular_values(S), 1.0e-6)
         tr = eps.sum()
         return mu * eps.dot(eps) + 0.5 * lam * tr * tr
@@ -201,7 +201,7 @@ class _SVDPlasticLaw(ConstitutiveLaw):
 
     @ti.func
     def corotated_energy(self, F, J, mu, lam):
-        U, S, V = ti.svd(F, self.dtype)
+        _U, S, _V = ti.svd(F, self.dtype)
         s = singular_values(S)
         return mu * (s - 1.0).dot(s - 1.0) + 0.5 * lam * (J - 1.0) ** 2
 
@@ -280,7 +280,7 @@ class ClampLaw(_SVDPlasticLaw):
 
     @ti.func
     def return_mapping(self, p, F, mid, mu, lam):
-        U, sc, V, jp = self.clamp(p, F, mid)
+        U, sc, V, _jp = self.clamp(p, F, mid)
         self.tau[p] = self.corotated_principal_tau(U, sc, mu, lam)
         return principal(U, sc, V)
 
