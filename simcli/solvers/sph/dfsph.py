@@ -38,7 +38,7 @@ MIN_NEIGHBOURS = {2: 7, 3: 20}  # SPlisHSPlasH: no divergence correction for par
 def make_dfsph(S):
     ti = S.ti
     f, dim = S.f, S.dim
-    rho, p, mass, mid, v, vnew = S.rho, S.p, S.mass, S.mid, S.v, S.vnew
+    rho, p, mid, v, vnew = S.rho, S.p, S.mid, S.v, S.vnew
     nb_cnt, nb_j, nb_g, B, Sb, nbb_cnt = S.nb_cnt, S.nb_j, S.nb_g, S.B, S.Sb, S.nbb_cnt
     alpha, kk, kacc, kappa, kappav, sres = S.alpha, S.kk, S.kacc, S.kappa, S.kappav, S.sres
     mat_rho0 = S.mat_rho0
@@ -56,7 +56,7 @@ def make_dfsph(S):
         s = vi.dot(B[i]) - Sb[i]
         for k in range(nb_cnt[i]):
             j = nb_j[i, k]
-            s += (mass[j] / mat_rho0[mid[j]]) * (vi - v[j]).dot(nb_g[i, k])
+            s += S.volume_of(j) * (vi - v[j]).dot(nb_g[i, k])
         return s
 
     @ti.func
@@ -92,7 +92,7 @@ def make_dfsph(S):
         dv = BFAC * ki * B[i]
         for k in range(nb_cnt[i]):
             j = nb_j[i, k]
-            dv += (ki + kk[j]) * (mass[j] / mat_rho0[mid[j]]) * nb_g[i, k]
+            dv += (ki + kk[j]) * S.volume_of(j) * nb_g[i, k]
         v[i] -= dt * dv
         kacc[i] += ki
 
@@ -139,7 +139,7 @@ def make_dfsph(S):
             for i in range(n):
                 S.neighbours_density(i)
         for i in range(n):
-            vnew[i] = v[i] + dt * S.non_pressure(i)
+            vnew[i] = v[i] + dt * S.non_pressure(i, False)
         for i in range(n):
             v[i] = vnew[i]
         solve_begin(dt, DENS)

@@ -61,6 +61,17 @@ class CellGrid:
         ext = self.origin + np.asarray(self.dims) * self.cell
         return np.all((x >= self.origin) & (x < ext), axis=1)
 
+    def dilate(self, flags: np.ndarray) -> np.ndarray:
+        """Per cell: whether any cell of its (2R + 1)^dim stencil is flagged (flags per linear cell index)."""
+        a = flags.reshape(self.dims[::-1])  # (z,) y, x: x fastest
+        out = a.copy()
+        for axis in range(a.ndim):
+            acc = out.copy()
+            for s in range(1, self.R + 1):
+                acc |= np.roll(out, s, axis=axis) | np.roll(out, -s, axis=axis)
+            out = acc
+        return out.reshape(-1)
+
     def sort_static(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(order, start): a stable sort of static points by cell and the (ncells + 1) start offsets."""
         lin = self.cell_index_np(x)

@@ -164,6 +164,7 @@ class SPHSolver(Solver):
         self.bvel = ti.Vector.field(dim, f, shape=nbp)
         self.bns = ti.field(ti.i32, shape=nbp)
         self.bstart = ti.field(ti.i32, shape=grid.ncells + 1)
+        self.bnear = ti.field(ti.i8, shape=grid.ncells)  # a boundary particle lies in the cell's stencil
         npf = self.npf
         if self.nbp:
             self.bx.from_numpy(bp.x[keep][order].astype(npf))
@@ -171,6 +172,7 @@ class SPHSolver(Solver):
             self.bvel.from_numpy(bp.velocity[keep][order].astype(npf))
             self.bns.from_numpy(bp.no_slip[keep][order].astype(np.int32))
         self.bstart.from_numpy(bstart.astype(np.int32))
+        self.bnear.from_numpy(grid.dilate(np.diff(bstart) > 0).astype(np.int8))
 
         # materials and run-time parameters
         nm = len(self.materials)
@@ -255,6 +257,7 @@ class SPHSolver(Solver):
         nb_cnt, nbb_cnt, nb_j, nb_g, B, Sb = self.nb_cnt, self.nbb_cnt, self.nb_j, self.nb_g, self.B, self.Sb
         nrm, Mv, mw, alpha = self.nrm, self.Mv, self.mw, self.alpha
         start, bstart, bx, bV, bvel, bns = self.start, self.bstart, self.bx, self.bV, self.bvel, self.bns
+        bnear = self.bnear
         mat_rho0, mat_nu, mat_gamma, gravity = self.mat_rho0, self.mat_nu, self.mat_gamma, self.gravity
         overflow = self.overflow
         has_tension, has_noslip, has_visc = self.has_tension, self.has_noslip, self.has_viscosity
@@ -270,6 +273,26 @@ class SPHSolver(Solver):
         row = 2 * R + 1
         from simcli.solvers.sph.dfsph import BFAC as bfac
 
+        uniform = len(self.materials) == 1
+        m_c = float(self.materials[0].rho * self.ps**dim)
+        V_c = float(self.ps**dim)
+
+        @ti.func
+        def mass_of(j):
+            """Particle mass [kg]: a compile-time constant with one material (saves a load per neighbour)."""
+            m = ti.cast(m_c, f)
+            if ti.static(not uniform):
+                m = mass[j]
+            return m
+
+        @ti.func
+        def volume_of(j):
+            """Rest volume m_j / rho0_j [m^dim]."""
+            V = ti.cast(V_c, f)
+            if ti.static(not uniform):
+                V = mass[j] / mat_rho0[mid[j]]
+            return V
+
         @ti.func
         def rows(xi):
             """Cell coordinates of the first cell of the central row of cells around xi (clamped so that
@@ -284,11 +307,11 @@ class SPHSolver(Solver):
             xi = x[i]
             c0 = rows(xi)
             rho0_i = mat_rho0[mid[i]]
-            r_i = mass[i] * W0
+            r_i = mass_of(i) * W0
             G = ti.Vector.zero(f, dim)
             sumsq = ti.cast(0.0, f)
             cnt = 0
-            for a in ti.static(range(row ** (dim - 1))):
+            for a in range(row ** (dim - 1)):  # a run-time loop: unrolled, it compiles for minutes
                 c = c0
                 c[1] += a % row - R
                 if ti.static(dim == 3):
@@ -300,8 +323,8 @@ class SPHSolver(Solver):
                     if r2 < h2 and j != i:
                         r = ti.sqrt(r2)
                         g = gradW(d, r)
-                        r_i += mass[j] * W(r)
-                        Vg = (mass[j] / mat_rho0[mid[j]]) * g
+                        r_i += mass_of(j) * W(r)
+                        Vg = volume_of(j) * g
                         G += Vg
                         sumsq += Vg.dot(Vg)
                         if cnt < K:
@@ -316,29 +339,30 @@ class SPHSolver(Solver):
             cntb = 0
             M = ti.Matrix.zero(f, dim, dim)
             m_w = ti.Vector.zero(f, dim)
-            if ti.static(has_boundary):
-                for a in ti.static(range(row ** (dim - 1))):
-                    c = c0
-                    c[1] += a % row - R
-                    if ti.static(dim == 3):
-                        c[2] += a // row - R
-                    lin = linear(c)
-                    for b in range(bstart[lin], bstart[lin + row]):
-                        d = xi - bx[b]
-                        r2 = d.dot(d)
-                        if r2 < h2:
-                            r = ti.sqrt(r2)
-                            Vb = bV[b]
-                            g = gradW(d, r)
-                            r_i += rho0_i * Vb * W(r)
-                            Bi += Vb * g
-                            Si += Vb * bvel[b].dot(g)
-                            cntb += 1
-                            if ti.static(has_noslip):  # noqa: SIM102 - compile-time, then run-time test
-                                if bns[b] != 0:
-                                    coef = Vb / (r2 + eps_visc)
-                                    M += coef * g.outer_product(d)
-                                    m_w += coef * bvel[b].dot(d) * g
+            if ti.static(has_boundary):  # noqa: SIM102 - compile-time, then run-time test
+                if bnear[linear(c0) + R] != 0:  # most particles have no boundary particle in reach
+                    for a in range(row ** (dim - 1)):
+                        c = c0
+                        c[1] += a % row - R
+                        if ti.static(dim == 3):
+                            c[2] += a // row - R
+                        lin = linear(c)
+                        for b in range(bstart[lin], bstart[lin + row]):
+                            d = xi - bx[b]
+                            r2 = d.dot(d)
+                            if r2 < h2:
+                                r = ti.sqrt(r2)
+                                Vb = bV[b]
+                                g = gradW(d, r)
+                                r_i += rho0_i * Vb * W(r)
+                                Bi += Vb * g
+                                Si += Vb * bvel[b].dot(g)
+                                cntb += 1
+                                if ti.static(has_noslip):  # noqa: SIM102 - compile-time, then run-time test
+                                    if bns[b] != 0:
+                                        coef = Vb / (r2 + eps_visc)
+                                        M += coef * g.outer_product(d)
+                                        m_w += coef * bvel[b].dot(d) * g
             rho[i] = r_i
             B[i] = Bi
             Sb[i] = Si
@@ -355,33 +379,49 @@ class SPHSolver(Solver):
                 den = ti.max((G + bfac * Bi).dot(Gt), 0.0) + sumsq
                 alpha[i] = 1.0 / den if den > 1e-9 else 0.0
 
+        p = self.p
+
         @ti.func
-        def non_pressure(i):
-            """gravity + viscosity + surface tension [m/s^2]."""
+        def non_pressure(i, with_pressure: ti.template()):
+            """gravity + viscosity + surface tension [m/s^2]; with_pressure: plus WCSPH's symmetric pressure
+            force, -sum_j m_j (p_i / rho_i^2 + p_j / rho_j^2) grad W_ij, in the same pass over the neighbours."""
             a = gravity[None]
-            if ti.static(has_visc or has_tension):
+            if ti.static(has_visc or has_tension or with_pressure):
                 xi, vi = x[i], v[i]
                 m = mid[i]
                 nu = mat_nu[m]
                 gam = mat_gamma[m]
                 rho0 = mat_rho0[m]
                 ri = rho[i]
+                dpi = ti.cast(0.0, f)
+                if ti.static(with_pressure):
+                    dpi = p[i] / (ri * ri)
                 av = ti.Vector.zero(f, dim)
                 at = ti.Vector.zero(f, dim)
+                ap = ti.Vector.zero(f, dim)
+                ni = ti.Vector.zero(f, dim)
+                if ti.static(has_tension):
+                    ni = nrm[i]
                 for k in range(nb_cnt[i]):
                     j = nb_j[i, k]
-                    d = xi - x[j]
-                    if ti.static(has_visc):
+                    g = nb_g[i, k]
+                    rj = rho[j]
+                    mj = mass_of(j)
+                    if ti.static(with_pressure):
+                        ap -= mj * (dpi + p[j] / (rj * rj)) * g
+                    if ti.static(has_visc or has_tension):
+                        d = xi - x[j]
                         r2 = d.dot(d)
-                        av += (mass[j] / rho[j]) * (vi - v[j]).dot(d) / (r2 + eps_visc) * nb_g[i, k]
-                    if ti.static(has_tension):
-                        r = d.norm()
-                        if r > 0:
-                            kij = 2.0 * rho0 / (ri + rho[j])
-                            at -= kij * (mass[j] * Ckern(r) / r * d + (nrm[i] - nrm[j]))
+                        if ti.static(has_visc):
+                            av += (mj / rj) * (vi - v[j]).dot(d) / (r2 + eps_visc) * g
+                        if ti.static(has_tension):  # noqa: SIM102 - compile-time, then run-time test
+                            if r2 > 0:
+                                r = ti.sqrt(r2)
+                                kij = 2.0 * rho0 / (ri + rj)
+                                at -= kij * (mj * Ckern(r) / r * d + (ni - nrm[j]))
                 if ti.static(has_noslip):
                     av += Mv[i] @ vi - mw[i]
-                a += visc_c * nu * av + gam * at
+                a += visc_c * nu * av + gam * at + ap
             return a
 
         @ti.func
@@ -400,6 +440,7 @@ class SPHSolver(Solver):
             v[i] = vi
 
         self.neighbours_density, self.non_pressure, self.advect = neighbours_density, non_pressure, advect
+        self.mass_of, self.volume_of = mass_of, volume_of
 
         # ---- per-frame kernels
         nb = len(self.bodies)

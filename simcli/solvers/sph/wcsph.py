@@ -15,9 +15,9 @@ Time integration: symplectic Euler (v, then x with the new v).
 def make_wcsph(S):
     """The substep kernel of WCSPH for solver ``S`` (fields and shared funcs built by ``SPHSolver``)."""
     ti = S.ti
-    f, dim = S.f, S.dim
-    rho, p, mass, mid, v, vnew = S.rho, S.p, S.mass, S.mid, S.v, S.vnew
-    nb_cnt, nb_j, nb_g, B = S.nb_cnt, S.nb_j, S.nb_g, S.B
+    f = S.f
+    rho, p, mid, v, vnew = S.rho, S.p, S.mid, S.v, S.vnew
+    B = S.B
     mat_rho0, mat_k, mat_n = S.mat_rho0, S.mat_k, S.mat_n
     clamp = S.opts.clamp_pressure
     p_bg = float(S.opts.background_pressure)
@@ -33,16 +33,9 @@ def make_wcsph(S):
         p[i] = pi + p_bg
 
     @ti.func
-    def pressure_acceleration(i):
+    def boundary_pressure_acceleration(i):
         ri = rho[i]
-        dpi = p[i] / (ri * ri)
-        a = ti.Vector.zero(f, dim)
-        for k in range(nb_cnt[i]):
-            j = nb_j[i, k]
-            rj = rho[j]
-            a -= mass[j] * (dpi + p[j] / (rj * rj)) * nb_g[i, k]
-        a -= mat_rho0[mid[i]] * dpi * B[i]  # Akinci et al. 2012, eq. 10
-        return a
+        return -mat_rho0[mid[i]] * (p[i] / (ri * ri)) * B[i]  # Akinci et al. 2012, eq. 10
 
     @ti.kernel
     def substep(dt: f):
@@ -51,7 +44,8 @@ def make_wcsph(S):
             S.neighbours_density(i)
             equation_of_state(i)
         for i in range(n):
-            vnew[i] = v[i] + dt * (S.non_pressure(i) + pressure_acceleration(i))
+            # non_pressure and the liquid's pressure force in one pass over the neighbour list
+            vnew[i] = v[i] + dt * (S.non_pressure(i, True) + boundary_pressure_acceleration(i))
         for i in range(n):
             S.advect(i, vnew[i], dt)
 
