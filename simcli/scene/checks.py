@@ -97,8 +97,15 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         else:
             seen[e.name] = i
         need_len(base + ("velocity",), e.velocity)
+        if e.family == "SF":
+            _check_sf_entity(e, base, dim, need_len, err)
         m = e.morph
         mpath = base + ("morph",)
+        if m is None:  # only SF entities may omit it (models.py)
+            continue
+        if e.family == "SF" and m.type == "Mesh":
+            err(mpath + ("type",), "SF.Smoke morphs are Box, Sphere or Cylinder (Mesh is not available)")
+            continue
         shape_ok = True
         for f in ("lower", "upper", "center", "size"):
             shape_ok &= need_len(mpath + (f,), getattr(m, f, None))
@@ -136,6 +143,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             err(mpath, f"entity '{e.name}' extends outside the domain along {axes} (its bounds "
                 f"{_fmt(mlo)}..{_fmt(mhi)}, domain {_fmt(lo)}..{_fmt(hi)}); move it or enlarge domain")
 
+    _check_faces_and_sf(s, err)
     if errors:
         return sort_lines(errors)
 
@@ -147,6 +155,14 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         for a in range(dim):
             cells *= int(math.ceil((hi[a] - lo[a]) * mpm.grid_density)) + 7
     need = n_particles * per_p + cells * _BYTES_PER_CELL[dim] * fp
+    sf_cells = 0
+    if "SF" in s.families:
+        from simcli.solvers.sf.config import estimate_bytes
+
+        n_sf, _ = s.solvers.sf.cells(lo, hi)
+        sf_cells = math.prod(n_sf)
+        sf_mat = next(e.material for e in s.entities if e.family == "SF")
+        need += estimate_bytes(s.solvers.sf, sf_mat, n_sf, s.sim.precision)
     if "SPH" in s.families:
         # boundary particles: two layers outside every face of the domain (colliders add less)
         ext = [hi[a] - lo[a] for a in range(dim)]
@@ -157,7 +173,12 @@ def check_scene(loaded: LoadedScene) -> list[str]:
                  + sph_cells * _SPH_BYTES_PER_CELL) * fp
         n_particles += n_sph
     avail = _available_memory()
-    if need > MEMORY_FRACTION * avail:
+    if need > MEMORY_FRACTION * avail and sf_cells:
+        err(("solvers", "sf", "resolution"),
+            f"scene too large: needs about {need / 2**30:.1f} GiB ({sf_cells:,} SF grid cells"
+            f"{f', {n_particles:,} particles' if n_particles else ''}) but only {avail / 2**30:.1f} GiB is "
+            f"available; lower solvers.sf.resolution")
+    elif need > MEMORY_FRACTION * avail:
         err(("solvers", "mpm", "grid_density") if "MPM" in s.families
             else ("solvers", "sph", "particle_size") if "SPH" in s.families else ("entities",),
             f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {cells:,} grid "
@@ -168,3 +189,68 @@ def check_scene(loaded: LoadedScene) -> list[str]:
 
 def _fmt(v) -> str:
     return "(" + ", ".join(f"{x:g}" for x in v) + ")"
+
+
+# Largest SF grid the solver indexes (i32 indices, one field of this many cells)
+_SF_MAX_CELLS = 2**31 - 1
+
+
+def _check_sf_entity(e, base: tuple, dim: int, need_len, err) -> None:
+    if e.velocity_field is not None and len(e.velocity_field) != dim:
+        err(base + ("velocity_field",), f"expected {dim} expressions for dim {dim} (got {len(e.velocity_field)})")
+    for j, jet in enumerate(e.jets):
+        jpath = base + ("jets", j)
+        for key, vec in jet.vectors().items():
+            need_len(jpath + tuple(key.split(".")), vec)
+        if jet.path is not None and jet.path.type == "waypoints":
+            for k, pt in enumerate(jet.path.points):
+                need_len(jpath + ("path", "points", k), pt)
+        if jet.path is not None and jet.path.type == "orbit" and dim == 2 and jet.path.axis != "z":
+            err(jpath + ("path", "axis"), "a 2D orbit turns about z (the normal of the plane)")
+
+
+def _check_faces_and_sf(s, err) -> None:
+    """Open and periodic faces are for grid fluids only; periodic faces come in pairs; the SF grid is sane."""
+    dim = s.sim.dim
+    fams = s.families
+    grid_only = ("open", "periodic")
+    particle_fams = sorted(f for f in fams if f != "SF")
+    faces = {"xyz"[a] + sign: s.domain.face("xyz"[a] + sign) for a in range(dim) for sign in "-+"}
+    for name, b in faces.items():
+        if b.type in grid_only and particle_fams:
+            path = ("domain", "faces", name, "type") if name in s.domain.faces else ("domain", "boundary", "type")
+            err(path, f"'{b.type}' faces are for grid fluids (SF) only; {', '.join(particle_fams)} entities need "
+                "slip, sticky or separate")
+        if b.type in grid_only and b.velocity is not None and any(v != 0 for v in b.velocity):
+            path = ("domain", "faces", name, "velocity") if name in s.domain.faces else ("domain", "boundary")
+            err(path, f"a {b.type} face has no wall velocity (remove it)")
+    for a in range(dim):
+        lo_p, hi_p = (faces["xyz"[a] + sign].type == "periodic" for sign in "-+")
+        if lo_p != hi_p:
+            err(("domain", "faces"), f"periodic faces come in pairs: {'xyz'[a]}- and {'xyz'[a]}+ must both be "
+                "periodic (or neither)", key=True)
+    if "SF" not in fams:
+        return
+    sf_ents = [i for i, e in enumerate(s.entities) if e.family == "SF"]
+    if len(sf_ents) > 1:
+        err(("entities", sf_ents[1], "material", "type"), "a scene holds one SF.Smoke entity (the fluid fills the "
+            f"whole domain; also entities.{sf_ents[0]})")
+    res = s.solvers.sf.resolution
+    if isinstance(res, list) and len(res) != dim:
+        err(("solvers", "sf", "resolution"), f"expected one cell count per axis ({dim}) or a single number "
+            f"(got {len(res)})")
+        return
+    lo, hi = s.domain.bounds(dim)
+    if len(lo) != dim or len(hi) != dim or any(a >= b for a, b in zip(lo, hi)):
+        return
+    n, _ = s.solvers.sf.cells(lo, hi)
+    if math.prod(n) > _SF_MAX_CELLS:
+        err(("solvers", "sf", "resolution"), f"{'x'.join(map(str, n))} cells exceed the {_SF_MAX_CELLS:,} a grid "
+            "can index; lower it")
+    if min(n) < 2:
+        err(("solvers", "sf", "resolution"), f"every axis needs >= 2 cells (got {'x'.join(map(str, n))} for the "
+            "domain's shape); raise resolution or give one count per axis")
+    for a in range(dim):
+        if faces["xyz"[a] + "-"].type == "periodic" and n[a] % 2:
+            err(("solvers", "sf", "resolution"), f"a periodic axis needs an even number of cells ({'xyz'[a]}: "
+                f"{n[a]})")

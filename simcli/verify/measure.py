@@ -262,3 +262,114 @@ def interpenetration(f, entity, other, **_):
         n /= np.linalg.norm(n)
         out.append(max(0.0, float((xa @ n).max() - (xb @ n).min())))
     return f["time"][...], np.asarray(out)
+
+
+# ----------------------------------------------------------------------------- grid fluids (SF)
+
+
+def _grid(f: h5py.File, entity: str | None, field: str = "velocity", frame: int | None = None):
+    """(array of one frame or all frames, origin, spacing) of a grid entity's field; arrays are
+    (..., nz, ny, nx[, c]) (x fastest), origin and spacing in x, y, z order."""
+    _, g = _entity(f, entity)
+    if g.attrs.get("kind") != "grid":
+        raise TypeError(f"entity is a {g.attrs.get('kind')} entity, not a grid")
+    d = g[field]
+    a = np.asarray(d[...] if frame is None else d[frame], dtype=np.float64)
+    return a, np.asarray(g.attrs["origin"], dtype=np.float64), np.asarray(g.attrs["spacing"], dtype=np.float64)
+
+
+def _centres(origin, spacing, shape_xyz):
+    return [origin[a] + (np.arange(shape_xyz[a]) + 0.5) * spacing[a] for a in range(len(shape_xyz))]
+
+
+@measurement("centreline")
+def centreline(f, entity, axis=None, component=0, along=1, at=0.5, frame=-1, **_):
+    """Velocity component ``component`` along the line parallel to axis ``along`` through ``at`` (the
+    other coordinate(s) [m]) in frame ``frame``: returns (coordinate along the line [m], velocity).
+    The cell-centred values are interpolated linearly across the line (2D grids; a cavity's centrelines)."""
+    v, o, h = _grid(f, entity, frame=frame)
+    dim = v.ndim - 1
+    if dim != 2:
+        raise ValueError("centreline: 2D grids only")
+    u = v[..., component].T  # (nx, ny): index order x, y
+    xs = _centres(o, h, u.shape)
+    across = 1 - along
+    line = np.apply_along_axis(lambda col: np.interp(at, xs[across], col), across, u)
+    return xs[along], line
+
+
+def _stream_function(v, o, h):
+    """psi at (x_i, y_{j+1/2}): the integral of u from the lower wall (psi = 0 there), 2D."""
+    u = v[..., 0]  # (ny, nx)
+    psi = np.cumsum(u, axis=0) * h[1]
+    x = o[0] + (np.arange(u.shape[1]) + 0.5) * h[0]
+    y = o[1] + (np.arange(u.shape[0]) + 1.0) * h[1]
+    return psi, x, y
+
+
+@measurement("vortex_centre")
+def vortex_centre(f, entity, axis=0, kind="min", **_):
+    """Coordinate ``axis`` [m] of the extremum (``kind``: min or max) of the stream function of the
+    last frame, refined by a quadratic fit through the 3 x 3 neighbourhood (a cavity's primary vortex:
+    min for a lid moving along +x). Returns (last time, coordinate)."""
+    v, o, h = _grid(f, entity, frame=-1)
+    psi, x, y = _stream_function(v, o, h)
+    s = -psi if kind == "min" else psi
+    j, i = np.unravel_index(np.argmax(s[1:-1, 1:-1]), (s.shape[0] - 2, s.shape[1] - 2))
+    j, i = j + 1, i + 1
+    w = s[j - 1:j + 2, i - 1:i + 2]
+    # fit s = c0 + c1 X + c2 Y + c3 X^2 + c4 X Y + c5 Y^2 on the 3 x 3 stencil (X, Y in cells)
+    X, Y = np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0])
+    A = np.stack([np.ones(9), X.ravel(), Y.ravel(), X.ravel() ** 2, (X * Y).ravel(), Y.ravel() ** 2], axis=1)
+    c = np.linalg.lstsq(A, w.ravel(), rcond=None)[0]
+    H = np.array([[2 * c[3], c[4]], [c[4], 2 * c[5]]])
+    try:
+        dX, dY = np.clip(np.linalg.solve(H, -c[1:3]), -1.0, 1.0)
+    except np.linalg.LinAlgError:
+        dX = dY = 0.0
+    pos = (x[i] + dX * h[0], y[j] + dY * h[1])
+    return f["time"][-1:], np.array([pos[axis]])
+
+
+@measurement("grid_kinetic_energy")
+def grid_kinetic_energy(f, entity, rho=1.0, **_):
+    """Kinetic energy 0.5 rho sum |u|^2 dV of a grid entity's cell velocities [J] (per metre in 2D)."""
+    v, _, h = _grid(f, entity)
+    return f["time"][...], 0.5 * rho * (v * v).sum(axis=tuple(range(1, v.ndim))) * float(np.prod(h))
+
+
+@measurement("ke_decay_rate")
+def ke_decay_rate(f, entity, **_):
+    """Decay rate -d ln(KE)/dt [1/s] of a grid entity's kinetic energy between successive frames, at the
+    interval midpoints (Taylor-Green: 4 nu, with the scheme's own numerical viscosity on top)."""
+    t, ke = grid_kinetic_energy(f, entity)
+    return 0.5 * (t[1:] + t[:-1]), -np.diff(np.log(ke)) / np.diff(t)
+
+
+@measurement("numerical_viscosity")
+def numerical_viscosity(f, entity, nu=0.0, k2=2.0, **_):
+    """Effective viscosity [m^2/s] of a decaying single-mode flow, rate / (2 k^2), minus the physical
+    ``nu`` (Taylor-Green: k^2 = 2 for u = sin x cos y)."""
+    t, rate = ke_decay_rate(f, entity)
+    return t, rate / (2.0 * k2) - nu
+
+
+@measurement("grid_max_speed")
+def grid_max_speed(f, entity, **_):
+    """Largest cell speed [m/s] of a grid entity in each frame."""
+    v, _, _ = _grid(f, entity)
+    return f["time"][...], np.sqrt((v * v).sum(axis=-1)).reshape(len(v), -1).max(axis=1)
+
+
+@measurement("divergence_per_substep")
+def divergence_per_substep(f, entity, **_):
+    """Largest cell divergence times the substep, max |div u| dt [-] (the relative volume change of a cell
+    in one substep), from the grid's `divergence` field and the run's dt and substeps."""
+    import yaml
+
+    d, _, _ = _grid(f, entity, "divergence")
+    sim = yaml.safe_load(f.attrs["scene"])["sim"]
+    sub = sim.get("substeps", 1)
+    if not isinstance(sub, int):
+        raise ValueError("divergence_per_substep needs a fixed sim.substeps")
+    return f["time"][...], np.abs(d).reshape(len(d), -1).max(axis=1) * float(sim["dt"]) / sub

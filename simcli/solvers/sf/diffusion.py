@@ -1,0 +1,204 @@
+"""diffuse: implicit viscosity (Stam 1999, backward Euler), (I - nu dt L) u = u*, per velocity
+component on its faces, solved by conjugate gradients (the matrix is symmetric positive
+definite; any nu dt is stable, so a scene can set a physical Reynolds number).
+
+Boundary conditions enter through two per-face arrays computed once on the host from the face
+kinds (``grid.py``): ``K`` (the sum of the couplings c_a = 1/dx_a^2 of the face, -1 for a face
+that is not an unknown) and ``B`` (the coupling-weighted prescribed velocities next to it). A
+fixed neighbour (wall or collider face) is a Dirichlet value; a sticky wall half a cell away
+adds 2 c_a to the diagonal and 2 c_a u_wall to the right-hand side (ghost 2 u_wall - u); a slip
+or open face adds nothing (zero shear); periodic neighbours wrap. The unknowns then satisfy
+
+    (1 + nu dt K) u_I - nu dt sum_{free J} c_a u_J = u*_I + nu dt B_I.
+
+All components are solved as one block-diagonal system (one CG loop, one convergence read per
+iteration), stopping when ||r||_2 <= viscosity_tolerance ||b||_2.
+"""
+
+
+import math
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.sf.boundary import Boundary
+from simcli.solvers.sf.grid import FREE, OPEN_FACE, W_STICKY, Layout, face_values, is_fixed
+
+with stdout_to_stderr():
+    import taichi as ti
+
+_BEYOND = 255
+
+
+def viscosity_operator(layout: Layout, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """(K, B) of component d in the padded face layout (see the module docstring)."""
+    dim, n = layout.dim, layout.n
+    valid = tuple(slice(1, n[a] + (2 if a == d else 1)) for a in range(dim))
+    kind = layout.kinds[d][valid].copy()
+    val = face_values(layout, d)[valid]
+    if layout.periodic[d]:  # the unknowns are faces 0 .. n_d - 1; face n_d is face 0
+        cut = tuple(slice(0, n[d]) if a == d else slice(None) for a in range(dim))
+        kind, val = kind[cut], val[cut]
+    free = (kind == FREE) | (kind == OPEN_FACE)
+    K = np.zeros(kind.shape)
+    B = np.zeros(kind.shape)
+    for a in range(dim):
+        c = 1.0 / layout.dx[a] ** 2
+        for s in (1, -1):
+            if layout.periodic[a]:
+                nk = np.roll(kind, -s, axis=a)
+                nv = np.roll(val, -s, axis=a)
+            else:
+                pad = [(0, 0)] * dim
+                pad[a] = (0, 1) if s > 0 else (1, 0)
+                nk = np.pad(kind, pad, constant_values=_BEYOND)
+                nv = np.pad(val, pad)
+                sl = [slice(None)] * dim
+                sl[a] = slice(1, None) if s > 0 else slice(0, -1)
+                nk, nv = nk[tuple(sl)], nv[tuple(sl)]
+            nfix = is_fixed(nk)
+            nfree = (nk == FREE) | (nk == OPEN_FACE)
+            K += c * (nfix | nfree)
+            B += c * np.where(nfix, nv, 0.0)
+            if a != d and not layout.periodic[a]:
+                side = 1 if s > 0 else 0
+                if layout.wall[a][side] == W_STICKY:
+                    beyond = nk == _BEYOND
+                    K += 2.0 * c * beyond
+                    B += 2.0 * c * layout.wall_velocity[a, side, d] * beyond
+    K = np.where(free, K, -1.0)
+    B = np.where(free, B, 0.0)
+    Kp = np.full(tuple(c + 3 for c in n), -1.0)
+    Bp = np.zeros(Kp.shape)
+    dst = tuple(slice(1, 1 + k) for k in kind.shape)
+    Kp[dst] = K
+    Bp[dst] = B
+    return Kp, Bp
+
+
+class Diffusion:
+    def __init__(self, layout: Layout, f, bc: Boundary, vel, nu: float, tolerance: float,
+                 max_iterations: int = 500) -> None:
+        self.layout, self.f, self.bc, self.vel = layout, f, bc, vel
+        self.nu, self.tol, self.maxit = float(nu), float(tolerance), int(max_iterations)
+        dim = layout.dim
+        npf = np.float64 if f == ti.f64 else np.float32
+        shape = (dim,) + tuple(c + 3 for c in layout.n)
+        off = (0,) + (-1,) * dim
+
+        def ff():
+            return ti.field(f, shape=shape, offset=off)
+
+        self.K, self.B, self.r, self.p, self.Ap = ff(), ff(), ff(), ff(), ff()
+        ops = [viscosity_operator(layout, d) for d in range(dim)]
+        self.K.from_numpy(np.stack([o[0] for o in ops]).astype(npf))
+        self.B.from_numpy(np.stack([o[1] for o in ops]).astype(npf))
+        self.sc = ti.field(ti.f64, shape=4)  # rr, pAp, bb, rr_new
+        self._make()
+
+    def _make(self) -> None:
+        L, f, bc = self.layout, self.f, self.bc
+        dim, n, periodic = L.dim, L.n, L.periodic
+        vel, K, B, r, p, Ap, sc = self.vel, self.K, self.B, self.r, self.p, self.Ap, self.sc
+        c = [1.0 / h**2 for h in L.dx]
+        at, split, faces_all = bc.at, bc.split, bc.faces_all
+
+        @ti.func
+        def nb(I, a: ti.template(), s: ti.template()):
+            """Face I + s e_a (wrapped on a periodic axis: faces 0 .. n_a - 1 either way)."""
+            J = I
+            if ti.static(periodic[a]):
+                if ti.static(s > 0):
+                    J[a] = ti.select(J[a] < n[a] - 1, J[a] + 1, 0)
+                else:
+                    J[a] = ti.select(J[a] > 0, J[a] - 1, n[a] - 1)
+            else:
+                J[a] += s
+            return J
+
+        @ti.func
+        def offdiag(q: ti.template(), d, I, masked: ti.template()):
+            s = ti.cast(0.0, f)
+            for a in ti.static(range(dim)):
+                for t in ti.static((1, -1)):
+                    J = at(d, nb(I, a, t))
+                    if ti.static(masked):
+                        if K[J] >= 0:
+                            s += c[a] * q[J]
+                    else:
+                        s += c[a] * q[J]
+            return s
+
+        @ti.kernel
+        def start(nudt: f):
+            sc[0] = 0.0
+            sc[2] = 0.0
+            for J in ti.grouped(ti.ndrange(*faces_all)):
+                k = K[J]
+                ri = ti.cast(0.0, f)
+                if k >= 0:
+                    d, I = split(J)
+                    u = vel[J]
+                    sc[2] += ti.cast(u + nudt * B[J], ti.f64) ** 2
+                    ri = nudt * (B[J] - k * u + offdiag(vel, d, I, True))
+                r[J] = ri
+                p[J] = ri
+                sc[0] += ti.cast(ri, ti.f64) ** 2
+
+        @ti.kernel
+        def apply(nudt: f):
+            sc[1] = 0.0
+            for J in ti.grouped(ti.ndrange(*faces_all)):
+                k = K[J]
+                a = ti.cast(0.0, f)
+                if k >= 0:
+                    d, I = split(J)
+                    a = (1.0 + nudt * k) * p[J] - nudt * offdiag(p, d, I, False)
+                Ap[J] = a
+                sc[1] += ti.cast(p[J], ti.f64) * a
+
+        @ti.kernel
+        def update():
+            alpha = ti.cast(0.0, f)
+            if sc[1] > 0:
+                alpha = ti.cast(sc[0] / sc[1], f)
+            sc[3] = 0.0
+            for J in ti.grouped(ti.ndrange(*faces_all)):
+                if K[J] >= 0:
+                    vel[J] += alpha * p[J]
+                    ri = r[J] - alpha * Ap[J]
+                    r[J] = ri
+                    sc[3] += ti.cast(ri, ti.f64) ** 2
+
+        @ti.kernel
+        def direction():
+            beta = ti.cast(0.0, f)
+            if sc[0] > 0:
+                beta = ti.cast(sc[3] / sc[0], f)
+            for J in ti.grouped(ti.ndrange(*faces_all)):
+                p[J] = r[J] + beta * p[J]
+            sc[0] = sc[3]
+
+        @ti.kernel
+        def ghosts():
+            bc.fill_face_ghosts(vel)
+
+        self._start, self._apply, self._update, self._direction, self._ghosts = start, apply, update, direction, ghosts
+
+    def solve(self, dt: float) -> tuple[int, float]:
+        """Diffuse the velocity in place. Returns (iterations, ||r|| / ||b||)."""
+        nudt = self.nu * dt
+        self._start(nudt)
+        s = self.sc.to_numpy()
+        bb = max(float(s[2]), 1e-300)
+        rel = math.sqrt(float(s[0]) / bb)
+        its = 0
+        while rel > self.tol and its < self.maxit:
+            self._apply(nudt)
+            self._update()
+            its += 1
+            s = self.sc.to_numpy()
+            rel = math.sqrt(float(s[3]) / bb)
+            self._direction()
+        self._ghosts()
+        return its, rel

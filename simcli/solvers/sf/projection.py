@@ -1,0 +1,497 @@
+"""project: make the velocity divergence-free (Stam 1999, the Helmholtz-Hodge projection).
+
+With phi = p dt / rho (p the pressure), the projected velocity is u = u* - grad phi, and
+div u = 0 asks for the Poisson equation M phi = -div u*, M the (positive semi-definite) negative
+Laplacian on the fluid cells of the MAC grid. On a MAC grid the divergence of the projected field
+is exactly minus the residual of that equation, so both solvers stop on the largest cell
+divergence after projection, ``max |div u| dt <= tolerance`` (the largest relative volume change
+of a cell in the substep), and report it with the relative residual ||r||_2 / ||b||_2.
+
+Storage trick: phi and every solver vector hold 0 in wall, collider and open ghost cells and the
+diagonal D holds the weights of the faces a cell really has (1/dx^2 through a free face, 2/dx^2
+through an open face where the pressure is 0 half a cell away, none through a wall or collider),
+so the operator is ``D_I x_I - sum_a c_a (x_{I+e_a} + x_{I-e_a})`` with no flag reads.
+
+Solvers
+    ``jacobi``: x <- (b + sum c x_nb) / D, as in Stam (1999), ping-ponging two fields.
+    ``mgpcg``: conjugate gradients preconditioned by one multigrid V-cycle (McAdams et al. 2010):
+    cell-centred coarsening by 2, piecewise-constant transfers (restriction = the transpose of
+    prolongation), Galerkin-scaled coarse couplings, red-black Gauss-Seidel smoothing run
+    red-black before and black-red after the coarse correction, so the preconditioner is
+    symmetric. Closed or periodic boxes: the mean of the right-hand side is removed (the
+    pressure is defined up to a constant).
+
+Both start from the previous step's pressure. The iteration count is decided on the host: a
+convergence test reads one number back from the device (every iteration for MGPCG, every
+``check_every`` sweeps for Jacobi); nothing else in a step synchronises.
+"""
+
+
+import math
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.sf.boundary import Boundary, make_foreach, make_foreach_color
+from simcli.solvers.sf.grid import FREE, OPEN_FACE, Layout
+
+with stdout_to_stderr():
+    import taichi as ti
+
+COARSEST_SWEEPS = 16  # red-black pairs on the coarsest level (a few cells per axis)
+
+# slots of the scalar field
+RZ, PAP, RMAX, RNORM2, BNORM2, BSUM, DT, ALPHA, BETA, RZ_NEW = range(10)
+
+
+class Projection:
+    def __init__(self, layout: Layout, f, bc: Boundary, vel, pressure, opts) -> None:
+        self.layout, self.f, self.bc, self.vel, self.pressure = layout, f, bc, vel, pressure
+        self.opts = opts
+        self.kind = opts.pressure_solver
+        dim = layout.dim
+        self.npf = np.float64 if f == ti.f64 else np.float32
+        cell = tuple(c + 2 for c in layout.n)
+        off = (-1,) * dim
+
+        def cfield(shape=cell):
+            return ti.field(f, shape=shape, offset=off)
+
+        self.levels = layout.levels if self.kind == "mgpcg" else layout.levels[:1]
+        self.D = [cfield(tuple(c + 2 for c in lv.n)) for lv in self.levels]
+        self.x = cfield()  # phi
+        self.b = cfield()
+        self.sc = ti.field(ti.f64, shape=10)
+        if self.kind == "mgpcg":
+            self.r, self.z, self.p, self.Ap = cfield(), cfield(), cfield(), cfield()
+            # multigrid vectors of the coarse levels (level 0 uses the CG r and z)
+            self.mx = [self.z] + [cfield(tuple(c + 2 for c in lv.n)) for lv in self.levels[1:]]
+            self.mr = [self.r] + [cfield(tuple(c + 2 for c in lv.n)) for lv in self.levels[1:]]
+        else:
+            self.y = cfield()
+        for D, lv in zip(self.D, self.levels):
+            arr = np.zeros(tuple(c + 2 for c in lv.n), dtype=self.npf)
+            arr[(slice(1, -1),) * dim] = lv.diag
+            D.from_numpy(arr)
+        self.n_fluid = int(np.count_nonzero(self.levels[0].diag > 0))
+        self.singular = not layout.has_open
+        self._make()
+
+    # ------------------------------------------------------------------ kernels
+
+    def _make(self) -> None:
+        L, f, bc = self.layout, self.f, self.bc
+        dim, periodic = L.dim, L.periodic
+        vel, pressure, x, b, sc = self.vel, self.pressure, self.x, self.b, self.sc
+        dx = [float(h) for h in L.dx]
+        singular = self.singular
+        inv_fluid = 1.0 / max(1, self.n_fluid)
+        kinds, at, split, faces_all = bc.kinds, bc.at, bc.split, bc.faces_all
+        n0 = L.n
+
+        def make_ops(lv, D):
+            n, c = lv.n, [float(v) for v in lv.c]
+            foreach, foreach_sum, foreach_sum_max = make_foreach([(0, k) for k in n])
+            foreach_color = make_foreach_color(n)
+
+            @ti.func
+            def nb(I, a: ti.template(), s: ti.template()):
+                J = I
+                if ti.static(periodic[a]):
+                    if ti.static(s > 0):
+                        J[a] = ti.select(J[a] < n[a] - 1, J[a] + 1, 0)
+                    else:
+                        J[a] = ti.select(J[a] > 0, J[a] - 1, n[a] - 1)
+                else:
+                    J[a] += s
+                return J
+
+            @ti.func
+            def offdiag(q: ti.template(), I):
+                s = ti.cast(0.0, f)
+                for a in ti.static(range(dim)):
+                    s += c[a] * (q[nb(I, a, 1)] + q[nb(I, a, -1)])
+                return s
+
+            @ti.func
+            def apply(q: ti.template(), I):
+                return D[I] * q[I] - offdiag(q, I)
+
+            def make_gs(q, rhs):
+                @ti.func
+                def relax(I):
+                    d = D[I]
+                    if d > 0:
+                        q[I] = (rhs[I] + offdiag(q, I)) / d
+
+                @ti.func
+                def sweep(color: ti.template()):
+                    foreach_color(relax, color)
+
+                return sweep
+
+            return {"n": n, "foreach": foreach, "foreach_sum": foreach_sum, "foreach_sum_max": foreach_sum_max,
+                    "nb": nb, "offdiag": offdiag, "apply": apply, "make_gs": make_gs, "D": D}
+
+        ops = [make_ops(lv, D) for lv, D in zip(self.levels, self.D)]
+        o0 = ops[0]
+        D0, offdiag0, apply0 = o0["D"], o0["offdiag"], o0["apply"]
+        foreach0, sum0, summax0 = o0["foreach"], o0["foreach_sum"], o0["foreach_sum_max"]
+
+        @ti.func
+        def divergence(I):
+            s = ti.cast(0.0, f)
+            for a in ti.static(range(dim)):
+                J = I
+                J[a] += 1
+                s += (vel[at(a, J)] - vel[at(a, I)]) / dx[a]
+            return s
+
+        @ti.func
+        def rhs_cell(I):
+            """b = -div u* on a fluid cell; warm start x = p dt / rho (dt in sc[DT])."""
+            bi = ti.cast(0.0, f)
+            xi = ti.cast(0.0, f)
+            if D0[I] > 0:
+                bi = -divergence(I)
+                xi = pressure[I] * ti.cast(sc[DT], f)
+            b[I] = bi
+            x[I] = xi
+            return ti.cast(bi, ti.f64)
+
+        @ti.func
+        def remove_mean(I):
+            if D0[I] > 0:
+                b[I] -= ti.cast(sc[BSUM] * inv_fluid, f)
+
+        @ti.func
+        def b_squared(I):
+            return ti.cast(b[I], ti.f64) ** 2
+
+        @ti.func
+        def prepare_rhs(dt):
+            """b = -div u* on the fluid cells (mean removed in a closed box); warm start x = p dt / rho."""
+            sc[DT] = dt
+            sc[BSUM] = 0.0
+            sc[BNORM2] = 0.0
+            sum0(rhs_cell, sc, BSUM)
+            if ti.static(singular):
+                foreach0(remove_mean)
+            sum0(b_squared, sc, BNORM2)
+
+        def residual_of(q):
+            @ti.func
+            def body(I):
+                r = ti.cast(0.0, f)
+                if D0[I] > 0:
+                    r = b[I] - apply0(q, I)
+                r64 = ti.cast(r, ti.f64)
+                return r64 * r64, ti.abs(r64)
+
+            return body
+
+        @ti.func
+        def gradient_face(J):
+            k = kinds[J]
+            if k == FREE or k == OPEN_FACE:
+                d, I = split(J)
+                Lc = I
+                Lc[d] -= 1
+                for a in ti.static(range(dim)):
+                    if ti.static(periodic[a]):  # noqa: SIM102 - a compile-time branch around a run-time one
+                        if a == d and Lc[a] < 0:
+                            Lc[a] = n0[a] - 1
+                vel[J] -= ti.select(k == FREE, 1.0, 2.0) * (x[I] - x[Lc]) * ti.Vector([1.0 / h for h in dx], f)[d]
+
+        @ti.func
+        def store_pressure(I):
+            pressure[I] = x[I] / ti.cast(sc[DT], f)
+
+        @ti.kernel
+        def finish():
+            """u -= grad phi on the free faces; keep the pressure for output and the next warm start."""
+            for J in ti.grouped(ti.ndrange(*faces_all)):
+                gradient_face(J)
+            bc.fill_face_ghosts(vel)
+            foreach0(store_pressure)
+
+        @ti.kernel
+        def reflect():
+            """u -= grad phi once more: the reflection 2 P u - u of advection-reflection (Zehnder et al.
+            2018), applied to the projected field P u = u - grad phi."""
+            for J in ti.grouped(ti.ndrange(*faces_all)):
+                gradient_face(J)
+            bc.fill_face_ghosts(vel)
+
+        self.finish, self.reflect = finish, reflect
+
+        if self.kind == "jacobi":
+            y = self.y
+
+            @ti.kernel
+            def j_prepare(dt: f):
+                prepare_rhs(dt)
+
+            def make_sweep(src, dst):
+                @ti.func
+                def body(I):
+                    d = D0[I]
+                    v = ti.cast(0.0, f)
+                    if d > 0:
+                        v = (b[I] + offdiag0(src, I)) / d
+                    dst[I] = v
+
+                return body
+
+            sweep_xy, sweep_yx = make_sweep(x, y), make_sweep(y, x)
+            res_x = residual_of(x)
+
+            @ti.kernel
+            def j_pair():
+                foreach0(sweep_xy)
+                foreach0(sweep_yx)
+
+            @ti.kernel
+            def j_residual():
+                sc[RNORM2] = 0.0
+                sc[RMAX] = 0.0
+                summax0(res_x, sc, RNORM2, RMAX)
+
+            self.j_prepare, self.j_pair, self.j_residual = j_prepare, j_pair, j_residual
+            return
+
+        r, z, p, Ap = self.r, self.z, self.p, self.Ap
+        mx, mr = self.mx, self.mr
+        nu = int(self.opts.smoothing)
+        nlev = len(self.levels)
+
+        @ti.func
+        def store_r(I):
+            ri = ti.cast(0.0, f)
+            if D0[I] > 0:
+                ri = b[I] - apply0(x, I)
+            r[I] = ri
+            r64 = ti.cast(ri, ti.f64)
+            return r64 * r64, ti.abs(r64)
+
+        @ti.kernel
+        def cg_prepare(dt: f):
+            prepare_rhs(dt)
+            sc[RNORM2] = 0.0
+            sc[RMAX] = 0.0
+            summax0(store_r, sc, RNORM2, RMAX)
+
+        # ---- multigrid V-cycle (the preconditioner z = V(r))
+        def make_level_kernels(lvl):
+            o = ops[lvl]
+            D, foreach, apply, n = o["D"], o["foreach"], o["apply"], o["n"]
+            q, rhs = mx[lvl], mr[lvl]
+            gs = o["make_gs"](q, rhs)
+            last = lvl == nlev - 1
+
+            @ti.func
+            def zero_cell(I):
+                q[I] = 0.0
+
+            if last:
+                rng = [(0, k) for k in n]
+                offdiag = o["offdiag"]
+
+                @ti.kernel
+                def coarsest():
+                    foreach(zero_cell)
+                    # a few cells per axis: one thread, sweeps in order (a run-time loop compiles once)
+                    ti.loop_config(serialize=True)
+                    for it in range(2 * COARSEST_SWEEPS + 1):
+                        for I in ti.grouped(ti.ndrange(*rng)):
+                            if (I.sum() & 1) == (it & 1):
+                                d = D[I]
+                                if d > 0:
+                                    q[I] = (rhs[I] + offdiag(q, I)) / d
+
+                return coarsest, None, None
+
+            oc = ops[lvl + 1]
+            qc, rc, Dc = mx[lvl + 1], mr[lvl + 1], oc["D"]
+
+            @ti.func
+            def restrict(C):
+                """Coarse residual = the sum of the children's residuals (P^T, P piecewise constant)."""
+                acc = ti.cast(0.0, f)
+                if Dc[C] > 0:
+                    for child in range(1 << dim):
+                        I = 2 * C
+                        inside = True
+                        for a in ti.static(range(dim)):
+                            I[a] += (child >> a) & 1
+                            inside = inside and I[a] < n[a]
+                        if inside:  # noqa: SIM102 - D[I] is read only for a child inside the grid
+                            if D[I] > 0:
+                                acc += rhs[I] - apply(q, I)
+                rc[C] = acc
+
+            @ti.func
+            def prolong(I):
+                if D[I] > 0:
+                    q[I] += qc[I // 2]
+
+            @ti.kernel
+            def pre():
+                foreach(zero_cell)
+                for _ in ti.static(range(nu)):
+                    gs(0)
+                    gs(1)
+                oc["foreach"](restrict)
+
+            @ti.kernel
+            def post():
+                foreach(prolong)
+                for _ in ti.static(range(nu)):
+                    gs(1)
+                    gs(0)
+
+            return None, pre, post
+
+        self.mg = [make_level_kernels(lvl) for lvl in range(nlev)]
+
+        @ti.func
+        def first_body(I):
+            p[I] = z[I]
+            return ti.cast(r[I], ti.f64) * z[I]
+
+        @ti.kernel
+        def cg_first():
+            sc[RZ] = 0.0
+            sum0(first_body, sc, RZ)
+
+        @ti.func
+        def apply_body(I):
+            a = ti.cast(0.0, f)
+            if D0[I] > 0:
+                a = apply0(p, I)
+            Ap[I] = a
+            return ti.cast(p[I], ti.f64) * a
+
+        @ti.kernel
+        def cg_apply():
+            sc[PAP] = 0.0
+            sum0(apply_body, sc, PAP)
+
+        @ti.func
+        def update_body(I):
+            alpha = ti.cast(sc[ALPHA], f)
+            x[I] += alpha * p[I]
+            ri = r[I] - alpha * Ap[I]
+            r[I] = ri
+            r64 = ti.cast(ri, ti.f64)
+            return r64 * r64, ti.abs(r64)
+
+        @ti.kernel
+        def cg_update():
+            sc[ALPHA] = 0.0
+            if sc[PAP] > 0:
+                sc[ALPHA] = sc[RZ] / sc[PAP]
+            sc[RMAX] = 0.0
+            sc[RNORM2] = 0.0
+            summax0(update_body, sc, RNORM2, RMAX)
+
+        @ti.func
+        def rz_body(I):
+            return ti.cast(r[I], ti.f64) * z[I]
+
+        @ti.func
+        def direction_body(I):
+            p[I] = z[I] + ti.cast(sc[BETA], f) * p[I]
+
+        @ti.kernel
+        def cg_direction():
+            sc[RZ_NEW] = 0.0
+            sum0(rz_body, sc, RZ_NEW)
+            sc[BETA] = 0.0
+            if sc[RZ] > 0:
+                sc[BETA] = sc[RZ_NEW] / sc[RZ]
+            foreach0(direction_body)
+            sc[RZ] = sc[RZ_NEW]
+
+        self.cg_prepare, self.cg_first, self.cg_apply = cg_prepare, cg_first, cg_apply
+        self.cg_update, self.cg_direction = cg_update, cg_direction
+
+    # ------------------------------------------------------------------ host side
+
+    def precondition(self) -> None:
+        """z = V(r): one multigrid V-cycle."""
+        nlev = len(self.levels)
+        for lv in range(nlev - 1):
+            self.mg[lv][1]()
+        self.mg[nlev - 1][0]()
+        for lv in range(nlev - 2, -1, -1):
+            self.mg[lv][2]()
+
+    def _read(self) -> tuple[float, float]:
+        s = self.sc.to_numpy()
+        rel = math.sqrt(s[RNORM2] / s[BNORM2]) if s[BNORM2] > 0 else 0.0
+        return float(s[RMAX]), rel
+
+    def last_residual(self, dt: float) -> tuple[float, float]:
+        """(max |div u| dt, ||r|| / ||b||) of the last solve, for a solve over dt."""
+        return self._last[0] * dt, self._last[1]
+
+    def solve(self, dt: float) -> tuple[int, float, float]:
+        """Project the velocity. Returns (iterations, max |div u| dt after projection, ||r|| / ||b||)."""
+        tol = float(self.opts.tolerance)
+        maxit = int(self.opts.max_iterations)
+        if self.kind == "jacobi":
+            its = self._jacobi(dt, tol, maxit)
+        else:
+            its = self._mgpcg(dt, tol, maxit)
+        rmax, rel = self._last
+        self.finish()
+        return its, rmax * dt, rel
+
+    def _jacobi(self, dt: float, tol: float, maxit: int) -> int:
+        self.j_prepare(dt)
+        every = max(1, int(self.opts.check_every) // 2)
+        its = 0
+        if tol > 0:
+            self.j_residual()
+            self._last = self._read()
+            if self._last[0] * dt <= tol:
+                return 0
+        pairs = (maxit + 1) // 2
+        done = 0
+        while done < pairs:
+            k = min(every, pairs - done) if tol > 0 else pairs - done
+            for _ in range(k):
+                self.j_pair()
+            done += k
+            its = 2 * done
+            if tol > 0:
+                self.j_residual()
+                self._last = self._read()
+                if self._last[0] * dt <= tol:
+                    return its
+        if tol <= 0:
+            self.j_residual()
+            self._last = self._read()
+        return its
+
+    def _mgpcg(self, dt: float, tol: float, maxit: int) -> int:
+        self.cg_prepare(dt)
+        self._last = self._read()
+        if self._last[0] * dt <= tol:
+            return 0
+        self.precondition()
+        self.cg_first()
+        its = 0
+        while its < maxit:
+            self.cg_apply()
+            self.cg_update()
+            its += 1
+            self._last = self._read()
+            if self._last[0] * dt <= tol:
+                break
+            if its >= maxit:
+                break
+            self.precondition()
+            self.cg_direction()
+        return its
