@@ -264,6 +264,24 @@ def interpenetration(f, entity, other, **_):
     return f["time"][...], np.asarray(out)
 
 
+@measurement("tet_volume_ratio")
+def tet_volume_ratio(f, entity, **_):
+    """Total signed volume of a tetrahedral entity over its rest volume [-] (FEM). The rest positions are
+    position - displacement of frame 0, so a body started deformed or inverted is measured against its rest
+    shape."""
+    _, g = _entity(f, entity)
+    cells = np.asarray(g["cells"][...], dtype=np.int64)
+    x = _positions(g)
+
+    def vol(p):
+        a = p[cells[:, 0]]
+        return np.einsum("ij,ij->", p[cells[:, 1]] - a, np.cross(p[cells[:, 2]] - a, p[cells[:, 3]] - a)) / 6.0
+
+    rest = x[0] - np.asarray(g["displacement"][0], dtype=np.float64)
+    v0 = vol(rest)
+    return f["time"][...], np.array([vol(xk) / v0 for xk in x])
+
+
 # ----------------------------------------------------------------------------- grid fluids (SF)
 
 

@@ -117,6 +117,11 @@ class _FEMSolid(_Solid):
         None, description="Initial angular velocity [rad/s] about the body's centroid, added to the entity's "
         "velocity (a spinning body).",
     )
+    initial_stretch: Vec | None = Field(
+        None, description="Start deformed: initial vertex positions scaled by these factors [-] per axis about "
+        "the body's centroid, the rest shape unchanged (a negative factor starts the body inverted, 0.01 "
+        "squashed flat).",
+    )
     boundary_conditions: list[FEMBoundaryCondition] = Field(
         default_factory=list,
         description="Rollers, prescribed motion and surface tractions (entity.fixed holds every component).",

@@ -48,8 +48,10 @@ class ImplicitIntegrator:
         self.db = M3(4 * m)  # per element corner: diagonal block of the element Hessian
         self.cn = V3(n)  # contact normal x kappa-sqrt marker (zero when not in contact)
         self.ck = ti.field(f, shape=n)  # contact stiffness in effect
-        self.red = ti.field(ti.f64, shape=4)
+        self.red = ti.field(ti.f64, shape=5)
         self.opts = s.opts
+        # a Newton step smaller than this [m] moves positions by their round-off only
+        self.round_off = (1e-6 if f == ti.f32 else 1e-13) * max(s.extent, 1e-3)
         self._make()
 
     def _make(self) -> None:
@@ -186,10 +188,12 @@ class ImplicitIntegrator:
         def energy(alpha: f, dt: f) -> ti.f64:
             """E(x + alpha d), with red[3] = g . d."""
             red[3] = 0.0
+            red[4] = 0.0
             E = ti.cast(0.0, ti.f64)
             for i in range(n):
                 q[i] = x[i] + alpha * d[i]  # q is free after PCG: the trial positions
                 red[3] += ti.cast(g[i].dot(d[i]), ti.f64)
+                ti.atomic_max(red[4], ti.cast(ti.abs(d[i]).max(), ti.f64))
             for e in range(m):
                 F = deformation(e, q)
                 E += ti.cast(vol[e] * law_call(e, F, "energy"), ti.f64)
@@ -275,8 +279,12 @@ class ImplicitIntegrator:
                         break
                     alpha *= 0.5
                     st["ls_halvings"] += 1
-                if not ok:  # no decrease along a descent direction: round-off level reached
+                # no decrease along a descent direction, or a step below the position round-off:
+                # the round-off level is reached (counted as stagnated, not as converged)
+                if not ok or alpha * float(self.red[4]) < self.round_off:
                     st["stagnated"] = st.get("stagnated", 0) + 1
+                    if ok:
+                        k["apply"](alpha)
                     break
             k["apply"](alpha)
         k["finish"](dt)

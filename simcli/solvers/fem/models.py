@@ -74,10 +74,38 @@ def _project_sym3(H):
     m2 = H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0]
     r = H
     if not (m1 > 0 and m2 > 0 and H.determinant() > 0):
-        lam, Q = ti.sym_eig(H)
-        r = Q @ ti.Matrix([[ti.max(lam[0], 0.0), 0.0, 0.0], [0.0, ti.max(lam[1], 0.0), 0.0],
-                           [0.0, 0.0, ti.max(lam[2], 0.0)]]) @ Q.transpose()
+        A, Q = _jacobi_eig3(H)
+        r = Q @ ti.Matrix([[ti.max(A[0, 0], 0.0), 0.0, 0.0], [0.0, ti.max(A[1, 1], 0.0), 0.0],
+                           [0.0, 0.0, ti.max(A[2, 2], 0.0)]]) @ Q.transpose()
     return r
+
+
+@ti.func
+def _jacobi_eig3(H):
+    """Cyclic Jacobi eigen-decomposition of a symmetric 3x3 matrix: H = Q diag(A) Q^T (6 sweeps).
+    Used instead of ti.sym_eig, which returned eigenvalues off by orders of magnitude in f32 for the
+    rank-deficient matrices of inverted elements."""
+    A = H
+    Q = ti.Matrix.identity(float, 3)
+    for _sweep in ti.static(range(6)):
+        for pq in ti.static([(0, 1), (0, 2), (1, 2)]):
+            p, q = ti.static(pq[0], pq[1])
+            apq = A[p, q]
+            if ti.abs(apq) > 1e-30:
+                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
+                t = 1.0 / (ti.abs(theta) + ti.sqrt(theta * theta + 1.0))
+                if theta < 0:
+                    t = -t
+                c = 1.0 / ti.sqrt(t * t + 1.0)
+                sn = t * c
+                J = ti.Matrix.identity(float, 3)
+                J[p, p] = c
+                J[q, q] = c
+                J[p, q] = sn
+                J[q, p] = -sn
+                A = J.transpose() @ A @ J
+                Q = Q @ J
+    return A, Q
 
 
 @ti.func

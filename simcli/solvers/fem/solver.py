@@ -120,6 +120,12 @@ class FEMSolver(Solver):
                     vfix[idx, c] = vel
                     v[idx, c] = vel
         self.v0, self.free, self.vfix, self.fext = v, free, vfix, fext
+        self.xstart = x.copy()  # initial positions (rest shape x0 unless initial_stretch is given)
+        for k, e in enumerate(self.entities):
+            if e.material.initial_stretch is not None:
+                lo, hi = self.offsets[k], self.offsets[k + 1]
+                c = (self.mass[lo:hi, None] * x[lo:hi]).sum(0) / self.mass[lo:hi].sum()
+                self.xstart[lo:hi] = c + (x[lo:hi] - c) * np.asarray(e.material.initial_stretch, dtype=np.float64)
         # smallest element height (explicit stability) and mean edge length
         faces_area = []
         for (i, j, k_) in ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)):
@@ -162,7 +168,7 @@ class FEMSolver(Solver):
         self.out_J = ti.field(f, shape=n)
 
         npf = self.npf
-        self.x.from_numpy(self.x0.astype(npf))
+        self.x.from_numpy(self.xstart.astype(npf))
         self.xr.from_numpy(self.x0.astype(npf))
         self.v.from_numpy(self.v0.astype(npf))
         self.free_f.from_numpy(self.free.astype(npf))
