@@ -225,6 +225,22 @@ def sample_morph(
     return x, float(volume), warnings
 
 
+_FIELD_NAMES = {"np": np, "pi": np.pi, "sin": np.sin, "cos": np.cos, "exp": np.exp, "sqrt": np.sqrt,
+                "tanh": np.tanh, "abs": np.abs, "where": np.where, "minimum": np.minimum, "maximum": np.maximum}
+
+
+def velocity_field(entity, x: np.ndarray) -> np.ndarray:
+    """The entity's ``velocity_field`` (numpy expressions of x, y[, z]) at the particles ``x`` (n, dim); zeros
+    when it has none."""
+    exprs = getattr(entity, "velocity_field", None)
+    if not exprs:
+        return np.zeros_like(x)
+    env = {**_FIELD_NAMES, **dict(zip("xyz", x.T))}
+    cols = [np.broadcast_to(np.asarray(eval(e, {"__builtins__": {}}, env), dtype=np.float64), (len(x),))
+            for e in exprs]  # restricted names, no builtins
+    return np.stack(cols, axis=1)
+
+
 def sample_entity(entity, scene, scene_dir: PathLike | None = None, rng=None) -> Body:
     """Fill one entity's morph with particles and return its initial state as a Body.
 
@@ -273,7 +289,7 @@ def sample_entity(entity, scene, scene_dir: PathLike | None = None, rng=None) ->
         "name": entity.name,
         "entity": entity,
         "x": x,
-        "v": np.broadcast_to(vel, (n, dim)).copy(),
+        "v": np.broadcast_to(vel, (n, dim)) + velocity_field(entity, x),
         "volume": np.full(n, per_volume),
         "mass": np.full(n, rho * per_volume),
         "fixed": fixed,

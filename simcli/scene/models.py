@@ -187,7 +187,7 @@ class Entity(Strict):
         "moving on a path)."
     )
     velocity_field: list[str] | None = Field(
-        None, description="SF only: initial velocity [m/s], one numpy expression of x, y[, z] [m] per component "
+        None, description="SF and SPH: initial velocity [m/s], one numpy expression of x, y[, z] [m] per component "
         "(e.g. ['sin(x) * cos(y)', '-cos(x) * sin(y)']; pi, sin, cos, exp, sqrt, tanh, abs, where), added to "
         "`velocity`."
     )
@@ -201,8 +201,9 @@ class Entity(Strict):
                                  "may omit it)")
             if self.jets:
                 raise ValueError(f"jets are for SF.Smoke entities only (this one is {self.material.type})")
-            if self.velocity_field is not None:
-                raise ValueError(f"velocity_field is for SF.Smoke entities only (this one is {self.material.type})")
+            if self.velocity_field is not None and fam != "SPH":
+                raise ValueError(f"velocity_field is for SF.Smoke and SPH entities only (this one is "
+                                 f"{self.material.type})")
         elif self.fixed is not None:
             raise ValueError("fixed regions are not available for SF.Smoke entities (use colliders)")
         return self

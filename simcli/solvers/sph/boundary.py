@@ -8,7 +8,8 @@ Walls are ``LAYERS`` lattice layers of spacing ``particle_size`` outside each fa
 continuous lattice: its density is rho0 to the accuracy of the kernel's lattice sum (1e-4), the
 condition Akinci's volume correction approximates for a single layer. Colliders are filled with the
 lattice points of their solid that lie within ``LAYERS x particle_size`` of the surface. Two layers
-cover the support radius (2 x particle_size) of a liquid particle at the surface.
+cover the support radius (2 x particle_size) of a liquid particle at the surface; a larger
+``support_factor`` gets as many layers as it needs.
 
 The contact kind of each wall face (``domain.faces``) and collider decides slip or no-slip:
 ``sticky`` is no-slip (viscous friction with the wall), ``slip`` and ``separate`` are free slip. A
@@ -22,6 +23,7 @@ impossible.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,17 +138,19 @@ def collider_particles(spec, lo, hi, h: float, dim: int, layers: int = LAYERS) -
     return BoundaryParticles(x, np.full(n, h**dim), np.zeros((n, dim)), np.full(n, spec.contact == "sticky"))
 
 
-def sample_boundary(scene, dim: int, h: float) -> BoundaryParticles:
-    """Every boundary particle of the scene: the domain walls, then each collider."""
+def sample_boundary(scene, dim: int, h: float, support: float | None = None) -> BoundaryParticles:
+    """Every boundary particle of the scene: the domain walls, then each collider, in layers that cover the
+    kernel ``support`` (default 2 h)."""
+    layers = LAYERS if support is None else max(LAYERS, math.ceil(support / h - 1e-9))
     from simcli.colliders import collider_specs, wall_specs
 
     lo, hi = scene.domain.bounds(dim)
     walls = wall_specs(scene, dim)
     kind = {w.name: w.contact for w in walls}
     vel = {w.name: np.asarray(w.velocity, dtype=np.float64) for w in walls}
-    parts = [wall_particles(lo, hi, h, dim, kind, vel)]
+    parts = [wall_particles(lo, hi, h, dim, kind, vel, layers)]
     for spec in collider_specs(scene, dim):
-        parts.append(collider_particles(spec, lo, hi, h, dim))
+        parts.append(collider_particles(spec, lo, hi, h, dim, layers))
     return BoundaryParticles(
         np.concatenate([p.x for p in parts]),
         np.concatenate([p.volume for p in parts]),

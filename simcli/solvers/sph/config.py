@@ -23,7 +23,15 @@ class SPHOptions(_Options):
         0.02,
         gt=0,
         description="Particle spacing [m]: liquids are sampled on a lattice of this spacing, each particle "
-        "carries volume particle_size^dim; the kernel support radius is 2 x particle_size.",
+        "carries volume particle_size^dim; the kernel support radius is support_factor x particle_size.",
+    )
+    support_factor: float = Field(
+        2.0,
+        ge=1.5,
+        le=4.0,
+        description="Kernel support radius in particle sizes [-]. 2 (Genesis's and SPlisHSPlasH's choice, about "
+        "33 neighbours in 3D) is fastest; 3 makes the SPH viscosity operator accurate to 3% instead of 30-40% "
+        "on a lattice (use it where viscous decay matters) at 3.4x the neighbours in 3D.",
     )
     pressure_solver: Literal["WCSPH", "DFSPH"] = Field(
         "WCSPH",
@@ -80,7 +88,7 @@ class SPHOptions(_Options):
 
     @property
     def support_radius(self) -> float:
-        return 2.0 * self.particle_size
+        return self.support_factor * self.particle_size
 
 
 class SPHLiquid(_Material):

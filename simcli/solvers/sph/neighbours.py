@@ -23,11 +23,19 @@ boundary particles), rebuilt every substep by a counting sort that also reorders
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 CELLS_PER_SUPPORT = 2
 BLOCK = 256  # cells per block of the prefix sum
-CAPACITY = {2: 32, 3: 64}  # neighbour-list slots per particle (rest: 12.6 in 2D, 33.5 in 3D)
+
+
+def neighbour_capacity(dim: int, support_factor: float) -> int:
+    """Neighbour-list slots per particle: twice the neighbours of a liquid at rest density (pi f^2 in 2D,
+    4/3 pi f^3 in 3D for a support of f particle sizes), rounded up to a multiple of 8: 32 and 72 at f = 2."""
+    rest = math.pi * support_factor**2 if dim == 2 else 4.0 / 3.0 * math.pi * support_factor**3
+    return int(8 * math.ceil(2.0 * rest / 8.0))
 
 
 class CellGrid:

@@ -29,7 +29,7 @@ from simcli.solvers.base import Body, FrameStats, Solver
 from simcli.solvers.sph.boundary import make_pushout, sample_boundary
 from simcli.solvers.sph.dfsph import SolveStats, make_dfsph
 from simcli.solvers.sph.kernels import kernel_constant, make_kernels
-from simcli.solvers.sph.neighbours import CAPACITY, CellGrid, make_neighbour_funcs
+from simcli.solvers.sph.neighbours import CellGrid, make_neighbour_funcs, neighbour_capacity
 from simcli.solvers.sph.wcsph import make_wcsph
 
 with stdout_to_stderr():
@@ -53,7 +53,7 @@ class SPHSolver(Solver):
         self.precision = scene.sim.precision
         self.opts = scene.solvers.sph
         self.ps = float(self.opts.particle_size)
-        self.support = 2.0 * self.ps
+        self.support = float(self.opts.support_radius)
         lo, hi = scene.domain.bounds(self.dim)
         self.domain_lo = np.asarray(lo, dtype=np.float64)
         self.domain_hi = np.asarray(hi, dtype=np.float64)
@@ -94,11 +94,11 @@ class SPHSolver(Solver):
         cpu = self.arch in ("x64", "arm64")
         dim, n = self.dim, self.n
         self.grid = grid = CellGrid(self.domain_lo, self.domain_hi, self.support, dim)
-        bp = sample_boundary(self.scene, dim, self.ps)
+        bp = sample_boundary(self.scene, dim, self.ps, self.support)
         keep = grid.inside_np(bp.x)
         order, bstart = grid.sort_static(bp.x[keep])
         self.nbp = int(keep.sum())
-        self.K = CAPACITY[dim]
+        self.K = neighbour_capacity(dim, self.support / self.ps)
         self.has_noslip = bool(np.any(bp.no_slip[keep])) and self.has_viscosity
 
         # particles, in cell order
@@ -604,7 +604,7 @@ class SPHSolver(Solver):
     def info(self) -> dict[str, Any]:
         d: dict[str, Any] = {
             "pressure_solver": self.opts.pressure_solver,
-            "kernel": "cubic spline, support radius 2 x particle_size",
+            "kernel": f"cubic spline, support radius {self.support / self.ps:g} x particle_size",
             "particle_size": self.ps,
             "neighbours": (
                 f"cell grid {self.grid.dims} of {self.grid.cell:g} m, counting sort + reorder every "
