@@ -225,8 +225,11 @@ class MPMSolver(Solver):
         xs = np.clip(xs, self.domain_lo, self.domain_hi)
         self.x.from_numpy(xs.astype(npf))
         self.v.from_numpy(np.concatenate([b.v for b in self.bodies]).astype(npf))
-        eye = np.broadcast_to(np.eye(self.dim), (self.n, self.dim, self.dim))
-        self.F.from_numpy(np.ascontiguousarray(eye, dtype=npf))
+        # self.F stores the displacement gradient H = F - I, not F: near the rest state F's entries
+        # are ~1, whose f32 spacing (1.2e-7) is the size of a stiff body's per-substep strain
+        # increment, so accumulating F itself rounds the strain away or biases it (a slow creep
+        # over 1e5 substeps); H keeps full relative precision for small strains.
+        self.F.from_numpy(np.zeros((self.n, self.dim, self.dim), npf))
         self.C.from_numpy(np.zeros((self.n, self.dim, self.dim), npf))
         self.mass.from_numpy(np.concatenate([b.mass for b in self.bodies]).astype(npf))
         self.vol.from_numpy(np.concatenate([b.volume for b in self.bodies]).astype(npf))
@@ -326,7 +329,7 @@ class MPMSolver(Solver):
         @ti.func
         def p2g_particle(p, t, dt):
             base, fx, w = bspline(x[p])
-            Fp = F[p]
+            Fp = ti.Matrix.identity(f, dim) + F[p]  # F stores H = F - I
             J = Fp.determinant()
             tau = kirchhoff(p, Fp, J, True)
             m = mass[p]
@@ -395,14 +398,18 @@ class MPMSolver(Solver):
                 v[p] = ti.Vector.zero(f, dim)
                 C[p] = ti.Matrix.zero(f, dim, dim)
             else:
-                Fp = (ti.Matrix.identity(f, dim) + dt * new_C) @ F[p]
+                # F_new = (I + dt C) F, kept as H_new = H + dt C (I + H) (see build: F stores H)
+                Hp = F[p]
+                Hp = Hp + dt * (new_C @ (ti.Matrix.identity(f, dim) + Hp))
                 if ti.static(any_plastic):
                     m = mid[p]
                     for k in ti.static(range(n_laws)):
                         if ti.static(laws[k].plastic):  # noqa: SIM102 - compile-time, then run-time test
                             if ti.static(n_laws == 1) or mat_law_id[m] == k:
-                                Fp = laws[k].return_mapping(p, Fp, m, mat_mu[m], mat_lam[m])
-                F[p] = Fp
+                                Fp = laws[k].return_mapping(p, ti.Matrix.identity(f, dim) + Hp, m, mat_mu[m],
+                                                            mat_lam[m])
+                                Hp = Fp - ti.Matrix.identity(f, dim)
+                F[p] = Hp
                 xp = x[p] + dt * new_v
                 if ti.static(boundary.n_colliders > 0):
                     # a particle that ended inside a collider goes back to its surface (the grid
@@ -657,7 +664,7 @@ class MPMSolver(Solver):
             @ti.kernel
             def outputs():
                 for p in range(n):
-                    Fp = F[p]
+                    Fp = ti.Matrix.identity(f, dim) + F[p]  # F stores H = F - I
                     m = mid[p]
                     J = Fp.determinant()
                     tau = kirchhoff(p, Fp, J, False)
@@ -773,7 +780,11 @@ class MPMSolver(Solver):
     # ------------------------------------------------------------------- state
 
     def get_state(self) -> dict[str, np.ndarray]:
-        state = {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "C": self.C.to_numpy(), "F": self.F.to_numpy(),
+        # the field stores H = F - I (see _upload): the state carries H exactly (bit-for-bit restart)
+        # and F = I + H in float64 for readers
+        H = self.F.to_numpy()
+        F = np.eye(self.dim) + H.astype(np.float64)
+        state = {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "C": self.C.to_numpy(), "F": F, "H": H,
                  "time": np.array([self.time])}
         for law in self.laws:
             state.update(law.get_state())
@@ -782,8 +793,13 @@ class MPMSolver(Solver):
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         npf = self.npf
         shapes = {"x": (self.n, self.dim), "v": (self.n, self.dim), "C": (self.n, self.dim, self.dim),
-                  "F": (self.n, self.dim, self.dim)}
-        for key, fld in (("x", self.x), ("v", self.v), ("C", self.C), ("F", self.F)):
+                  "H": (self.n, self.dim, self.dim)}
+        # H as saved, unless only F is given or F was changed after get_state
+        F = np.asarray(state["F"], dtype=np.float64)
+        H = state.get("H")
+        if H is None or not np.array_equal(F, np.eye(self.dim) + np.asarray(H, dtype=np.float64)):
+            state = dict(state, H=F - np.eye(self.dim))
+        for key, fld in (("x", self.x), ("v", self.v), ("C", self.C), ("H", self.F)):
             arr = np.ascontiguousarray(state[key], dtype=npf)
             if arr.shape != shapes[key]:
                 raise ValueError(f"MPM state {key!r}: shape {arr.shape}, expected {shapes[key]}")
