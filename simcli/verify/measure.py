@@ -391,3 +391,71 @@ def divergence_per_substep(f, entity, **_):
     if not isinstance(sub, int):
         raise ValueError("divergence_per_substep needs a fixed sim.substeps")
     return f["time"][...], np.abs(d).reshape(len(d), -1).max(axis=1) * float(sim["dt"]) / sub
+
+
+# ------------------------------------------------------------------ SPH validation measures
+
+
+@measurement("bottom_pressure")
+def bottom_pressure(f, entity, floor=0.0, axis=None, lo=0.1, hi=0.8, **_):
+    """Pressure [Pa] at the ``floor`` of a liquid column at rest: a least-squares line p(z) through the
+    particles between ``lo`` and ``hi`` of the column's height above the floor (away from the boundary
+    layer and the free surface), evaluated at the floor."""
+    x = _stack(f, entity)
+    p = _stack(f, entity, "pressure")
+    ax = x.shape[2] - 1 if axis is None else axis
+    out = []
+    for zf, pf in zip(x[:, :, ax] - floor, p):
+        height = np.percentile(zf, 99.5)
+        sel = (zf >= lo * height) & (zf <= hi * height)
+        if sel.sum() < 3:
+            raise ValueError("bottom_pressure: too few particles in the fitting band")
+        out.append(np.polyfit(zf[sel], pf[sel], 1)[1])
+    return f["time"][...], np.asarray(out)
+
+
+@measurement("mean_speed")
+def mean_speed(f, entity, **_):
+    """Mean particle speed [m/s] (drift of a liquid that should be at rest)."""
+    v = _stack(f, entity, "velocity")
+    return f["time"][...], np.linalg.norm(v, axis=2).mean(axis=1)
+
+
+@measurement("solver_report")
+def solver_report(f, entity=None, path=(), **_):
+    """A number from the run's run.json (next to sim.h5), by its key ``path`` (e.g. ``[solvers, sph,
+    dfsph, density, average_error_percent_max]``), as a one-point series at the final time: figures
+    per substep that no frame holds (DFSPH's worst average density error over every substep)."""
+    import json
+    from pathlib import Path
+
+    info = json.loads((Path(f.filename).parent / "run.json").read_text())
+    for key in path:
+        info = info[key]
+    t = f["time"][...]
+    return t[-1:], np.asarray([float(info)])
+
+
+@measurement("kinetic_energy_decay_rate")
+def kinetic_energy_decay_rate(f, entity, t0=0.0, **_):
+    """Decay rate [1/s] of the kinetic energy (equal particle masses): -ln(KE(t) / KE(t0)) / (t - t0)
+    for t > t0 (Taylor-Green: 4 nu for a vortex of unit wavenumber)."""
+    v = _stack(f, entity, "velocity")
+    t = f["time"][...]
+    ke = (v * v).sum(axis=2).mean(axis=1)
+    k0 = int(np.argmin(np.abs(t - t0)))
+    sel = t > t[k0] + 1e-12
+    return t[sel], -np.log(ke[sel] / ke[k0]) / (t[sel] - t[k0])
+
+
+@measurement("column_height")
+def column_height(f, entity, width, axis=0, up=None, wall=0.0, q=99.0, spacing=0.0, **_):
+    """Residual height [m] of a collapsing column at its back ``wall``: the q-th percentile of the
+    height of the particles within ``width`` [m] of the wall along ``axis``, plus half a ``spacing``."""
+    x = _stack(f, entity)
+    up = x.shape[2] - 1 if up is None else up
+    out = []
+    for xf in x:
+        sel = np.abs(xf[:, axis] - wall) <= width
+        out.append(np.percentile(xf[sel, up], q) + 0.5 * spacing if sel.sum() else 0.0)
+    return f["time"][...], np.asarray(out)
