@@ -42,9 +42,11 @@ Thin parts
     A lattice point is kept if it lies inside the surface. A part of the mesh thinner
     than the particle spacing may fall between lattice points and get no particles;
     ``lattice_inside_mesh`` measures the volume of the ray intervals inside the mesh
-    that contain no lattice point (``InsideResult.missed_volume``) so the caller can
-    report it. The total mass stays exact: the body's mass is spread over the
-    particles that were placed.
+    that contain no lattice point (``InsideResult.missed_volume``) and returns their
+    midpoints (``InsideResult.thin_points``): rays along x, y and z, so a thin sheet in any
+    orientation is found by the rays across it, and the sampler places one layer of
+    particles there (an ear, a fin, a claw). The total mass stays exact: the body's mass is
+    spread over the particles that were placed.
 """
 
 from __future__ import annotations
@@ -107,6 +109,8 @@ class InsideResult:
     missed_volume: float = 0.0  # volume of inside ray intervals that hold no lattice point [m^3]
     odd_rays: int = 0  # rays with an odd number of crossings (should be 0 for a closed mesh)
     warnings: list[str] = field(default_factory=list)
+    # midpoints (m, 3) of the inside ray intervals that hold no lattice point (thin parts), world frame
+    thin_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 # ------------------------------------------------------------------------ loading
@@ -194,6 +198,48 @@ def _clean(points: np.ndarray, tris: np.ndarray, name: str) -> tuple[np.ndarray,
     return np.ascontiguousarray(merged[used]), inv.reshape(-1, 3).astype(np.int64)
 
 
+def _read_obj(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a Wavefront OBJ file: ``v`` and ``f`` lines only (``f`` entries
+    ``i``, ``i/t``, ``i//n`` or ``i/t/n``, negative indices relative, polygons split in fans).
+    meshio refuses common real-world OBJ files (texture coordinates counted per corner, not per
+    vertex; several objects or groups): their geometry is all a fill needs."""
+    verts: list[list[float]] = []
+    tris: list[tuple[int, int, int]] = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            if line.startswith("v "):
+                verts.append([float(c) for c in line.split()[1:4]])
+            elif line.startswith("f "):
+                idx = []
+                for tok in line.split()[1:]:
+                    k = int(tok.split("/")[0])
+                    idx.append(k - 1 if k > 0 else len(verts) + k)
+                tris += [(idx[0], idx[i], idx[i + 1]) for i in range(1, len(idx) - 1)]
+    if not verts or not tris:
+        raise MeshError(f"mesh '{path}' has no vertices or faces")
+    return np.asarray(verts, dtype=np.float64), np.asarray(tris, dtype=np.int64)
+
+
+def _drop_duplicate_faces(tris: np.ndarray) -> np.ndarray:
+    """Remove repeated triangles (the same three vertices, either orientation): real meshes often
+    carry them (a face exported twice; a zero-volume double-sided fin). A pair of opposite copies
+    encloses nothing and is dropped entirely; a repeated copy is kept once."""
+    key = np.sort(tris, axis=1)
+    _, first, inv, counts = np.unique(key, axis=0, return_index=True, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    if np.all(counts == 1):
+        return tris
+    # orientation sign of each copy relative to its sorted key (even permutation: +1)
+    par = np.where((tris[:, 0] == key[:, 0]) & (tris[:, 1] == key[:, 1])
+                   | (tris[:, 1] == key[:, 0]) & (tris[:, 2] == key[:, 1])
+                   | (tris[:, 2] == key[:, 0]) & (tris[:, 0] == key[:, 1]), 1, -1)
+    net = np.bincount(inv, weights=par, minlength=counts.size)
+    keep = np.zeros(len(tris), bool)
+    keep[first] = True
+    keep &= net[inv] != 0  # opposite copies cancel
+    return tris[keep]
+
+
 @functools.lru_cache(maxsize=16)
 def _read_cached(path: str, mtime_ns: int, size: int) -> tuple[np.ndarray, np.ndarray]:
     import meshio
@@ -202,10 +248,14 @@ def _read_cached(path: str, mtime_ns: int, size: int) -> tuple[np.ndarray, np.nd
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")  # e.g. meshio's binary-STL size probe on ASCII files
             mesh = meshio.read(path)
+        tris = _triangles_from_cells(mesh, path)
+        points = np.asarray(mesh.points, dtype=np.float64)
     except Exception as exc:  # meshio raises many types (ReadError, ValueError, KeyError...)
-        raise MeshError(f"cannot read mesh '{path}': {exc}") from exc
-    tris = _triangles_from_cells(mesh, path)
-    pts, tris = _clean(np.asarray(mesh.points, dtype=np.float64), tris, path)
+        if not path.lower().endswith(".obj"):
+            raise MeshError(f"cannot read mesh '{path}': {exc}") from exc
+        points, tris = _read_obj(path)
+    pts, tris = _clean(points, tris, path)
+    tris = _drop_duplicate_faces(tris)
     check_closed(tris, path)
     pts.flags.writeable = False
     tris.flags.writeable = False
@@ -504,6 +554,24 @@ def _missed_volume(ray: np.ndarray, first: np.ndarray, xc: np.ndarray, h: float)
     return float(np.sum(x_s[1::2][empty] - x_s[0::2][empty])) * h * h
 
 
+def _missed_midpoints(ray: np.ndarray, first: np.ndarray, xc: np.ndarray, origin, h: float, nz: int) -> np.ndarray:
+    """Midpoints (in the ray frame: x along the ray, then the lattice's y, z) of the inside intervals
+    of the rays that hold no lattice point; none where a ray crosses the surface an odd number of times."""
+    if xc.size == 0:
+        return np.zeros((0, 3))
+    odd = np.bincount(ray) & 1
+    ok = odd[ray] == 0
+    ray, first, xc = ray[ok], first[ok], xc[ok]
+    if xc.size == 0:
+        return np.zeros((0, 3))
+    order = np.lexsort((xc, ray))
+    x_s, f_s, r_s = xc[order], first[order], ray[order]
+    empty = f_s[0::2] == f_s[1::2]
+    r = r_s[0::2][empty]
+    mid = 0.5 * (x_s[0::2][empty] + x_s[1::2][empty])
+    return np.stack([mid, origin[1] + (r // nz) * h, origin[2] + (r % nz) * h], axis=1)
+
+
 def lattice_inside_mesh(
     mesh: TriMesh,
     origin: Sequence[float],
@@ -539,16 +607,22 @@ def lattice_inside_mesh(
     inside = np.ascontiguousarray(inside.transpose(2, 0, 1))
 
     missed = 0.0
+    thin = [np.zeros((0, 3))]
     for axis in thin_check_axes:
         if axis == 0:
             missed = max(missed, _missed_volume(ray, first, xc, h))
+            thin.append(_missed_midpoints(ray, first, xc, origin, h, nz))
             continue
         perm = [axis, (axis + 1) % 3, (axis + 2) % 3]  # cyclic: the ray axis becomes x
         r2, x2 = _lattice_ray_crossings(V[:, perm], T, origin[perm], h, [shape[p] for p in perm])
         f2 = np.clip(np.floor((x2 - origin[axis]) / h).astype(np.int64) + 1, 0, shape[axis])
         missed = max(missed, _missed_volume(r2, f2, x2, h))
+        pts = _missed_midpoints(r2, f2, x2, origin[perm], h, shape[perm[2]])
+        back = np.empty_like(pts)
+        back[:, perm] = pts  # ray frame -> world frame
+        thin.append(back)
 
-    res = InsideResult(inside=inside, missed_volume=missed, odd_rays=n_odd)
+    res = InsideResult(inside=inside, missed_volume=missed, odd_rays=n_odd, thin_points=np.concatenate(thin))
     if n_odd:
         res.warnings.append(
             f"mesh '{mesh.source}': {n_odd} ray(s) crossed the surface an odd number of times "

@@ -173,6 +173,7 @@ def sample_morph(
     jitter: bool = False,
     rng=None,
     poisson: bool = False,
+    thin_layer: bool = False,
 ) -> tuple[np.ndarray, float, list[str]]:
     """Particle positions (n, dim) filling the morph, the morph's exact volume, and warnings."""
     _check_dim(morph, dim)
@@ -191,13 +192,24 @@ def sample_morph(
         idx = np.nonzero(res.inside)
         x = origin + h * np.stack(idx, axis=1).astype(np.float64)
         warnings += res.warnings
+        thin = _thin_layer(res.thin_points, h) if thin_layer else np.zeros((0, 3))
+        if len(thin):
+            x = np.concatenate([x, thin])
         if res.missed_volume > MISSED_VOLUME_TOL * volume:
-            warnings.append(
-                f"mesh '{morph.file}': parts thinner than the particle spacing ({h:g} m) got no particles "
-                f"(about {100 * res.missed_volume / volume:.1f}% of the volume, "
-                f"{res.missed_volume:.3g} m^3); "
-                "their mass is carried by the other particles; lower particle_size to resolve them"
-            )
+            if thin_layer:
+                warnings.append(
+                    f"mesh '{morph.file}': parts thinner than the particle spacing ({h:g} m), about "
+                    f"{100 * res.missed_volume / volume:.1f}% of the volume, got one layer of {len(thin)} "
+                    "particles on their mid-surface; lower particle_size to resolve them"
+                )
+            else:
+                warnings.append(
+                    f"mesh '{morph.file}': parts thinner than the particle spacing ({h:g} m) got no particles "
+                    f"(about {100 * res.missed_volume / volume:.1f}% of the volume, "
+                    f"{res.missed_volume:.3g} m^3); "
+                    "their mass is carried by the other particles; lower particle_size to resolve them, or "
+                    "set solvers.mpm.thin_parts: layer to give them one layer of particles"
+                )
     else:
         volume = shape_volume(morph, dim)
         lo, hi = morph.bounds()
@@ -251,11 +263,12 @@ def sample_entity(entity, scene, scene_dir: PathLike | None = None, rng=None) ->
     mpm = scene.solvers.mpm
     jitter = entity.family == "MPM" and getattr(mpm, "sampling", "lattice") == "jitter"
     poisson = entity.family == "MPM" and getattr(mpm, "sampling", "lattice") == "poisson"
+    thin_layer = entity.family == "MPM" and getattr(mpm, "thin_parts", "warn") == "layer"
     if (jitter or poisson) and rng is None:
         rng = scene.sim.seed
     try:
         x, volume, warnings = sample_morph(entity.morph, family_spacing(scene, entity.family), dim, scene_dir,
-                                          jitter=jitter, rng=rng, poisson=poisson)
+                                          jitter=jitter, rng=rng, poisson=poisson, thin_layer=thin_layer)
     except MeshFileNotFoundError as exc:
         raise MeshFileNotFoundError(f"entity '{entity.name}': {exc}") from None
     except MeshError as exc:
@@ -332,6 +345,16 @@ def sample_scene(scene, scene_dir: PathLike | None = None, seed: int | None = No
     ]
 
 
+def _thin_layer(points: np.ndarray, h: float) -> np.ndarray:
+    """One particle per h/2 cell among the thin-part midpoints (rays along different axes find the
+    same thin part)."""
+    if not len(points):
+        return points
+    key = np.floor(points / (0.5 * h)).astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    return points[np.sort(first)]
+
+
 # ------------------------------------------------------------------ Poisson-disk sampling
 
 POISSON_RADIUS = {2: 0.80, 3: 0.87}  # minimum distance / spacing: about V / h^d points after the trials
@@ -339,8 +362,13 @@ POISSON_TRIALS = 12  # dart-throwing passes (one candidate per empty cell and ph
 POISSON_MARGIN = 0.15  # distance of the points from an analytic shape's faces / spacing
 
 
-def poisson_disk(lo, hi, radius: float, rng, trials: int = POISSON_TRIALS) -> np.ndarray:
-    """Points in the box [lo, hi] no two closer than ``radius`` (see the module docstring)."""
+def poisson_disk(lo, hi, radius: float, rng, trials: int = POISSON_TRIALS, inside=None) -> np.ndarray:
+    """Points in the box [lo, hi] no two closer than ``radius`` (see the module docstring).
+
+    ``inside``: optional function (origin, spacing, shape) -> bool array of that shape telling which
+    background cell centres origin + spacing * index lie inside the shape; cells farther than one
+    cell from the shape get no candidates (a curved shape's bounding box is mostly empty: this
+    skips the work there)."""
     lo = np.asarray(lo, dtype=np.float64)
     hi = np.asarray(hi, dtype=np.float64)
     dim = lo.size
@@ -357,6 +385,12 @@ def poisson_disk(lo, hi, radius: float, rng, trials: int = POISSON_TRIALS) -> np
     period = reach + 1  # cells `period` apart are at least (period - 1) a >= r apart: no conflict
     weights = period ** np.arange(dim)
     all_cells = np.stack(np.meshgrid(*[np.arange(n) for n in shape], indexing="ij"), -1).reshape(-1, dim)
+    if inside is not None:  # only cells within one cell of the shape
+        hit = np.asarray(inside(lo + 0.5 * a, a, tuple(int(n) for n in shape)), dtype=bool)
+        grown = hit.copy()
+        for ax in range(dim):
+            grown |= np.roll(hit, 1, axis=ax) | np.roll(hit, -1, axis=ax)
+        all_cells = all_cells[grown.reshape(-1)]
     phase_of = (all_cells % period) @ weights
     by_phase = [all_cells[phase_of == k] + reach for k in range(period**dim)]
     strides = np.array([int(np.prod(owner.shape[k + 1:])) for k in range(dim)], dtype=np.int64)
@@ -389,7 +423,8 @@ def _poisson_fill(morph, h: float, dim: int, scene_dir, rng) -> tuple[np.ndarray
     if isinstance(morph, MeshShape):
         mesh = load_mesh_morph(morph, scene_dir)
         lo, hi = mesh.bounds
-        x = poisson_disk(lo, hi, r, rng)
+        x = poisson_disk(lo, hi, r, rng,
+                         inside=lambda o, a, n: lattice_inside_mesh(mesh, o, a, n, thin_check_axes=()).inside)
         return x[points_inside_mesh(mesh, x, bin_size=h)], float(mesh.volume)
     volume = shape_volume(morph, dim)
     lo, hi = (np.asarray(b, dtype=np.float64) for b in morph.bounds())
@@ -401,5 +436,7 @@ def _poisson_fill(morph, h: float, dim: int, scene_dir, rng) -> tuple[np.ndarray
     else:  # Cylinder
         inner = morph.model_copy(update={"radius": max(morph.radius - m, 0.5 * morph.radius),
                                          "height": max(morph.height - 2 * m, 0.5 * morph.height)})
-    x = poisson_disk(lo, hi, r, rng)
+    x = poisson_disk(lo, hi, r, rng,
+                     inside=lambda o, a, n: points_in_shape(inner, _lattice_points(np.asarray(o), np.asarray(n), a))
+                     .reshape(n))
     return x[points_in_shape(inner, x)], volume

@@ -37,6 +37,13 @@ class MPMOptions(_Options):
         "(blue noise, no lattice directions: for sand and snow). Poisson-disk samples keep a minimum distance "
         "of 0.80 (2D) or 0.87 (3D) particle_size and hold about as many particles as the lattice.",
     )
+    thin_parts: Literal["warn", "layer"] = Field(
+        "warn",
+        description="Mesh morphs: parts thinner than particle_size that the lattice misses (ears, fins, "
+        "claws). warn: they get no particles (their mass goes to the others) and a warning says how much "
+        "volume that is; layer: they get one layer of particles on their mid-surface (found by rays along "
+        "x, y and z).",
+    )
     cfl: float = Field(0.3, gt=0, le=1, description="CFL number used by substeps: auto [-].")
 
     @property
