@@ -5,20 +5,24 @@ SPH for incompressible and viscous fluids"), as in SPlisHSPlasH's DFSPH.cpp. A s
 
 * alpha_i = 1 / (|sum_j V_j grad W_ij + sum_b V_b grad W_ib|^2 + sum_j |V_j grad W_ij|^2), V_j = m_j / rho0
   (the factor of eq. 9 of the 2017 paper, per unit rho0).
-* A Jacobi iteration with stiffness k_i (velocity update, then the new density change):
-  v_i -= dt (sum_j (k_i + k_j) V_j grad W_ij + k_i sum_b V_b grad W_ib) (boundary term as SPlisHSPlasH's).
-  Divergence solve: s_i = D rho_i / Dt / rho0 (compression only, and only with enough neighbours),
-  k_i = s_i alpha_i / dt, until mean(s_i) dt <= max_divergence_error_percent / 100.
-  Density solve: s_i = max(rho_i / rho0 + dt D rho_i / Dt / rho0, 1) - 1 (the predicted density error),
-  k_i = s_i alpha_i / dt^2, until mean(s_i) <= max_density_error_percent / 100, at least 2 iterations.
-* Warm start: each solve first applies the previous substep's total stiffness to the particles it would act
-  on: the density solve's k as it was (a liquid at rest needs the same k for any dt), the divergence
-  solve's k dt / dt_now, halved (as in SPlisHSPlasH).
+* A relaxed Jacobi iteration on the stiffness k (velocity update, then the new residual):
+  v_i -= dt (sum_j (k_i + k_j) V_j grad W_ij + k_i sum_b V_b grad W_ib) (boundary term as SPlisHSPlasH's),
+  k_i += RELAX s_i alpha_i / dt^2 with the residual s_i (per substep, in units of rho0):
+  divergence solve: s_i = dt (D rho_i / Dt) / rho0 (only with enough neighbours);
+  density solve: s_i = rho_i / rho0 - 1 + dt (D rho_i / Dt) / rho0, the predicted density error.
+  With a free surface (clamp_pressure) each solve's total k is kept >= 0 (projected Jacobi: an expanding
+  particle gives back stiffness it got, never pulls) and only compression counts as error. The solves stop
+  when the mean error is at or below max_divergence_error_percent / max_density_error_percent (at least 1
+  and 2 iterations), or at the iteration cap. RELAX = 0.5: without relaxation the projected iteration
+  diverged in our tests (SPlisHSPlasH clamps the residual instead, which ratchets the warm-started k up).
+* Warm start: each solve starts from the previous substep's total stiffness: the density solve's k as it
+  was (a liquid at rest needs the same k for any dt), the divergence solve's k dt / dt_now halved (as in
+  SPlisHSPlasH). The very first density solve starts from each column's hydrostatic k = |g| depth.
 * Non-pressure accelerations (gravity, viscosity, surface tension) are computed from this substep's
   divergence-free velocities and applied once, before the density solve. Nothing of a previous substep's
   acceleration is re-applied (Genesis 1.4.5 advects with the acceleration stored by the previous substep).
-* Pressure output: p_i = k_i rho_i^2 / rho0 with k_i the density solve's total stiffness, the pressure whose
-  symmetric SPH force equals the density solve's velocity correction over the substep.
+* Pressure output: p_i = (k_i + k_i^div) rho_i^2 / rho0 with the total stiffness of both solves, the
+  pressure whose symmetric SPH force equals their velocity corrections over the substep.
 * The error of an iteration is summed in 40-bit fixed point (an integer add is associative), so the
   iteration count does not depend on thread scheduling.
 
@@ -153,7 +157,10 @@ def make_dfsph(S):
         for i in range(n):
             kappa[i] = kacc[i]  # an acceleration-level stiffness: steady under gravity for any dt
             r = rho[i]
-            p[i] = kacc[i] * r * r / mat_rho0[mid[i]]
+            kdiv = ti.cast(0.0, f)
+            if ti.static(S.opts.divergence_solve):
+                kdiv = kappav[i] / dt
+            p[i] = (kacc[i] + kdiv) * r * r / mat_rho0[mid[i]]
             S.advect(i, v[i], dt)
 
     def error() -> float:
