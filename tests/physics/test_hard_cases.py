@@ -72,6 +72,8 @@ def test_hard_case(scene: Path, tmp_path: Path):
     dx = 1.0 / res["solvers"]["mpm"]["grid_density"]
     if {e["material"]["type"].split(".")[0] for e in res["entities"]} == {"FEM"}:
         dx = 1.0 / res["solvers"]["fem"]["resolution"]  # tet meshes: the Box meshing cell size
+    if {e["material"]["type"].split(".")[0] for e in res["entities"]} == {"SPH"}:
+        dx = res["solvers"]["sph"]["particle_size"]  # SPH particles: their spacing
     lo, hi = np.asarray(res["domain"]["lower"]), np.asarray(res["domain"]["upper"])
     g = np.asarray(res["sim"]["gravity"])
     with h5py.File(out / "sim.h5", "r", swmr=True) as f:
