@@ -239,7 +239,7 @@ class Runner:
         if solver_factory is None:
             from simcli.solvers import make_solvers
 
-            solvers = make_solvers(scene, bodies)
+            solvers = make_solvers(scene, bodies, scene_dir=self.loaded.scene_dir)
         else:
             solvers = solver_factory(scene, bodies)
         self._solvers = solvers
@@ -381,7 +381,9 @@ class Runner:
                          throughput={"steps_per_s": (step / steady) if step else 0.0, "substeps_per_s": sps,
                                      "particle_substeps_per_s": sps * n_particles,
                                      "cell_substeps_per_s": sps * sum(int(s.counts().get("cells", 0))
-                                                                      for s in getattr(self, "_solvers", []))})
+                                                                      for s in getattr(self, "_solvers", [])),
+                                     "vertex_substeps_per_s": sps * sum(int(s.counts().get("vertices", 0))
+                                                                        for s in getattr(self, "_solvers", []))})
 
     def _check_resume_meta(self, meta: dict) -> None:
         if meta.get("scene_name") not in (None, self.name):

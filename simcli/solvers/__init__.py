@@ -8,6 +8,7 @@ allocated or compiled.
 from __future__ import annotations
 
 import importlib
+import inspect
 
 FAMILIES: dict[str, str] = {
     "MPM": "simcli.solvers.mpm.solver:MPMSolver",
@@ -17,7 +18,7 @@ FAMILIES: dict[str, str] = {
 }
 
 
-def make_solvers(scene, bodies) -> list:
+def make_solvers(scene, bodies, scene_dir=None) -> list:
     """One solver per family present in the scene, in order of first appearance."""
     families: list[str] = []
     for e in scene.entities:
@@ -30,5 +31,10 @@ def make_solvers(scene, bodies) -> list:
         mod, cls = FAMILIES[fam].split(":")
         solver_cls = getattr(importlib.import_module(mod), cls)
         # particle families get their sampled bodies; grid families (SF) read the scene itself
-        solvers.append(solver_cls(scene, [b for b in bodies if b.entity.family == fam]))
+        mine = [b for b in bodies if b.entity.family == fam]
+        # families that read files named in the scene (FEM meshes) resolve them against its folder
+        if "scene_dir" in inspect.signature(solver_cls.__init__).parameters:
+            solvers.append(solver_cls(scene, mine, scene_dir=scene_dir))
+        else:
+            solvers.append(solver_cls(scene, mine))
     return solvers
