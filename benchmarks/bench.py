@@ -35,6 +35,8 @@ SCENES = {
                                        "--dt", "1.5e-3"], 60),
     "B4": ("configs/bench/b4_explicit.yaml", ["fem", "--plane", "0"], 2000),
     "B4i": ("configs/bench/b4_implicit.yaml", ["fem", "--plane", "0", "--implicit", "1"], 100),
+    "B2W": ("configs/bench/b2_wcsph.yaml", ["sph", "--plane", "0"], 60),
+    "B2D": ("configs/bench/b2_dfsph.yaml", ["sph", "--plane", "0", "--sph_solver", "DFSPH"], 30),
 }
 
 # Runs a command and reports the peak RSS of that child alone (KiB on Linux).
@@ -189,9 +191,9 @@ def main() -> None:
             "`scene.build()`. *Substeps/s*: steady state, after warm-up. *Peak memory*: peak RSS of the process.\n\n"
             + table + "\n"
         )
-        extra = ROOT / "docs" / "PERFORMANCE_NOTES.md"
-        if extra.exists():
-            text += "\n" + extra.read_text()
+        for extra in (ROOT / "docs" / "PERFORMANCE_NOTES.md", ROOT / "docs" / "PERFORMANCE_SPH.md"):
+            if extra.exists():  # sections written by other benchmark scripts (benchmarks/sph_vs_splishsplash.py)
+                text += "\n" + extra.read_text()
         Path(args.out).write_text(text)
         print(f"wrote {args.out}")
 
