@@ -118,29 +118,34 @@ class Advector:
         dim = L.dim
         vel, sc, n_sc = self.vel, self.scalars, self.n_sc
         tv, ts = self.tmp_vel, self.tmp_sc
-        at, split, valid_face = bc.at, bc.split, bc.valid_face
+        at = bc.at
         into_domain, interp, make_velocity = make_sampling(L, f, at)
         node = self.node
         velocity = make_velocity(node)
         nodes = [(0, c + 1) for c in L.n]
         n_avg = 1.0 / (1 << (dim - 1))
 
+        node_loop = make_foreach(nodes)[0]
+
         @ti.func
-        def node_velocity():
+        def node_body(N):
             """Component d at a node: the mean of the 2^(dim-1) faces of d that touch it (ghost faces
             outside the walls carry the wall condition, so a sticky wall's node gets the wall's
             velocity)."""
-            for N in ti.grouped(ti.ndrange(*nodes)):
-                V = ti.Vector.zero(f, dim)
-                for d in ti.static(range(dim)):
-                    acc = ti.cast(0.0, f)
-                    for c in ti.static(ti.grouped(ti.ndrange(*([2] * dim)))):
-                        if ti.static(c[d] == 0):
-                            I = N - c
-                            acc += vel[at(d, I)]
-                    V[d] = acc * n_avg
-                node[N] = V
-        faces_all, cells = bc.faces_all, bc.cells
+            V = ti.Vector.zero(f, dim)
+            for d in ti.static(range(dim)):
+                acc = ti.cast(0.0, f)
+                for c in ti.static(ti.grouped(ti.ndrange(*([2] * dim)))):
+                    if ti.static(c[d] == 0):
+                        acc += vel[at(d, N - c)]
+                V[d] = acc * n_avg
+            node[N] = V
+
+        @ti.func
+        def node_velocity():
+            node_loop(node_body)
+
+        cells = bc.cells
 
         @ti.func
         def trace(X, dt):
@@ -262,16 +267,22 @@ class Advector:
             bc.fill_face_ghosts(qv)
             bc.fill_cell_ghosts(qs, n_sc)
 
-        @ti.func
-        def copy_back(src_v: ti.template(), src_s: ti.template()):
-            for J in ti.grouped(ti.ndrange(*faces_all)):
-                d, I = split(J)
-                if valid_face(d, I):
+        def copy_back(src_v, src_s):
+            """Bodies: the result into the velocity (fixed faces keep their values) and the scalars."""
+            def make(d):
+                @ti.func
+                def body(I):
+                    J = at(d, I)
                     vel[J] = bc.fixed_value(d, I, src_v[J])
-            for I in ti.grouped(ti.ndrange(*cells)):
+
+                return body
+
+            @ti.func
+            def cell(I):
                 for k in ti.static(range(n_sc)):
                     sc[at(k, I)] = src_s[at(k, I)]
-            ghosts(vel, sc)
+
+            return bc.per_component(make), cell
 
         A_v, A_s = tv[0], ts[0]
         if scheme == "semi_lagrangian":
@@ -290,6 +301,8 @@ class Advector:
         def node_kernel():
             node_velocity()
 
+        back = copy_back(result[0], result[1])
+
         @ti.kernel
         def advect_kernel(dt: f):
             dtf[None] = dt
@@ -297,7 +310,8 @@ class Advector:
                 if ti.static(i > 0):  # the next stage interpolates the previous one's output
                     ghosts(temps[i - 1][0], temps[i - 1][1])
                 run(stages[i])
-            copy_back(result[0], result[1])
+            run(back)
+            ghosts(vel, sc)
 
         self.nodes, self._advect = node_kernel, advect_kernel
 

@@ -41,66 +41,70 @@ def make_at(dim: int):
 
 
 def make_foreach(rng: list):
-    """A ti.func ``foreach(body)`` calling ``body(I)`` for every index of the box ``rng`` ((lo, hi) per
-    axis), parallel over the outer axes with the last (contiguous) axis as a serial inner loop: a
-    stencil sweep costs a third of the CPU time of a flat ``ti.grouped`` loop (measured on 64^3).
-    ``foreach_sum(body, out, slot)`` adds the bodies' return values into ``out[slot]`` (one atomic
-    add per row); ``foreach_sum_max(body, out, s, m)``: body returns (value to sum, value to max)."""
+    """Loops over the box ``rng`` ((lo, hi) per axis), parallel over the outer axes with the last
+    (contiguous) axis as a serial inner loop: a stencil sweep costs a third of the CPU time of a flat
+    ``ti.grouped`` loop (measured on 64^3). Returns ti.funcs
+
+    * ``foreach(body)``: body(I) for every index I;
+    * ``foreach_sum(body, out, slot)``: adds the bodies' return values into ``out[slot]`` (one atomic
+      add per row);
+    * ``foreach_sum_max(body, out, s, m, src, k)``: body(I, c) returns (value to sum, value to max);
+      ``c = src[k]`` is read once per row (a CG step length: read in the inner loop it is reloaded
+      every iteration, since the loop's stores might alias it);
+    * ``foreach_scaled(body, src, k)``: body(I, src[k]).
+    """
     lo = [r[0] for r in rng]
     hi = [r[1] for r in rng]
+    inner = (lo[-1], hi[-1])
     if len(rng) == 3:
-        @ti.func
-        def foreach(body: ti.template()):
-            for i, j in ti.ndrange((lo[0], hi[0]), (lo[1], hi[1])):
-                for k in range(lo[2], hi[2]):
-                    body(ti.Vector([i, j, k]))
+        rows = ((lo[0], hi[0]), (lo[1], hi[1]))
 
         @ti.func
-        def foreach_sum(body: ti.template(), out: ti.template(), slot: ti.template()):
-            for i, j in ti.ndrange((lo[0], hi[0]), (lo[1], hi[1])):
-                acc = ti.cast(0.0, ti.f64)
-                for k in range(lo[2], hi[2]):
-                    acc += body(ti.Vector([i, j, k]))
-                out[slot] += acc
-
-        @ti.func
-        def foreach_sum_max(body: ti.template(), out: ti.template(), s: ti.template(), m: ti.template()):
-            for i, j in ti.ndrange((lo[0], hi[0]), (lo[1], hi[1])):
-                acc = ti.cast(0.0, ti.f64)
-                mx = ti.cast(0.0, ti.f64)
-                for k in range(lo[2], hi[2]):
-                    a, b = body(ti.Vector([i, j, k]))
-                    acc += a
-                    mx = ti.max(mx, b)
-                out[s] += acc
-                ti.atomic_max(out[m], mx)
+        def index(i, j, k):
+            return ti.Vector([i, j, k])
     else:
-        @ti.func
-        def foreach(body: ti.template()):
-            for i in range(lo[0], hi[0]):
-                for j in range(lo[1], hi[1]):
-                    body(ti.Vector([i, j]))
+        rows = ((lo[0], hi[0]), (0, 1))
 
         @ti.func
-        def foreach_sum(body: ti.template(), out: ti.template(), slot: ti.template()):
-            for i in range(lo[0], hi[0]):
-                acc = ti.cast(0.0, ti.f64)
-                for j in range(lo[1], hi[1]):
-                    acc += body(ti.Vector([i, j]))
-                out[slot] += acc
+        def index(i, j, k):
+            return ti.Vector([i, k])
 
-        @ti.func
-        def foreach_sum_max(body: ti.template(), out: ti.template(), s: ti.template(), m: ti.template()):
-            for i in range(lo[0], hi[0]):
-                acc = ti.cast(0.0, ti.f64)
-                mx = ti.cast(0.0, ti.f64)
-                for j in range(lo[1], hi[1]):
-                    a, b = body(ti.Vector([i, j]))
-                    acc += a
-                    mx = ti.max(mx, b)
-                out[s] += acc
-                ti.atomic_max(out[m], mx)
-    return foreach, foreach_sum, foreach_sum_max
+    @ti.func
+    def foreach(body: ti.template()):
+        for i, j in ti.ndrange(*rows):
+            for k in range(inner[0], inner[1]):
+                body(index(i, j, k))
+
+    @ti.func
+    def foreach_sum(body: ti.template(), out: ti.template(), slot: ti.template()):
+        for i, j in ti.ndrange(*rows):
+            acc = ti.cast(0.0, ti.f64)
+            for k in range(inner[0], inner[1]):
+                acc += body(index(i, j, k))
+            out[slot] += acc
+
+    @ti.func
+    def foreach_sum_max(body: ti.template(), out: ti.template(), s: ti.template(), m: ti.template(),
+                        src: ti.template(), key: ti.template()):
+        for i, j in ti.ndrange(*rows):
+            c = src[key]
+            acc = ti.cast(0.0, ti.f64)
+            mx = ti.cast(0.0, ti.f64)
+            for k in range(inner[0], inner[1]):
+                a, b = body(index(i, j, k), c)
+                acc += a
+                mx = ti.max(mx, b)
+            out[s] += acc
+            ti.atomic_max(out[m], mx)
+
+    @ti.func
+    def foreach_scaled(body: ti.template(), src: ti.template(), key: ti.template()):
+        for i, j in ti.ndrange(*rows):
+            c = src[key]
+            for k in range(inner[0], inner[1]):
+                body(index(i, j, k), c)
+
+    return foreach, foreach_sum, foreach_sum_max, foreach_scaled
 
 
 def make_foreach_color(n: tuple):
@@ -135,6 +139,9 @@ class Boundary:
         # tangential axis is skipped with `valid_face`)
         self.faces_all = [(0, layout.dim)] + [(0, c + 1) for c in n]
         self.cells = [(0, c) for c in n]
+        # loops over the faces of one component (nested, contiguous inner axis) and over the cells
+        self.face_loops = [make_foreach(self.face_range(d)) for d in range(layout.dim)]
+        self.cell_loops = make_foreach(self.cells)
         self._make()
 
     def face_range(self, d: int, ghosts: bool = False) -> list:
@@ -198,12 +205,29 @@ class Boundary:
                 v = wall_vel[d, 1][d]
             return v
 
+        face_loop = [fl[0] for fl in self.face_loops]
+
         @ti.func
-        def set_fixed(q: ti.template()):
-            for J in ti.grouped(ti.ndrange(*self.faces_all)):
-                d, I = split(J)
-                if valid_face(d, I):
+        def each_face(bodies: ti.template()):
+            """bodies[d](I) for every face I of every component d (d fixed at compile time)."""
+            for d in ti.static(range(dim)):
+                face_loop[d](bodies[d])
+
+        def per_component(make_body):
+            """[make_body(0), ..., make_body(dim - 1)]: the bodies ``each_face`` takes."""
+            return [make_body(d) for d in range(dim)]
+
+        def set_fixed(q):
+            """Bodies for ``each_face``: fixed faces of q get their prescribed values."""
+            def make(d):
+                @ti.func
+                def body(I):
+                    J = at(d, I)
                     q[J] = fixed_value(d, I, q[J])
+
+                return body
+
+            return per_component(make)
 
         @ti.func
         def ghost_index(I, a: ti.template(), s: ti.template(), periodic_src: ti.template()):
@@ -253,6 +277,7 @@ class Boundary:
                             q[at(k, G)] = q[at(k, src)]
 
         self.split, self.valid_face = split, valid_face
+        self.each_face, self.per_component = each_face, per_component
         self.fixed_value = fixed_value
         self.set_fixed = set_fixed
         self.fill_face_ghosts = fill_face_ghosts

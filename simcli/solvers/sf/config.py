@@ -55,7 +55,15 @@ class SFOptions(_Options):
         ge=0,
         description="Stop the pressure solve when the largest cell divergence after projection times the "
         "substep, max |div u| dt [-], is at or below this: the largest relative volume change of a cell per "
-        "substep. 0 runs exactly max_iterations (Genesis's fixed-count Jacobi).",
+        "substep. 0 = off; with relative_tolerance also 0, exactly max_iterations run (Genesis's fixed-count "
+        "Jacobi).",
+    )
+    relative_tolerance: float = Field(
+        0.0,
+        ge=0,
+        description="Also stop the pressure solve when the residual 2-norm is at or below this fraction of the "
+        "right-hand side's, ||r|| / ||div u*|| [-] (the share of the step's divergence left; comparable across "
+        "discretisations). 0 = off.",
     )
     max_iterations: int = Field(
         2000, ge=1, description="Largest number of pressure iterations per substep (Jacobi sweeps or CG steps)."
@@ -281,19 +289,21 @@ MATERIALS = (SFSmoke,)
 
 
 def estimate_bytes(opts: SFOptions, mat: SFSmoke | None, n: list[int], precision: str = "f32") -> int:
-    """Bytes of device memory the SF solver allocates for a grid of n cells per axis (before it does)."""
+    """Bytes of memory the SF solver allocates for a grid of n cells per axis (before it does)."""
     dim = len(n)
     fp = 8 if precision == "f64" else 4
     cells = math.prod(c + 2 for c in n)
     faces = math.prod(c + 3 for c in n)
-    corr = 1 if opts.advection != "semi_lagrangian" else 0
-    # velocity, its advected copy (+ the corrector's copy); density and temperature likewise
-    per_face = dim * (2 + corr)
-    per_cell = 2 * (2 + corr)
-    # projection: kinematic pressure, CG x, r, z, p, Ap, diagonal (+ 1/7 more for the coarser levels)
-    per_cell += 7 * (8 / 7 if dim == 3 else 4 / 3)
+    n_tmp = {"semi_lagrangian": 1, "bfecc": 2, "maccormack": 4}[opts.advection]
+    # velocity and its advection scratch (copies, MacCormack's limiter range), the node velocities
+    per_face = dim * (1 + n_tmp) + dim
+    # smoke density and temperature with their scratch; pressure, phi, rhs, diagonal and the solver's
+    # vectors (CG r, z, p, Ap or Jacobi's second copy); the coarser multigrid levels (phi, rhs, diagonal)
+    per_cell = 2 * (1 + n_tmp) + 4 + (4 if opts.pressure_solver == "mgpcg" else 1)
+    per_cell += 3 * (1 / 7 if dim == 3 else 1 / 3)
     if mat is not None and mat.viscosity > 0:
         per_face += dim * 5  # diagonal, boundary values, CG r, p, Ap per component
     if mat is not None and mat.vorticity_confinement > 0:
-        per_cell += 2 * (3 if dim == 3 else 1)
-    return int(per_face * faces * fp + per_cell * cells * fp + cells)  # + the cell flags (u8)
+        per_cell += (3 if dim == 3 else 1) + dim
+    # + the face kinds and cell flags (one byte each) and a host copy of one output field per frame
+    return int(per_face * faces * fp + per_cell * cells * fp + (dim + 1) * faces + dim * cells * 8)

@@ -280,3 +280,54 @@ def make_levels(layout: Layout) -> list[Level]:
         levels.append(Level(nc, c, _level_diagonal(layout, f, nc, c)))
         fluid, n = f, nc
     return levels
+
+
+# ----------------------------------------------------------------------------- viscosity
+
+_BEYOND = 255  # kind of a face outside the grid (the neighbour of an open face)
+
+
+def viscosity_operator(layout: Layout, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """(K, B) of component d in the padded face layout (see the module docstring)."""
+    dim, n = layout.dim, layout.n
+    valid = tuple(slice(1, n[a] + (2 if a == d else 1)) for a in range(dim))
+    kind = layout.kinds[d][valid].copy()
+    val = face_values(layout, d)[valid]
+    if layout.periodic[d]:  # the unknowns are faces 0 .. n_d - 1; face n_d is face 0
+        cut = tuple(slice(0, n[d]) if a == d else slice(None) for a in range(dim))
+        kind, val = kind[cut], val[cut]
+    free = (kind == FREE) | (kind == OPEN_FACE)
+    K = np.zeros(kind.shape)
+    B = np.zeros(kind.shape)
+    for a in range(dim):
+        c = 1.0 / layout.dx[a] ** 2
+        for s in (1, -1):
+            if layout.periodic[a]:
+                nk = np.roll(kind, -s, axis=a)
+                nv = np.roll(val, -s, axis=a)
+            else:
+                pad = [(0, 0)] * dim
+                pad[a] = (0, 1) if s > 0 else (1, 0)
+                nk = np.pad(kind, pad, constant_values=_BEYOND)
+                nv = np.pad(val, pad)
+                sl = [slice(None)] * dim
+                sl[a] = slice(1, None) if s > 0 else slice(0, -1)
+                nk, nv = nk[tuple(sl)], nv[tuple(sl)]
+            nfix = is_fixed(nk)
+            nfree = (nk == FREE) | (nk == OPEN_FACE)
+            K += c * (nfix | nfree)
+            B += c * np.where(nfix, nv, 0.0)
+            if a != d and not layout.periodic[a]:
+                side = 1 if s > 0 else 0
+                if layout.wall[a][side] == W_STICKY:
+                    beyond = nk == _BEYOND
+                    K += 2.0 * c * beyond
+                    B += 2.0 * c * layout.wall_velocity[a, side, d] * beyond
+    K = np.where(free, K, -1.0)
+    B = np.where(free, B, 0.0)
+    Kp = np.full(tuple(c + 3 for c in n), -1.0)
+    Bp = np.zeros(Kp.shape)
+    dst = tuple(slice(1, 1 + k) for k in kind.shape)
+    Kp[dst] = K
+    Bp[dst] = B
+    return Kp, Bp

@@ -42,6 +42,8 @@ class Sources:
         self.jet_rows = np.zeros((max(1, self.n_jets), jet_row_width(dim)), dtype=self.npf)
         # run-time parameters: decay, cooling, alpha, beta, T_ambient, confinement epsilon
         self.params = ti.field(f, shape=6)
+        self.dt = ti.field(f, shape=())
+        self.jet_f = ti.field(f, shape=self.jet_rows.shape)  # this substep's jets (from the kernel argument)
         self.gravity = ti.Vector.field(dim, f, shape=())
         m = material
         self.params.from_numpy(np.array([m.decay, m.cooling, m.buoyancy, m.thermal_expansion,
@@ -75,7 +77,7 @@ class Sources:
         L, f, bc = self.layout, self.f, self.bc
         dim, n = L.dim, L.n
         vel, S, flags, params, gravity = self.vel, self.scalars, self.flags, self.params, self.gravity
-        at, split, valid_face = bc.at, bc.split, bc.valid_face
+        at = bc.at
         n_jets = self.n_jets
         any_vel = any(j.velocity is not None for j in self.jets)
         any_force = any(j.force is not None for j in self.jets)
@@ -83,7 +85,7 @@ class Sources:
         origin = [float(o) for o in L.origin]
         dx = [float(h) for h in L.dx]
         h = min(dx)
-        faces_all, cells = bc.faces_all, bc.cells
+        cells = bc.cells
         omega = self.omega if confine else None
         conf = self.conf if confine else None
 
@@ -95,6 +97,8 @@ class Sources:
                 x[a] = origin[a] + (I[a] + ti.select(a == d, 0.0, 0.5)) * dx[a]
             return x
 
+        jf, dtf = self.jet_f, self.dt
+
         @ti.func
         def coverage(jets: ti.template(), k, x):
             """Fraction of the cell at x inside jet k: 1 inside, 0 outside, linear over one cell."""
@@ -104,26 +108,26 @@ class Sources:
             return ti.min(ti.max((jets[k, 3 * dim] - ti.sqrt(r2)) / h + 0.5, 0.0), 1.0)
 
         @ti.func
-        def add_scalars(dt, jets: ti.template()):
+        def scalar_body(I):
+            dt = dtf[None]
             decay = ti.exp(-params[0] * dt)
             cool = ti.exp(-params[1] * dt)
             Ta = params[4]
-            for I in ti.grouped(ti.ndrange(*cells)):
-                si = S[at(0, I)]
-                Ti = S[at(1, I)]
-                if ti.static(n_jets > 0):
-                    x = position(I, -1)
-                    for k in range(n_jets):
-                        c = coverage(jets, k, x)
-                        si += dt * c * jets[k, 3 * dim + 1]
-                        Ti += dt * c * jets[k, 3 * dim + 2]
-                si *= decay
-                Ti = Ta + (Ti - Ta) * cool
-                if flags[I] == SOLID:
-                    si = 0.0
-                    Ti = Ta
-                S[at(0, I)] = si
-                S[at(1, I)] = Ti
+            si = S[at(0, I)]
+            Ti = S[at(1, I)]
+            if ti.static(n_jets > 0):
+                x = position(I, -1)
+                for k in range(n_jets):
+                    c = coverage(jf, k, x)
+                    si += dt * c * jf[k, 3 * dim + 1]
+                    Ti += dt * c * jf[k, 3 * dim + 2]
+            si *= decay
+            Ti = Ta + (Ti - Ta) * cool
+            if flags[I] == SOLID:
+                si = 0.0
+                Ti = Ta
+            S[at(0, I)] = si
+            S[at(1, I)] = Ti
 
         @ti.func
         def cell_velocity(I):
@@ -170,47 +174,56 @@ class Sources:
                 else:
                     conf[I] = params[5] * h * ti.Vector([N[1] * w[0], -N[0] * w[0]])
 
+        def force_body(d):
+            @ti.func
+            def body(I):
+                dt = dtf[None]
+                J = at(d, I)
+                u = vel[J]
+                Lc = I
+                Lc[d] -= 1
+                if ti.static(buoyant):
+                    sf = 0.5 * (S[at(0, Lc)] + S[at(0, I)])
+                    Tf = 0.5 * (S[at(1, Lc)] + S[at(1, I)])
+                    u += dt * (params[2] * sf - params[3] * (Tf - params[4])) * gravity[None][d]
+                if ti.static(confine):
+                    u += dt * 0.5 * (conf[clamp_cell(Lc)][d] + conf[clamp_cell(I)][d])
+                if ti.static(n_jets > 0 and (any_vel or any_force)):
+                    x = position(I, d)
+                    for k in range(n_jets):
+                        c = coverage(jf, k, x)
+                        if ti.static(any_force):
+                            u += dt * c * jf[k, 2 * dim + d]
+                        if ti.static(any_vel):
+                            u += c * jf[k, 3 * dim + 3] * (jf[k, dim + d] - u)
+                vel[J] = bc.fixed_value(d, I, u)
+
+            return body
+
+        forces = bc.per_component(force_body)
+        cell_loop = bc.cell_loops[0]
+        width = self.jet_rows.shape[1]
+
         @ti.func
-        def add_forces(dt, jets: ti.template()):
-            g = gravity[None]
-            for J in ti.grouped(ti.ndrange(*faces_all)):
-                d, I = split(J)
-                if valid_face(d, I):
-                    u = vel[J]
-                    Lc = I
-                    Lc[d] -= 1
-                    if ti.static(buoyant):
-                        sf = 0.5 * (S[at(0, Lc)] + S[at(0, I)])
-                        Tf = 0.5 * (S[at(1, Lc)] + S[at(1, I)])
-                        u += dt * (params[2] * sf - params[3] * (Tf - params[4])) * g[d]
-                    if ti.static(confine):
-                        u += dt * 0.5 * (conf[clamp_cell(Lc)][d] + conf[clamp_cell(I)][d])
-                    if ti.static(n_jets > 0 and (any_vel or any_force)):
-                        x = position(I, d)
-                        for k in range(n_jets):
-                            c = coverage(jets, k, x)
-                            if ti.static(any_force):
-                                u += dt * c * jets[k, 2 * dim + d]
-                            if ti.static(any_vel):
-                                u += c * jets[k, 3 * dim + 3] * (jets[k, dim + d] - u)
-                    vel[J] = bc.fixed_value(d, I, u)
+        def stages(dt):
+            dtf[None] = dt
+            cell_loop(scalar_body)
+            if ti.static(confine):
+                vorticity_forces()
+            bc.each_face(forces)
             bc.fill_face_ghosts(vel)
             bc.fill_cell_ghosts(S, 2)
 
         if n_jets > 0:
             @ti.kernel
             def add_sources(dt: f, jets: ti.types.ndarray()):
-                add_scalars(dt, jets)
-                if ti.static(confine):
-                    vorticity_forces()
-                add_forces(dt, jets)
+                for k, j in ti.ndrange(n_jets, width):
+                    jf[k, j] = jets[k, j]
+                stages(dt)
         else:
             @ti.kernel
             def add_sources(dt: f):
-                add_scalars(dt, 0)
-                if ti.static(confine):
-                    vorticity_forces()
-                add_forces(dt, 0)
+                stages(dt)
 
         self._kernel = add_sources
 

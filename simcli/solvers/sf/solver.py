@@ -161,9 +161,11 @@ class SFSolver(Solver):
         face_rng = [bc.face_range(d) for d in range(dim)]
         f64 = f == ti.f64
 
+        fixed = bc.set_fixed(vel)
+
         @ti.kernel
         def init_boundary():
-            bc.set_fixed(vel)
+            bc.each_face(fixed)
             bc.fill_face_ghosts(vel)
             bc.fill_cell_ghosts(S, 2)
 
