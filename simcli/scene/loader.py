@@ -250,10 +250,12 @@ def _describe(err: dict, data: Any, path: Path_) -> str:
         if t == "union_tag_not_found":
             return f"missing 'type' (expected one of {expected})"
         hint = difflib.get_close_matches(str(tag), [s.strip(" '") for s in str(expected).split(",")], n=1, cutoff=0.6)
-        if path and path[-1] == "material" and tag in PLANNED_TYPES:
-            return (f"material type '{tag}' is not implemented in this version of simcli "
-                    f"(available: {', '.join(material_type_names())})")
         tail = f" (did you mean '{hint[0]}'?)" if hint else ""
+        if len(path) >= 2 and path[-2] == "material":
+            if tag in PLANNED_TYPES:
+                return (f"material type '{tag}' is not implemented in this version of simcli "
+                        f"(available: {', '.join(material_type_names())})")
+            return f"unknown material type '{tag}'{tail}; available: {', '.join(material_type_names())}"
         return f"unknown type '{tag}'; expected one of {expected}{tail}"
     if t == "literal_error":
         expected = ctx.get("expected", "")
@@ -297,6 +299,8 @@ def format_validation_error(exc: ValidationError, loc: Located) -> list[str]:
     order: list[Path_] = []
     for err in exc.errors(include_url=False):
         path = _clean_loc(err["loc"], loc.data)
+        if err["type"] == "union_tag_invalid":  # point at the offending `type:` value itself
+            path = path + ("type",)
         msg = _describe(err, loc.data, path)
         if path not in grouped:
             grouped[path] = []

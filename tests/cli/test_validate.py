@@ -53,7 +53,7 @@ def test_good_scene_passes(tmp_path):
         ("rho: 1000}", "rho: 1000, young: 3}", "entities.0.material.young: unknown key"),
         # unknown material and morph types
         ("type: MPM.Elastic", "type: MPM.Elastik", ":6:22: entities.0.material.type: unknown material type 'MPM.Elastik'"),
-        ("type: Box", "type: Cube", ":7:12: entities.0.morph: unknown type 'Cube'"),
+        ("type: Box", "type: Cube", ":7:19: entities.0.morph.type: unknown type 'Cube'"),
         # entity outside the domain
         ("upper: [0.1, 0.1, 0.5]", "upper: [0.1, 0.1, 1.5]", ":7:12: entities.0.morph: entity 'jelly' extends "
          "outside the domain along z"),
