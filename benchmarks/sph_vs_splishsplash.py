@@ -193,8 +193,8 @@ def main() -> None:
             grow = []
             for solver, scene in (("WCSPH", "configs/bench/b2_wcsph.yaml"), ("DFSPH", "configs/bench/b2_dfsph.yaml")):
                 g = run_genesis(gpy, solver, args.threads, args.genesis_steps, work)
-                fixed = run_simcli(scene, args.threads, ["sim.steps=50"])
-                auto = run_simcli(scene, args.threads, ["sim.steps=50", "sim.substeps=auto"])
+                fixed = run_simcli(scene, args.threads, ["sim.steps=50", "output.every=5"])
+                auto = run_simcli(scene, args.threads, ["sim.steps=50", "output.every=5", "sim.substeps=auto"])
                 print(solver, "genesis", json.dumps(g), "simcli fixed", json.dumps(fixed), "auto", json.dumps(auto),
                       flush=True)
                 grow += [(solver, "Genesis 1.4.5, fixed 0.4 ms", g), (solver, "simcli, fixed 0.4 ms", fixed),

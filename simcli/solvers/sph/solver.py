@@ -82,6 +82,7 @@ class SPHSolver(Solver):
         self.has_tension = any(m.gamma > 0 for m in self.materials)
         self.frame_time = float(scene.sim.dt) * int(scene.output.every)
         self.g_norm = float(np.linalg.norm(scene.sim.gravity_vec))
+        self.fall_height = float(np.linalg.norm(self.domain_hi - self.domain_lo))  # longest drop in the domain
         self.dfsph_stats = SolveStats()
         self._built = False
 
@@ -563,7 +564,8 @@ class SPHSolver(Solver):
         vmax = float(np.max(self.stat_speed.to_numpy()))
         if not math.isfinite(vmax):
             return self.opts.max_substep
-        v_est = vmax + self.g_norm * self.frame_time
+        # gravity cannot add more than one frame's g t, nor more than a free fall across the domain
+        v_est = min(vmax + self.g_norm * self.frame_time, math.sqrt(vmax**2 + 2.0 * self.g_norm * self.fall_height))
         c = 0.0
         if self.opts.pressure_solver == "WCSPH":
             # Tait's sound speed at the largest compression: c0 (rho / rho0)^((n - 1) / 2) (overlapping
