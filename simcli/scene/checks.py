@@ -18,8 +18,14 @@ _BYTES_PER_CELL = {2: 4 * 3, 3: 4 * 4}  # grid momentum/velocity (dim) + mass
 # copies (2 dim + 4) and the neighbour list (capacity x (index + gradient)); per boundary particle
 # position, velocity, volume, flag; per cell (cell = support / 2) count and start offsets of the liquid
 # and of the boundary particles.
-_SPH_CAPACITY = {2: 32, 3: 64}
-_SPH_BYTES_PER_PARTICLE = {d: 4 * (4 * d + 10 + 6 + 2 * d + 4 + _SPH_CAPACITY[d] * (1 + d)) for d in (2, 3)}
+
+
+def _sph_bytes_per_particle(dim: int, support_factor: float) -> int:
+    from simcli.solvers.sph.neighbours import neighbour_capacity  # numpy only, no Taichi
+
+    return 4 * (4 * dim + 10 + 6 + 2 * dim + 4 + neighbour_capacity(dim, support_factor) * (1 + dim))
+
+
 _SPH_BYTES_PER_BOUNDARY = {d: 4 * (2 * d + 2) for d in (2, 3)}
 _SPH_BYTES_PER_CELL = 4 * 3
 MEMORY_FRACTION = 0.8  # refuse a scene that needs more than this share of available memory
@@ -164,12 +170,14 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         sf_mat = next(e.material for e in s.entities if e.family == "SF")
         need += estimate_bytes(s.solvers.sf, sf_mat, n_sf, s.sim.precision)
     if "SPH" in s.families:
-        # boundary particles: two layers outside every face of the domain (colliders add less)
+        # boundary particles: layers covering the kernel support outside every face (colliders add less)
         ext = [hi[a] - lo[a] for a in range(dim)]
         faces = sum(math.prod(ext[b] for b in range(dim) if b != a) for a in range(dim))
-        n_bnd = int(2 * 2 * faces / sph.particle_size ** (dim - 1))
-        sph_cells = math.prod(int(math.ceil(e / sph.particle_size)) + 6 for e in ext)
-        need += (n_sph * _SPH_BYTES_PER_PARTICLE[dim] + n_bnd * _SPH_BYTES_PER_BOUNDARY[dim]
+        layers = max(2, math.ceil(sph.support_factor - 1e-9))
+        n_bnd = int(2 * layers * faces / sph.particle_size ** (dim - 1))
+        cell = 0.5 * sph.support_factor * sph.particle_size
+        sph_cells = math.prod(math.ceil(e / cell) + 6 for e in ext)
+        need += (n_sph * _sph_bytes_per_particle(dim, sph.support_factor) + n_bnd * _SPH_BYTES_PER_BOUNDARY[dim]
                  + sph_cells * _SPH_BYTES_PER_CELL) * fp
         n_particles += n_sph
     avail = _available_memory()
