@@ -125,11 +125,9 @@ def vm3(ti_f32):
 
 def uniaxial(h: Harness, stretch: np.ndarray, axis_rot=None):
     """Uniaxial stress: for each axial stretch, the lateral stretch with zero lateral stress
-    (secant iterations on all particles at once). Returns (tau, F_out, tzz, Je)."""
+    (bisection on all particles at once). Returns (tau, F_out, tzz, Je)."""
     d = h.dim
     R = np.eye(d) if axis_rot is None else axis_rot
-    lat_a = np.full(h.n, 1.0)
-    lat_b = np.full(h.n, 0.97)
     start = {k: v.copy() for k, v in h.state().items()}  # every trial starts from the same state
 
     def lateral_stress(lat):
@@ -142,14 +140,15 @@ def uniaxial(h: Harness, stretch: np.ndarray, axis_rot=None):
         _, tau = h.run(F)
         return (R.T @ tau @ R)[:, 1, 1]
 
-    fa, fb = lateral_stress(lat_a), lateral_stress(lat_b)
-    for _ in range(40):
-        denom = np.where(fb != fa, fb - fa, 1.0)
-        lat_c = lat_b - fb * (lat_b - lat_a) / denom
-        lat_a, fa = lat_b, fb
-        lat_b, fb = lat_c, lateral_stress(lat_c)
-        if np.all(np.abs(fb) < 1e-6 * SY):
-            break
+    # bisection (robust to f32 noise): the lateral stress rises with the lateral stretch; a
+    # stretched bar contracts sideways (at most to 1 / stretch), so the root lies in [0.5, 1]
+    lo_, hi_ = np.full(h.n, 0.5), np.full(h.n, 1.0)
+    for _ in range(25):  # 0.5 / 2^25: below f32 resolution
+        mid = 0.5 * (lo_ + hi_)
+        pos = lateral_stress(mid) > 0
+        hi_ = np.where(pos, mid, hi_)
+        lo_ = np.where(pos, lo_, mid)
+    lat_b = 0.5 * (lo_ + hi_)
     F = np.zeros((h.n, d, d))
     F[:, 0, 0] = stretch
     for i in range(1, d):
