@@ -25,6 +25,15 @@ Design choices (measured on a 2-core CPU, see benchmarks/mpm_micro.py):
 * **Stress fused into p2g**, from the deformation gradient updated in g2p (F <- (I + dt C) F).
 * **Corotated rotation without SVD**: a warm-started quaternion rotation extraction
   (Mueller et al. 2016) whose quaternion per particle is part of the restart state.
+* **Plastic laws decompose F once per substep**: their return mapping (end of g2p) also computes
+  the Kirchhoff stress from the same singular values and keeps it per particle for the next p2g
+  (``constitutive.py``, ``plasticity.py``). Only the laws of the materials present are compiled.
+* **Colliders act twice**: on grid nodes (contact conditions, in grid_update) and on particles
+  after advection (a particle inside a collider goes back to its surface; compiled only when
+  colliders exist).
+* **Hardening (snow) with substeps: auto**: the runner picks the substep once per frame; an
+  impact can stiffen snow a hundredfold within a frame, so such scenes check stability every
+  substep and subdivide it when needed (one small reduction per substep, only there).
 * Particle state is struct-of-arrays (one field per quantity).
 """
 
