@@ -70,6 +70,9 @@ def validate(scenes: tuple[Path, ...], sets: tuple[str, ...], quiet: bool) -> No
         if _is_sweep(path):
             bad += _validate_sweep(path, quiet)
             continue
+        if path.name.endswith(".case.yaml"):  # a validation case: its own fields, then its scene
+            bad += _validate_case(path, quiet)
+            continue
         try:
             loaded = load_scene(path, sets)
         except SceneError as e:
@@ -89,6 +92,22 @@ def _is_sweep(path: Path) -> bool:
     except ImportError:
         return False
     return looks_like_sweep(path)
+
+
+def _validate_case(path: Path, quiet: bool) -> int:
+    from simcli.scene.loader import load_scene
+    from simcli.verify.cases import load_case
+
+    try:
+        case = load_case(path)
+        load_scene(case.scene_path)
+    except SceneError as e:
+        for line in e.lines:
+            _err(line)
+        return 1
+    if not quiet:
+        _err(f"{path}: ok (validation case of {case.scene})")
+    return 0
 
 
 def _validate_sweep(path: Path, quiet: bool) -> int:
