@@ -90,10 +90,11 @@ def test_report_table_has_every_result():
     assert "| a | 1 | gd=64 | 0.02 | 0.05 | pass | 2.32 |" in md and "(coarser level)" in md
 
 
+@pytest.mark.timeout(1800)
 def test_verify_fast_set_passes_end_to_end(tmp_path):
     """`simcli verify` (the fast set) as CI runs it: every case passes, the report is written."""
     r = subprocess.run([sys.executable, "-m", "simcli", "verify", "-o", str(tmp_path), "--report",
-                        str(tmp_path / "VALIDATION.md")], capture_output=True, text=True, timeout=900)
+                        str(tmp_path / "VALIDATION.md")], capture_output=True, text=True, timeout=1700)
     assert r.returncode == 0, r.stderr[-3000:]
     text = (tmp_path / "VALIDATION.md").read_text()
     assert "free_fall" in text and "FAIL" not in text
