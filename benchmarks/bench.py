@@ -37,7 +37,28 @@ SCENES = {
     "B4i": ("configs/bench/b4_implicit.yaml", ["fem", "--plane", "0", "--implicit", "1"], 100),
     "B2W": ("configs/bench/b2_wcsph.yaml", ["sph", "--plane", "0"], 60),
     "B2D": ("configs/bench/b2_dfsph.yaml", ["sph", "--plane", "0", "--sph_solver", "DFSPH"], 30),
+    "B5": ("configs/bench/b5.yaml", ["sf", "--res", "64"], 100),
 }
+# Grid scenes whose pressure-solve accuracy is compared too (see b5_accuracy)
+GRID_SCENES = {"B5"}
+
+# Run inside Genesis's venv after genesis_bench.py's SF scene: the relative residual of Genesis's pressure
+# equation after its 200 Jacobi sweeps, ||div - L p|| / ||div|| (its own discretisation: collocated, central
+# -difference divergence, compact Laplacian with clamped neighbours), on the last step.
+_GENESIS_SF_RESIDUAL = """
+import sys, runpy, json
+import numpy as np
+sys.argv = [%r] + sys.argv[1:]
+ns = runpy.run_path(sys.argv[0], run_name="__main__")
+g = ns["scene"].sim.solvers[-1].grid
+div = g.div.to_numpy().astype(np.float64)
+p = g.p.to_numpy().astype(np.float64)
+pp = np.pad(p, 1, mode="edge")
+nb = (pp[2:, 1:-1, 1:-1] + pp[:-2, 1:-1, 1:-1] + pp[1:-1, 2:, 1:-1] + pp[1:-1, :-2, 1:-1]
+      + pp[1:-1, 1:-1, 2:] + pp[1:-1, 1:-1, :-2])
+r = nb - 6.0 * p - div
+print("GENESIS_SF_RESIDUAL " + json.dumps({"relative_residual": float(np.linalg.norm(r) / np.linalg.norm(div))}))
+"""
 
 # Runs a command and reports the peak RSS of that child alone (KiB on Linux).
 _WRAP = ("import resource, subprocess, sys, time\n"
@@ -55,22 +76,33 @@ def _run(cmd: list[str], env: dict, timeout: float) -> tuple[int, str, str, floa
     return int(m.group(1)), r.stdout, r.stderr, int(m.group(2)) / 1024.0, float(m.group(3))
 
 
-def run_simcli(scene: str, threads: int, backend: str, cache: str, steps: int | None) -> dict:
+def run_simcli(scene: str, threads: int, backend: str, cache: str, steps: int | None,
+               sets: list[str] | None = None) -> dict:
     env = dict(os.environ, SIMCLI_KERNEL_CACHE=cache)
     with tempfile.TemporaryDirectory() as out:
         cmd = [sys.executable, "-m", "simcli", "run", str(ROOT / scene), "-o", out, "--quiet", "--json",
                "--backend", backend, "--set", f"sim.threads={threads}"]
         if steps:
             cmd += ["--set", f"sim.steps={steps}"]
+        for kv in sets or []:
+            cmd += ["--set", kv]
         rc, stdout, stderr, peak_mb, wall = _run(cmd, env, timeout=1800)
         if rc != 0:
             raise RuntimeError(f"simcli failed ({rc}): {stderr[-2000:]}")
         info = json.loads(stdout)
     t = info["timings"]
     tp = info["throughput"]
-    # mesh scenes (FEM) count vertices: their "particle-substeps" are vertex-substeps
-    n = info["particles"] or sum(int(c.get("vertices", 0)) for c in info.get("counts", {}).values())
+    # mesh scenes (FEM) count vertices, grid scenes (SF) cells: their "particle-substeps" are
+    # vertex-substeps or cell-substeps
+    counts = info.get("counts", {}).values()
+    n = (info["particles"] or sum(int(c.get("vertices", 0)) for c in counts)
+         or sum(int(c.get("cells", 0)) for c in counts))
+    sf = (info.get("solvers") or {}).get("sf") or {}
+    res = sf.get("per_substep", {}).get("relative_residual") or []
     return {"particles": n, "time_to_first_step_s": t.get("time_to_first_step_s"),
+            "steps_per_s": tp.get("steps_per_s"),
+            "relative_residual": (sum(res) / len(res)) if res else None,
+            "iterations": sf.get("iterations_mean"), "pressure_solver": sf.get("pressure_solver"),
             "process_wall_s": wall, "compile_s": t["compile_s"], "substeps_per_s": tp["substeps_per_s"],
             "particle_substeps_per_s": tp["particle_substeps_per_s"] or tp["substeps_per_s"] * n, "peak_mb": peak_mb,
             "backend": info["backend"], "threads": info.get("threads")}
@@ -92,11 +124,29 @@ def run_genesis(py: str, args: list[str], threads: int, cache: str | None, steps
     if rc != 0 or not m:
         raise RuntimeError(f"genesis failed ({rc}): {stderr[-2000:]}")
     r = json.loads(m.group(1))
-    n = r.get("n_particles") or r.get("n_vertices") or 0
+    n = r.get("n_particles") or r.get("n_vertices") or r.get("grid_cells") or 0
     first = r["import_s"] + r["gs_init_s"] + r["scene_setup_s"] + r["build_s"] + r["first_step_s"]
     return {"particles": n, "time_to_first_step_s": first, "process_wall_s": wall, "compile_s": r["build_s"],
+            "steps_per_s": r.get("steps_per_s"),
             "substeps_per_s": r["substeps_per_s"], "particle_substeps_per_s": r["substeps_per_s"] * n,
             "peak_mb": peak_mb, "backend": "cpu", "threads": r.get("threads")}
+
+
+def genesis_sf_residual(py: str, args: list[str], threads: int, steps: int = 20) -> float:
+    """Genesis's relative pressure residual after its Jacobi sweeps on the last of `steps` steps."""
+    env = dict(os.environ, QD_NUM_THREADS=str(threads))
+    script = _GENESIS_SF_RESIDUAL % str(SHARED / "bench" / "genesis_bench.py")
+    with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as fh:
+        fh.write(script)
+    try:
+        r = subprocess.run([py, fh.name, *args, "--steps", str(steps), "--max_s", "120"], capture_output=True,
+                           text=True, env=env, timeout=1800, check=False)
+    finally:
+        os.unlink(fh.name)
+    m = re.search(r"^GENESIS_SF_RESIDUAL (.*)$", r.stdout, re.MULTILINE)
+    if not m:
+        raise RuntimeError(f"genesis residual failed ({r.returncode}): {r.stderr[-2000:]}")
+    return float(json.loads(m.group(1))["relative_residual"])
 
 
 def machine() -> str:
@@ -149,6 +199,17 @@ def main() -> None:
             warm = run_simcli(scene, args.threads, args.backend, cache, args.steps)
         row = {"id": sid, "simcli_cold": cold, "simcli": warm}
         print(f"{sid} simcli: {json.dumps(warm)} (cold first step {cold['time_to_first_step_s']:.2f} s)", flush=True)
+        if py and sid in GRID_SCENES:
+            # equal pressure-solve accuracy: Genesis's residual after its 200 Jacobi sweeps, then simcli's MGPCG
+            # stopped on the same relative residual (same scene, dt, threads; warm kernel cache)
+            rel = genesis_sf_residual(py, gargs, args.threads)
+            sets = ["solvers.sf.pressure_solver=mgpcg", "solvers.sf.tolerance=0",
+                    f"solvers.sf.relative_tolerance={rel}"]
+            with tempfile.TemporaryDirectory() as cache:
+                mg_cold = run_simcli(scene, args.threads, args.backend, cache, args.steps, sets)
+                mg = run_simcli(scene, args.threads, args.backend, cache, args.steps, sets)
+            row.update(genesis_residual=rel, simcli_mgpcg=mg, simcli_mgpcg_cold=mg_cold)
+            print(f"{sid} genesis relative residual {rel:.3g}; simcli mgpcg: {json.dumps(mg)}", flush=True)
         if py:
             with tempfile.TemporaryDirectory() as gcache:
                 gcold = run_genesis(py, gargs, args.threads, gcache, 20)
@@ -159,24 +220,45 @@ def main() -> None:
         rows.append(row)
 
     lines = [
-        "| scene | code | particles (vertices for meshes) | first step cold [s] | first step warm [s] | compile [s] | substeps/s | "
-        "particle-substeps/s | peak memory [MB] | speed-up |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        ("| scene | code | particles (vertices for meshes, cells for grids) | first step cold [s] | first step warm "
+         "[s] | compile [s] | steps/s | substeps/s | particle- (cell-) substeps/s | peak memory [MB] | speed-up |"),
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    notes = []
     for r in rows:
-        for code in ("simcli", "genesis"):
+        for code in ("simcli", "simcli_mgpcg", "genesis"):
             if code not in r:
                 continue
             w, c = r[code], r[code + "_cold"]
             ratio = ""
-            if code == "simcli" and "genesis" in r:
+            if code.startswith("simcli") and "genesis" in r:
                 ratio = (f"{w['particle_substeps_per_s'] / r['genesis']['particle_substeps_per_s']:.2f}x throughput, "
                          f"{r['genesis_cold']['time_to_first_step_s'] / c['time_to_first_step_s']:.1f}x faster "
                          f"cold start")
-            lines.append(f"| {r['id']} | {code} | {w['particles']} | {fmt(c['time_to_first_step_s'])} | "
-                         f"{fmt(w['time_to_first_step_s'])} | {fmt(w['compile_s'])} | {fmt(w['substeps_per_s'])} | "
-                         f"{fmt(w['particle_substeps_per_s'])} | {fmt(w['peak_mb'], 4)} | {ratio} |")
-    table = "\n".join(lines)
+            label = {"simcli_mgpcg": "simcli (MGPCG, Genesis's residual)"}.get(code, code)
+            lines.append(f"| {r['id']} | {label} | {w['particles']} | {fmt(c['time_to_first_step_s'])} | "
+                         f"{fmt(w['time_to_first_step_s'])} | {fmt(w['compile_s'])} | {fmt(w.get('steps_per_s'))} | "
+                         f"{fmt(w['substeps_per_s'])} | {fmt(w['particle_substeps_per_s'])} | {fmt(w['peak_mb'], 4)} | "
+                         f"{ratio} |")
+        if "genesis_residual" in r:
+            s_, m_ = r["simcli"], r["simcli_mgpcg"]
+            notes.append(f"{r['id']} pressure solve, relative residual ||r|| / ||div u*|| after the projection (mean "
+                         f"over the run): Genesis, 200 Jacobi sweeps: {r['genesis_residual']:.3g} (its last step); "
+                         f"simcli, {s_.get('pressure_solver')} {fmt(s_.get('iterations'))} sweeps: "
+                         f"{fmt(s_.get('relative_residual'))}; simcli, MGPCG stopped at Genesis's residual: "
+                         f"{fmt(m_.get('relative_residual'))} in {fmt(m_.get('iterations'))} iterations.")
+    # rows and notes of scenes not measured this time are kept from the last report, so that running one
+    # family's scenes does not erase the others'
+    measured = {r["id"] for r in rows}
+    if args.out and Path(args.out).exists():
+        for line in Path(args.out).read_text().splitlines():
+            sid = line.split("|")[1].strip() if line.startswith("| ") else line.split(" ", 1)[0]
+            if sid in SCENES and sid not in measured:
+                if line.startswith("| "):
+                    lines.append(line)
+                elif " pressure solve, " in line:
+                    notes.append(line)
+    table = "\n".join(lines) + ("\n\n" + "\n\n".join(notes) if notes else "")
     print(table)
     if args.out:
         stamp = time.strftime("%Y-%m-%d")
@@ -188,7 +270,9 @@ def main() -> None:
             f"{args.backend}, f32. Same scene, dt, substeps and thread count as Genesis's `genesis_bench.py`.\n\n"
             "*First step*: from the start of the process's Python code (imports included) to the end of the first "
             "step; cold = empty kernel cache. *Compile*: simcli's first substep (kernel compilation); Genesis's "
-            "`scene.build()`. *Substeps/s*: steady state, after warm-up. *Peak memory*: peak RSS of the process.\n\n"
+            "`scene.build()`. *Substeps/s*: steady state, after warm-up. *Peak memory*: peak RSS of the process. "
+            "`python benchmarks/bench.py B5` re-measures B5 only: the other scenes' rows are kept from the last "
+            "report.\n\n"
             + table + "\n"
         )
         for extra in (ROOT / "docs" / "PERFORMANCE_NOTES.md", ROOT / "docs" / "PERFORMANCE_SPH.md"):

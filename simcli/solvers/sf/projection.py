@@ -17,9 +17,9 @@ Solvers
     ping-ponging two fields; Stam (1999) uses plain Jacobi, which stalls in a closed box.
     ``mgpcg``: conjugate gradients preconditioned by one multigrid V-cycle (McAdams et al. 2010):
     cell-centred coarsening by 2, piecewise-constant transfers (restriction = the transpose of
-    prolongation), Galerkin-scaled coarse couplings, red-black Gauss-Seidel smoothing run
-    red-black before and black-red after the coarse correction, so the preconditioner is
-    symmetric. Closed or periodic boxes: the mean of the right-hand side is removed (the
+    prolongation, its correction doubled: PROLONG_SCALE), Galerkin-scaled coarse couplings, red-black
+    Gauss-Seidel smoothing run red-black before and black-red after the coarse correction, so the
+    preconditioner is symmetric. Closed or periodic boxes: the mean of the right-hand side is removed (the
     pressure is defined up to a constant).
 
 Both start from the previous step's pressure. The iteration count is decided on the host: a
@@ -45,6 +45,12 @@ COARSEST_SWEEPS = 16  # red-black pairs on the coarsest level (a few cells per a
 # symmetric: with the constant mode at eigenvalue 1 (the pressure is defined up to a constant), its
 # chequerboard twin sits at -1 and oscillates forever. With weight w it decays by |1 - 2 w| per sweep.
 JACOBI_WEIGHT = 0.8
+# Coarse-grid correction scale. Piecewise-constant prolongation is a poor interpolant of the smooth
+# error (cell-centred multigrid's known weak spot): the correction it brings back is about half too
+# small. Doubling it (a scalar, so the V-cycle stays symmetric and positive definite) cut the CG
+# iterations to 1e-5 from 24 to 4 (2D, 128 x 256, open top and a collider) and from 12 to 4 (64^3
+# closed box); 1.5 and 2.5 gave 9 and 8.
+PROLONG_SCALE = 2.0
 
 # slots of the scalar field
 RZ, PAP, RMAX, RNORM2, BNORM2, BSUM, DT, ALPHA, BETA, RZ_NEW = range(10)
@@ -352,7 +358,7 @@ class Projection:
             @ti.func
             def prolong(I):
                 if D[I] > 0:
-                    q[I] += qc[I >> 1]
+                    q[I] += PROLONG_SCALE * qc[I >> 1]
 
             @ti.kernel
             def pre():
