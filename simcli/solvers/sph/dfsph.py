@@ -44,7 +44,7 @@ def make_dfsph(S):
     f, dim = S.f, S.dim
     rho, p, mid, v, vnew = S.rho, S.p, S.mid, S.v, S.vnew
     nb_cnt, nb_j, nb_g, B, Sb, nbb_cnt = S.nb_cnt, S.nb_j, S.nb_g, S.B, S.Sb, S.nbb_cnt
-    alpha, kk, kacc, kappa, kappav, sres = S.alpha, S.kk, S.kacc, S.kappa, S.kappav, S.sres
+    alpha, kk, kacc, kappa, kappav = S.alpha, S.kk, S.kacc, S.kappa, S.kappav
     mat_rho0 = S.mat_rho0
     err_acc = S.err_acc
     clamp = S.opts.clamp_pressure
@@ -78,7 +78,6 @@ def make_dfsph(S):
         err = s
         if ti.static(clamp):
             err = ti.max(s, 0.0)
-        sres[i] = err
         ti.atomic_add(err_acc[None], ti.cast(ti.abs(err) * FIXED, ti.i64))
         ki = RELAX * s * alpha[i] / (dt * dt)
         if ti.static(clamp):

@@ -125,7 +125,6 @@ class SPHSolver(Solver):
         self.alpha = scal() if dfsph else None
         self.kk = scal() if dfsph else None
         self.kacc = scal() if dfsph else None
-        self.sres = scal() if dfsph else None
         self.kappa = scal() if dfsph else None
         self.kappav = scal() if dfsph else None
         self.err_acc = ti.field(ti.i64, shape=())
