@@ -65,12 +65,14 @@ def test_taichi_kernels_match_numpy(ti_f32, dim):
     from simcli.solvers.sph.kernels import make_kernels
 
     h = 0.04
-    W, gradW, _ = make_kernels(h, dim, ti.f32)
+    W, gradW, _, W_gradW = make_kernels(h, dim, ti.f32)
     rng = np.random.default_rng(2)
     pts = rng.uniform(-1.1 * h, 1.1 * h, size=(500, dim)).astype(np.float32)
     xs = ti.Vector.field(dim, ti.f32, shape=len(pts))
     ws = ti.field(ti.f32, shape=len(pts))
     gs = ti.Vector.field(dim, ti.f32, shape=len(pts))
+    ws2 = ti.field(ti.f32, shape=len(pts))
+    gs2 = ti.Vector.field(dim, ti.f32, shape=len(pts))
     xs.from_numpy(pts)
 
     @ti.kernel
@@ -79,6 +81,9 @@ def test_taichi_kernels_match_numpy(ti_f32, dim):
             r = xs[i].norm()
             ws[i] = W(r)
             gs[i] = gradW(xs[i], r)
+            w, g = W_gradW(xs[i], r)
+            ws2[i] = w
+            gs2[i] = g
 
     run()
     p64 = pts.astype(np.float64)
@@ -86,6 +91,7 @@ def test_taichi_kernels_match_numpy(ti_f32, dim):
     assert np.allclose(ws.to_numpy(), w_ref, rtol=1e-4, atol=1e-5 * w_ref.max())
     g_ref = cubic_gradW(p64, h, dim)
     assert np.allclose(gs.to_numpy(), g_ref, rtol=1e-4, atol=1e-5 * np.abs(g_ref).max())
+    assert np.allclose(ws2.to_numpy(), ws.to_numpy(), rtol=1e-6) and np.allclose(gs2.to_numpy(), gs.to_numpy(), rtol=1e-6)
 
 
 @pytest.mark.parametrize("dim", [2, 3])

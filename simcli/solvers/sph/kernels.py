@@ -41,8 +41,8 @@ def cubic_gradW(x: np.ndarray, h: float, dim: int) -> np.ndarray:
 
 
 def make_kernels(h: float, dim: int, f):
-    """Taichi funcs ``W(r)``, ``gradW(x, r)`` (r = |x| given, to share the square root) and the cohesion
-    kernel ``C(r)``, with h, dim and the float type ``f`` compiled in."""
+    """Taichi funcs ``W(r)``, ``gradW(x, r)`` (r = |x| given, to share the square root), the cohesion
+    kernel ``C(r)`` and ``W_gradW(x, r)`` (both at once), with h, dim and the float type ``f`` compiled in."""
     from simcli.backend import stdout_to_stderr
 
     with stdout_to_stderr():
@@ -80,6 +80,25 @@ def make_kernels(h: float, dim: int, f):
         return g
 
     @ti.func
+    def W_gradW(x, r):
+        """W(r) and grad W(x) together (one q, one branch: the neighbour pass needs both)."""
+        q = r * inv_h
+        w = ti.cast(0.0, f)
+        g = ti.Vector.zero(f, dim)
+        if q <= 1.0:
+            dw = 0.0
+            if q <= 0.5:
+                w = k * (6.0 * q * q * (q - 1.0) + 1.0)
+                dw = 6.0 * k * q * (3.0 * q - 2.0)
+            else:
+                t = 1.0 - q
+                w = 2.0 * k * t * t * t
+                dw = -6.0 * k * t * t
+            if r > 1e-9 * h:
+                g = x * (dw * inv_h / r)
+        return w, g
+
+    @ti.func
     def C(r):
         res = ti.cast(0.0, f)
         if r < h and r > 0:
@@ -91,4 +110,4 @@ def make_kernels(h: float, dim: int, f):
                 res = c_coh * (2.0 * a3 - h6_64)
         return res
 
-    return W, gradW, C
+    return W, gradW, C, W_gradW

@@ -82,7 +82,9 @@ class SPHSolver(Solver):
         self.has_tension = any(m.gamma > 0 for m in self.materials)
         self.frame_time = float(scene.sim.dt) * int(scene.output.every)
         self.g_norm = float(np.linalg.norm(scene.sim.gravity_vec))
-        self.fall_height = float(np.linalg.norm(self.domain_hi - self.domain_lo))  # longest drop in the domain
+        self.fall_height = float(
+            np.linalg.norm(self.domain_hi - self.domain_lo)
+        )  # longest drop in the domain
         self.dfsph_stats = SolveStats()
         self._built = False
 
@@ -279,7 +281,7 @@ class SPHSolver(Solver):
         h = self.support
         h2 = h * h
         eps_visc = 0.01 * h2
-        W, gradW, Ckern = make_kernels(h, dim, f)
+        _, _, Ckern, W_gradW = make_kernels(h, dim, f)
         W0 = kernel_constant(h, dim)  # W(0)
         x, v, mass, mid, rho = self.x, self.v, self.mass, self.mid, self.rho
         nb_cnt, nbb_cnt, nb_j, nb_g, B, Sb = self.nb_cnt, self.nbb_cnt, self.nb_j, self.nb_g, self.B, self.Sb
@@ -350,8 +352,8 @@ class SPHSolver(Solver):
                     r2 = d.dot(d)
                     if r2 < h2 and j != i:
                         r = ti.sqrt(r2)
-                        g = gradW(d, r)
-                        r_i += mass_of(j) * W(r)
+                        w, g = W_gradW(d, r)
+                        r_i += mass_of(j) * w
                         Vg = volume_of(j) * g
                         G += Vg
                         sumsq += Vg.dot(Vg)
@@ -381,8 +383,8 @@ class SPHSolver(Solver):
                             if r2 < h2:
                                 r = ti.sqrt(r2)
                                 Vb = bV[b]
-                                g = gradW(d, r)
-                                r_i += rho0_i * Vb * W(r)
+                                w, g = W_gradW(d, r)
+                                r_i += rho0_i * Vb * w
                                 Bi += Vb * g
                                 Si += Vb * bvel[b].dot(g)
                                 cntb += 1
@@ -564,7 +566,9 @@ class SPHSolver(Solver):
         if not math.isfinite(vmax):
             return self.opts.max_substep
         # gravity cannot add more than one frame's g t, nor more than a free fall across the domain
-        v_est = min(vmax + self.g_norm * self.frame_time, math.sqrt(vmax**2 + 2.0 * self.g_norm * self.fall_height))
+        v_est = min(
+            vmax + self.g_norm * self.frame_time, math.sqrt(vmax**2 + 2.0 * self.g_norm * self.fall_height)
+        )
         c = 0.0
         if self.opts.pressure_solver == "WCSPH":
             # Tait's sound speed at the largest compression: c0 (rho / rho0)^((n - 1) / 2) (overlapping
