@@ -51,7 +51,8 @@ def make_foreach(rng: list):
     * ``foreach_sum_max(body, out, s, m, src, k)``: body(I, c) returns (value to sum, value to max);
       ``c = src[k]`` is read once per row (a CG step length: read in the inner loop it is reloaded
       every iteration, since the loop's stores might alias it);
-    * ``foreach_scaled(body, src, k)``: body(I, src[k]).
+    * ``foreach_scaled(body, src, k)``: body(I, src[k]);
+    * ``foreach_sum_scaled(body, out, slot, src, k)``: both.
     """
     lo = [r[0] for r in rng]
     hi = [r[1] for r in rng]
@@ -104,7 +105,17 @@ def make_foreach(rng: list):
             for k in range(inner[0], inner[1]):
                 body(index(i, j, k), c)
 
-    return foreach, foreach_sum, foreach_sum_max, foreach_scaled
+    @ti.func
+    def foreach_sum_scaled(body: ti.template(), out: ti.template(), slot: ti.template(), src: ti.template(),
+                           key: ti.template()):
+        for i, j in ti.ndrange(*rows):
+            c = src[key]
+            acc = ti.cast(0.0, ti.f64)
+            for k in range(inner[0], inner[1]):
+                acc += body(index(i, j, k), c)
+            out[slot] += acc
+
+    return foreach, foreach_sum, foreach_sum_max, foreach_scaled, foreach_sum_scaled
 
 
 def make_foreach_color(n: tuple):

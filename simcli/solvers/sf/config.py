@@ -305,5 +305,10 @@ def estimate_bytes(opts: SFOptions, mat: SFSmoke | None, n: list[int], precision
         per_face += dim * 5  # diagonal, boundary values, CG r, p, Ap per component
     if mat is not None and mat.vorticity_confinement > 0:
         per_cell += (3 if dim == 3 else 1) + dim
-    # + the face kinds and cell flags (one byte each) and a host copy of one output field per frame
-    return int(per_face * faces * fp + per_cell * cells * fp + (dim + 1) * faces + dim * cells * 8)
+    # MGPCG keeps phi in f64
+    per_cell += (8 // fp - 1) if opts.pressure_solver == "mgpcg" else 0
+    device = per_face * faces * fp + per_cell * cells * fp + (dim + 1) * faces  # + face kinds, cell flags (u8)
+    # host: the build's float64 layout arrays, or a frame's output copies (velocity, pressure, scalars and
+    # divergence in float64 plus their float32 copies), whichever is larger; and Taichi's runtime
+    host = max(3 * dim, 2 * dim + 6) * cells * 8 + (256 << 20)
+    return int(device + host)

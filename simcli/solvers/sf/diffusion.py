@@ -44,7 +44,7 @@ class Diffusion:
         ops = [viscosity_operator(layout, d) for d in range(dim)]
         self.K.from_numpy(np.stack([o[0] for o in ops]).astype(npf))
         self.B.from_numpy(np.stack([o[1] for o in ops]).astype(npf))
-        self.sc = ti.field(ti.f64, shape=4)  # rr, pAp, bb, rr_new
+        self.sc = ti.field(ti.f64, shape=8)  # rr, pAp, bb, rr_new, nu dt, alpha, beta, max |r|
         self._make()
 
     def _make(self) -> None:
@@ -52,7 +52,8 @@ class Diffusion:
         dim, n, periodic = L.dim, L.n, L.periodic
         vel, K, B, r, p, Ap, sc = self.vel, self.K, self.B, self.r, self.p, self.Ap, self.sc
         c = [1.0 / h**2 for h in L.dx]
-        at, split, faces_all = bc.at, bc.split, bc.faces_all
+        at = bc.at
+        loops = bc.face_loops  # per component: (foreach, sum, sum_max, scaled, sum_scaled)
 
         @ti.func
         def nb(I, a: ti.template(), s: ti.template()):
@@ -68,7 +69,7 @@ class Diffusion:
             return J
 
         @ti.func
-        def offdiag(q: ti.template(), d, I, masked: ti.template()):
+        def offdiag(q: ti.template(), d: ti.template(), I, masked: ti.template()):
             s = ti.cast(0.0, f)
             for a in ti.static(range(dim)):
                 for t in ti.static((1, -1)):
@@ -80,54 +81,92 @@ class Diffusion:
                         s += c[a] * q[J]
             return s
 
-        @ti.kernel
-        def start(nudt: f):
-            sc[0] = 0.0
-            sc[2] = 0.0
-            for J in ti.grouped(ti.ndrange(*faces_all)):
+        # slots of sc: 0 rr, 1 pAp, 2 bb, 3 rr_new, 4 nu dt, 5 alpha, 6 beta
+        def bodies(d):
+            @ti.func
+            def start(I, nudt64):
+                nudt = ti.cast(nudt64, f)
+                J = at(d, I)
                 k = K[J]
                 ri = ti.cast(0.0, f)
                 if k >= 0:
-                    d, I = split(J)
-                    u = vel[J]
-                    sc[2] += ti.cast(u + nudt * B[J], ti.f64) ** 2
-                    ri = nudt * (B[J] - k * u + offdiag(vel, d, I, True))
+                    ri = nudt * (B[J] - k * vel[J] + offdiag(vel, d, I, True))
                 r[J] = ri
                 p[J] = ri
-                sc[0] += ti.cast(ri, ti.f64) ** 2
+                return ti.cast(ri, ti.f64) ** 2
 
-        @ti.kernel
-        def apply(nudt: f):
-            sc[1] = 0.0
-            for J in ti.grouped(ti.ndrange(*faces_all)):
+            @ti.func
+            def rhs(I, nudt64):
+                J = at(d, I)
+                v = ti.cast(0.0, ti.f64)
+                if K[J] >= 0:
+                    v = ti.cast(vel[J] + ti.cast(nudt64, f) * B[J], ti.f64) ** 2
+                return v
+
+            @ti.func
+            def apply(I, nudt64):
+                nudt = ti.cast(nudt64, f)
+                J = at(d, I)
                 k = K[J]
                 a = ti.cast(0.0, f)
                 if k >= 0:
-                    d, I = split(J)
                     a = (1.0 + nudt * k) * p[J] - nudt * offdiag(p, d, I, False)
                 Ap[J] = a
-                sc[1] += ti.cast(p[J], ti.f64) * a
+                return ti.cast(p[J], ti.f64) * a
+
+            @ti.func
+            def update(I, alpha64):
+                alpha = ti.cast(alpha64, f)
+                J = at(d, I)
+                ri = r[J]
+                if K[J] >= 0:
+                    vel[J] += alpha * p[J]
+                    ri -= alpha * Ap[J]
+                    r[J] = ri
+                r64 = ti.cast(ri, ti.f64)
+                return r64 * r64, ti.abs(r64)
+
+            @ti.func
+            def direction(I, beta64):
+                J = at(d, I)
+                p[J] = r[J] + ti.cast(beta64, f) * p[J]
+
+            return start, rhs, apply, update, direction
+
+        B_ = [bodies(d) for d in range(dim)]
+
+        @ti.kernel
+        def start(nudt: f):
+            sc[4] = nudt
+            sc[0] = 0.0
+            sc[2] = 0.0
+            for d in ti.static(range(dim)):
+                loops[d][4](B_[d][0], sc, 0, sc, 4)
+                loops[d][4](B_[d][1], sc, 2, sc, 4)
+
+        @ti.kernel
+        def apply():
+            sc[1] = 0.0
+            for d in ti.static(range(dim)):
+                loops[d][4](B_[d][2], sc, 1, sc, 4)
 
         @ti.kernel
         def update():
-            alpha = ti.cast(0.0, f)
+            sc[5] = 0.0
             if sc[1] > 0:
-                alpha = ti.cast(sc[0] / sc[1], f)
+                sc[5] = sc[0] / sc[1]
             sc[3] = 0.0
-            for J in ti.grouped(ti.ndrange(*faces_all)):
-                if K[J] >= 0:
-                    vel[J] += alpha * p[J]
-                    ri = r[J] - alpha * Ap[J]
-                    r[J] = ri
-                    sc[3] += ti.cast(ri, ti.f64) ** 2
+            sc[7] = 0.0
+            for d in ti.static(range(dim)):
+                loops[d][2](B_[d][3], sc, 3, 7, sc, 5)
 
         @ti.kernel
         def direction():
-            beta = ti.cast(0.0, f)
+            sc[6] = 0.0
             if sc[0] > 0:
-                beta = ti.cast(sc[3] / sc[0], f)
-            for J in ti.grouped(ti.ndrange(*faces_all)):
-                p[J] = r[J] + beta * p[J]
+                sc[6] = sc[3] / sc[0]
+            for d in ti.static(range(dim)):
+                loops[d][3](B_[d][4], sc, 6)
             sc[0] = sc[3]
 
         @ti.kernel
@@ -145,7 +184,7 @@ class Diffusion:
         rel = math.sqrt(float(s[0]) / bb)
         its = 0
         while rel > self.tol and its < self.maxit:
-            self._apply(nudt)
+            self._apply()
             self._update()
             its += 1
             s = self.sc.to_numpy()

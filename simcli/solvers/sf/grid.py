@@ -113,6 +113,8 @@ def make_layout(scene, opts) -> Layout:
 
 def collider_mask(scene, layout: Layout) -> np.ndarray:
     """Cells whose centre lies inside a collider (shape n)."""
+    if not scene.colliders:
+        return np.zeros(layout.n, dtype=bool)
     x = np.stack([c.ravel() for c in layout.cell_centres()], axis=1)
     solid = np.zeros(len(x), dtype=bool)
     for c in scene.colliders:

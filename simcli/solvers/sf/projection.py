@@ -51,6 +51,7 @@ JACOBI_WEIGHT = 0.8
 # iterations to 1e-5 from 24 to 4 (2D, 128 x 256, open top and a collider) and from 12 to 4 (64^3
 # closed box); 1.5 and 2.5 gave 9 and 8.
 PROLONG_SCALE = 2.0
+MAX_RESTARTS = 3  # CG restarts from the true residual before a solve is reported unconverged
 
 # slots of the scalar field
 RZ, PAP, RMAX, RNORM2, BNORM2, BSUM, DT, ALPHA, BETA, RZ_NEW = range(10)
@@ -71,7 +72,11 @@ class Projection:
 
         self.levels = layout.levels if self.kind == "mgpcg" else layout.levels[:1]
         self.D = [cfield(tuple(c + 2 for c in lv.n)) for lv in self.levels]
-        self.x = cfield()  # phi
+        # phi. MGPCG keeps it in f64 whatever the precision: an f32 phi of size |phi| can only make the
+        # residual as small as about 6 ulp(|phi|) / dx^2 (a max |div| dt ~ 3e-5 at 256^3), a floor no solver
+        # gets under; with an f64 phi the floor is the f32 velocity's own rounding (~10x lower).
+        self.xf = ti.f64 if self.kind == "mgpcg" else f
+        self.x = ti.field(self.xf, shape=cell, offset=off)
         self.b = cfield()
         self.sc = ti.field(ti.f64, shape=10)
         if self.kind == "mgpcg":
@@ -85,6 +90,12 @@ class Projection:
             arr = np.zeros(tuple(c + 2 for c in lv.n), dtype=self.npf)
             arr[(slice(1, -1),) * dim] = lv.diag
             D.from_numpy(arr)
+        # the fine operator in difference form (see make_ops): E = D - 2 sum_a c_a, 0 inside the fluid
+        lv0 = self.levels[0]
+        self.E = cfield()
+        arr = np.zeros(cell, dtype=self.npf)
+        arr[(slice(1, -1),) * dim] = np.where(lv0.diag > 0, lv0.diag - 2.0 * sum(lv0.c), 0.0)
+        self.E.from_numpy(arr)
         self.n_fluid = int(np.count_nonzero(self.levels[0].diag > 0))
         self.singular = not layout.has_open
         self._make()
@@ -96,6 +107,7 @@ class Projection:
         dim, periodic = L.dim, L.periodic
         vel, pressure, x, b, sc = self.vel, self.pressure, self.x, self.b, self.sc
         dx = [float(h) for h in L.dx]
+        xf = self.xf
         singular = self.singular
         inv_fluid = 1.0 / max(1, self.n_fluid)
         kinds, at = bc.kinds, bc.at
@@ -103,7 +115,7 @@ class Projection:
 
         def make_ops(lv, D):
             n, c = lv.n, [float(v) for v in lv.c]
-            foreach, foreach_sum, foreach_sum_max, foreach_scaled = make_foreach([(0, k) for k in n])
+            foreach, foreach_sum, foreach_sum_max, foreach_scaled, _ = make_foreach([(0, k) for k in n])
             foreach_color = make_foreach_color(n)
 
             @ti.func
@@ -148,7 +160,21 @@ class Projection:
 
         ops = [make_ops(lv, D) for lv, D in zip(self.levels, self.D)]
         o0 = ops[0]
-        D0, offdiag0, apply0 = o0["D"], o0["offdiag"], o0["apply"]
+        D0, offdiag0, nb0 = o0["D"], o0["offdiag"], o0["nb"]
+        E0 = self.E
+        c0 = [float(v) for v in self.levels[0].c]
+
+        @ti.func
+        def apply0(q: ti.template(), I):
+            """M q on the fine grid in difference form, sum_a c_a ((q_I - q_I+) + (q_I - q_I-)) + E_I q_I:
+            the same matrix as D q - sum c q_nb, but without cancelling two terms of size D q. In f32 that
+            cancellation put a floor under the true residual (max |div| dt ~ 3e-5 at 256^3) that CG's
+            updated residual does not see."""
+            qi = q[I]
+            s = E0[I] * qi
+            for a in ti.static(range(dim)):
+                s += c0[a] * ((qi - q[nb0(I, a, 1)]) + (qi - q[nb0(I, a, -1)]))
+            return s
         foreach0, sum0, summax0, scaled0 = o0["foreach"], o0["foreach_sum"], o0["foreach_sum_max"], o0["foreach_scaled"]
 
         @ti.func
@@ -164,10 +190,10 @@ class Projection:
         def rhs_cell(I):
             """b = -div u* on a fluid cell; warm start x = p dt / rho (dt in sc[DT])."""
             bi = ti.cast(0.0, f)
-            xi = ti.cast(0.0, f)
+            xi = ti.cast(0.0, xf)
             if D0[I] > 0:
                 bi = -divergence(I)
-                xi = pressure[I] * ti.cast(sc[DT], f)
+                xi = ti.cast(pressure[I], xf) * ti.cast(sc[DT], xf)
             b[I] = bi
             x[I] = xi
             return ti.cast(bi, ti.f64)
@@ -197,7 +223,7 @@ class Projection:
             def body(I, _c):
                 r = ti.cast(0.0, f)
                 if D0[I] > 0:
-                    r = b[I] - apply0(q, I)
+                    r = ti.cast(b[I] - apply0(q, I), f)
                 r64 = ti.cast(r, ti.f64)
                 return r64 * r64, ti.abs(r64)
 
@@ -216,7 +242,7 @@ class Projection:
                     if ti.static(periodic[d]):  # noqa: SIM102 - a compile-time branch around a run-time one
                         if Lc[d] < 0:
                             Lc[d] = n0[d] - 1
-                    vel[J] -= ti.select(k == FREE, 1.0, 2.0) * (x[I] - x[Lc]) * inv_dx
+                    vel[J] -= ti.cast(ti.select(k == FREE, 1.0, 2.0) * (x[I] - x[Lc]) * inv_dx, f)
 
             return body
 
@@ -224,7 +250,7 @@ class Projection:
 
         @ti.func
         def store_pressure(I):
-            pressure[I] = x[I] / ti.cast(sc[DT], f)
+            pressure[I] = ti.cast(x[I] / ti.cast(sc[DT], xf), f)
 
         @ti.kernel
         def finish():
@@ -288,7 +314,7 @@ class Projection:
         def store_r(I, _c):
             ri = ti.cast(0.0, f)
             if D0[I] > 0:
-                ri = b[I] - apply0(x, I)
+                ri = ti.cast(b[I] - apply0(x, I), f)
             r[I] = ri
             r64 = ti.cast(ri, ti.f64)
             return r64 * r64, ti.abs(r64)
@@ -405,7 +431,7 @@ class Projection:
         @ti.func
         def update_body(I, a64):
             alpha = ti.cast(a64, f)
-            x[I] += alpha * p[I]
+            x[I] += ti.cast(a64, xf) * p[I]
             ri = r[I] - alpha * Ap[I]
             r[I] = ri
             r64 = ti.cast(ri, ti.f64)
@@ -479,6 +505,10 @@ class Projection:
         tol, rtol = float(self.opts.tolerance), float(self.opts.relative_tolerance)
         return (tol > 0 and rmax * dt <= tol) or (rtol > 0 and rel <= rtol)
 
+    def converged(self, dt: float) -> bool:
+        """Whether the last solve (over dt) met its stopping test."""
+        return self._done(dt)
+
     @property
     def _checking(self) -> bool:
         return self.opts.tolerance > 0 or self.opts.relative_tolerance > 0
@@ -515,9 +545,11 @@ class Projection:
         self.cg_prepare(dt)
         self._last = self._read()
         its = 0
-        while not self._done(dt) and its < maxit:
+        starts = 0
+        while not self._done(dt) and its < maxit and starts <= MAX_RESTARTS:
             self.precondition()  # (re)start from the true residual in r
             self.cg_first()
+            starts += 1
             while its < maxit:
                 self.cg_apply()
                 self.cg_update()
@@ -527,7 +559,8 @@ class Projection:
                     break
                 self.precondition()
                 self.cg_direction()
-            # in f32 the updated residual drifts from b - M x: confirm with the true one (restart if not)
+            # in f32 the updated residual drifts from b - M x: confirm with the true one (restart if not;
+            # a tolerance below what f32 resolves ends after MAX_RESTARTS, reported as unconverged)
             self.cg_residual()
             self._last = self._read()
         return its

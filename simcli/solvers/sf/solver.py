@@ -68,7 +68,7 @@ class SFSolver(Solver):
         self.layout = make_layout(scene, self.opts)
         self.time = 0.0
         self.hist: dict[str, list] = {"iterations": [], "residual": [], "relative_residual": [],
-                                      "viscosity_iterations": []}
+                                      "viscosity_iterations": [], "converged": []}
         self.substeps = 0
         self._built = False
 
@@ -119,10 +119,11 @@ class SFSolver(Solver):
         dim = self.dim
         from simcli.geometry.regions import points_in_shape
 
-        cells = L.cell_centres()
         inside = np.ones(L.n, dtype=bool)
         if e.morph is not None:
+            cells = L.cell_centres()
             inside = points_in_shape(e.morph, np.stack([c.ravel() for c in cells], axis=1)).reshape(L.n)
+            del cells
         dens = np.where(inside, m.initial_density if e.morph is not None else 0.0, 0.0)
         t_in = m.initial_temperature if m.initial_temperature is not None else m.ambient_temperature
         temp = np.where(inside, t_in, m.ambient_temperature)
@@ -133,8 +134,11 @@ class SFSolver(Solver):
         moving = False
         vel = np.zeros((dim,) + tuple(c + 3 for c in L.n), dtype=self.npf)
         for d in range(dim):
+            shape = tuple(L.n[a] + (1 if a == d else 0) for a in range(dim))
+            if (e.velocity is None or e.velocity[d] == 0) and e.velocity_field is None:
+                continue  # nothing to set: skip the float64 face coordinates (400 MB at 256^3)
             xf = L.face_centres(d)
-            u = np.zeros(xf[0].shape)
+            u = np.zeros(shape)
             if e.velocity is not None and e.velocity[d] != 0:
                 mask = np.ones(u.shape, dtype=bool)
                 if e.morph is not None:
@@ -226,7 +230,7 @@ class SFSolver(Solver):
             h["residual"].append(res)
             h["relative_residual"].append(rel)
             h["viscosity_iterations"].append(vits)
-        self.max_residual = max(getattr(self, "max_residual", 0.0), res)
+            h["converged"].append(self.projection.converged(dt / 2 if self.opts.reflection else dt))
         self.time += dt
         self.substeps += 1
         self._version += 1
@@ -415,6 +419,8 @@ class SFSolver(Solver):
             "advection": self.opts.advection,
             "pressure_solver": self.opts.pressure_solver,
             "tolerance": self.opts.tolerance,
+            "relative_tolerance": self.opts.relative_tolerance,
+            "reflection": self.opts.reflection,
             "multigrid_levels": [list(lv.n) for lv in self.projection.levels] if self._built else [],
             "viscosity": self.mat.viscosity,
             "substeps": self.substeps,
@@ -423,8 +429,8 @@ class SFSolver(Solver):
             d.update(iterations_mean=float(np.mean(its)), iterations_max=int(np.max(its)),
                      residual_max=float(np.max(h["residual"])),
                      relative_residual_max=float(np.max(h["relative_residual"])),
-                     steps_above_tolerance=int(np.sum(np.asarray(h["residual"]) > self.opts.tolerance))
-                     if self.opts.tolerance > 0 else None)
+                     steps_above_tolerance=(len(h["converged"]) - int(np.sum(h["converged"]))
+                                            if self.projection._checking else None))
             if self.diffusion is not None:
                 d["viscosity_iterations_mean"] = float(np.mean(h["viscosity_iterations"]))
         d["per_substep"] = {"iterations": list(map(int, its)),
