@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
+from simcli.errors import SceneError
 from simcli.solvers.mpm.constitutive import ConstitutiveLaw, CorotatedLaw, NeoHookeanLaw, _np_dtype, law_key
 
 with stdout_to_stderr():
@@ -140,14 +141,16 @@ class _MuscleHost:
                 continue
             default = m.fiber_direction if m.fiber_direction is not None else [0.0] * (dim - 1) + [1.0]
             if len(default) != dim:
-                raise ValueError(f"entity {b.name!r}: MPM.Muscle fiber_direction needs {dim} components")
+                raise SceneError([f"entity '{b.name}': material.fiber_direction: needs {dim} components "
+                                  f"for dim {dim} (got {len(default)})"])
             taken = np.zeros(b.n, bool)
             gb = np.full(b.n, -1, np.int32)
             fb = np.zeros((b.n, dim))
             for j, grp in enumerate(m.group_list()):
                 d = np.asarray(grp.fiber_direction if grp.fiber_direction is not None else default, np.float64)
                 if d.shape != (dim,):
-                    raise ValueError(f"entity {b.name!r}: muscle group {j} fiber_direction needs {dim} components")
+                    raise SceneError([f"entity '{b.name}': material.groups.{j}.fiber_direction: needs {dim} "
+                                      f"components for dim {dim} (got {d.size})"])
                 regions = grp.regions
                 sel = ~taken & (points_in_regions(regions, b.x) if regions else True)
                 gb[sel] = self.group_offset[k] + j
