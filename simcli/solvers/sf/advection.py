@@ -9,8 +9,10 @@
 
 Everything runs in grid coordinates X = (x - origin) / dx (cells, per axis). Every velocity
 component and the cell scalars are advected by the velocity at the start of the stage (the
-copies are written to scratch fields and copied back at the end), so the whole stage is one
-kernel launch. RK3 is Ralston's third-order scheme (as in Genesis's smoke demo).
+copies are written to scratch fields and copied back at the end): two kernel launches, one for
+the node velocities the back-traces interpolate, one for every pass. RK3 is Ralston's third-order
+scheme (as in Genesis's smoke demo); its first stage takes the velocity from the faces around the
+point.
 """
 
 

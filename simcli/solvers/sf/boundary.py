@@ -139,17 +139,12 @@ def make_foreach_color(n: tuple):
 
 
 class Boundary:
-    def __init__(self, layout: Layout, f, kinds, wall_vel) -> None:
+    def __init__(self, layout: Layout, kinds, wall_vel) -> None:
         self.layout = layout
-        self.f = f
         self.kinds = kinds  # u8 face kinds, shape (dim, n + 3)
         self.wall_vel = wall_vel  # ti.Vector.field(dim, f, shape=(dim, 2))
         self.at = make_at(layout.dim)
-        n = layout.n
-        # all faces of all components: (component, I) with I_a in 0..n_a (a face beyond n_a - 1 along a
-        # tangential axis is skipped with `valid_face`)
-        self.faces_all = [(0, layout.dim)] + [(0, c + 1) for c in n]
-        self.cells = [(0, c) for c in n]
+        self.cells = [(0, c) for c in layout.n]
         # loops over the faces of one component (nested, contiguous inner axis) and over the cells
         self.face_loops = [make_foreach(self.face_range(d)) for d in range(layout.dim)]
         self.cell_loops = make_foreach(self.cells)
@@ -186,22 +181,6 @@ class Boundary:
             r = self.cell_range(ghosts=True)
             r[a] = (0, 1)
             cell_rng.append(r)
-
-        @ti.func
-        def split(J):
-            """(component, grid index) of a combined loop index."""
-            I = ti.Vector.zero(ti.i32, dim)
-            for a in ti.static(range(dim)):
-                I[a] = J[a + 1]
-            return J[0], I
-
-        @ti.func
-        def valid_face(d, I):
-            ok = True
-            for a in ti.static(range(dim)):
-                if a != d and I[a] >= n[a]:
-                    ok = False
-            return ok
 
         @ti.func
         def fixed_value(d, I, current):
@@ -287,7 +266,6 @@ class Boundary:
                         for k in range(nk):
                             q[at(k, G)] = q[at(k, src)]
 
-        self.split, self.valid_face = split, valid_face
         self.each_face, self.per_component = each_face, per_component
         self.fixed_value = fixed_value
         self.set_fixed = set_fixed

@@ -97,7 +97,7 @@ class SFSolver(Solver):
         self.wall_vel.from_numpy(L.wall_velocity.astype(self.npf))
         self.stats = ti.field(ti.f64, shape=2)  # max speed, non-finite count
 
-        self.bc = Boundary(L, f, self.kinds, self.wall_vel)
+        self.bc = Boundary(L, self.kinds, self.wall_vel)
         self.sources = Sources(L, f, self.bc, self.vel, self.scalars, self.flags, self.entity.jets, self.mat,
                                self.scene.sim.gravity_vec)
         self.advector = Advector(L, f, self.bc, self.vel, self.scalars, 2, self.opts.advection)
