@@ -219,7 +219,15 @@ output: out/study
     def all_done():
         r = _sim(["sweep", "status", str(sweep), "--json"], env, tmp_path)
         states = json.loads(r.stdout) if r.returncode == 0 else []
-        return states if states and all(s["state"] == "done" for s in states) else None
+        if not states or not all(s["state"] == "done" for s in states):
+            return None
+        # run.json says done as soon as the simulation exits; the `sweep run` wrapper records the
+        # attempt's end a moment later: wait for that too before reading the records
+        for x in runs:
+            rec = _read(out / x["name"] / "sweep_task.json") or {}
+            if not rec.get("attempts") or "exit_code" not in rec["attempts"][-1]:
+                return None
+        return states
 
     try:
         states = _wait(all_done, 180, "every task to finish", every=2)
