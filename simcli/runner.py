@@ -216,15 +216,17 @@ class Runner:
 
         # ---- set-up: sample bodies (no taichi yet)
         t0 = time.perf_counter()
-        from simcli.geometry.sampling import sample_scene
+        from simcli.geometry.sampling import family_spacing, sample_scene
 
         bodies = sample_scene(scene, self.loaded.scene_dir, sim.seed)
         for b in bodies:
             for w in getattr(b, "warnings", []) or []:
                 self.warn(f"{b.name}: {w}")
             if len(b.x) == 0:
-                raise SimcliError(f"entity '{b.name}' got no particles: its morph is thinner than "
-                                  f"solvers.mpm.particle_size; lower particle_size")
+                fam = b.entity.family
+                opt = "solvers.sph.particle_size" if fam == "SPH" else "solvers.mpm.spacing"
+                raise SimcliError(f"entity '{b.name}' got no particles: its morph is thinner than the "
+                                  f"{fam} particle spacing {opt} = {family_spacing(scene, fam):g} m; lower it")
         self.timings["setup_s"] = time.perf_counter() - t0
 
         # ---- taichi and the solver
@@ -435,8 +437,13 @@ class Runner:
                 subs = sim.substeps if sim.substeps != "auto" else "auto"
                 what = (f"{st.n_bad} particle(s) with NaN/Inf" if not st.finite
                         else f"a particle speed of {st.max_speed:.3g} m/s (it crosses {cfl:.1f} cells per substep)")
-                advice = (f"lower sim.dt (now {sim.dt:g} s), raise sim.substeps (now {subs}) or use substeps: auto, "
-                          f"or lower the stiffness E of '{name}'")
+                if s.family == "sph":
+                    advice = (f"use substeps: auto (now {subs}; it follows the CFL, sound-speed and viscous limits), "
+                              f"or lower sim.dt (now {sim.dt:g} s), the stiffness of '{name}' or "
+                              f"solvers.sph.particle_size (now {dx:g} m)")
+                else:
+                    advice = (f"lower sim.dt (now {sim.dt:g} s), raise sim.substeps (now {subs}) or use substeps: "
+                              f"auto, or lower the stiffness E of '{name}'")
                 if isinstance(subs, int) and math.isfinite(cfl) and cfl > 0:
                     advice += f"; substeps >= {int(math.ceil(subs * cfl / 0.5))} would keep the CFL number below 0.5"
                 raise NumericalError(f"numerical failure in entity '{name}' before frame {frame} (step {step}, "
