@@ -109,6 +109,16 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         mpath = base + ("morph",)
         if m is None:  # only SF entities may omit it (models.py)
             continue
+        if m.type in ("Rectangle", "Line") and e.family != "PBD":
+            err(mpath + ("type",), f"{m.type} morphs are for PBD entities (cloth, rods); {e.material.type} "
+                "entities take Box, Sphere, Cylinder or Mesh")
+            continue
+        if e.family == "PBD":  # sheets, polylines and open meshes: the PBD family checks its own morphs
+            from simcli.solvers.pbd.config import check_entity
+
+            for p, msg in check_entity(e, dim, loaded.scene_dir, lo if ok_dom else None, hi):
+                err(base + p, msg)
+            continue
         if e.family == "SF" and m.type == "Mesh":
             err(mpath + ("type",), "SF.Smoke morphs are Box, Sphere or Cylinder (Mesh is not available)")
             continue

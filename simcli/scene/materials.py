@@ -17,9 +17,10 @@ from simcli.solvers.mpm.config import MATERIALS as _MPM
 from simcli.solvers.sph.config import MATERIALS as _SPH
 from simcli.solvers.sf.config import MATERIALS as _SF
 from simcli.solvers.fem.config import MATERIALS as _FEM
+from simcli.solvers.pbd.config import MATERIALS as _PBD
 
 # Registry: every material type a solver family implements, from each family's config module.
-MATERIAL_TYPES: tuple[type[_Material], ...] = (*_MPM, *_SPH, *_FEM, *_SF)
+MATERIAL_TYPES: tuple[type[_Material], ...] = (*_MPM, *_SPH, *_FEM, *_SF, *_PBD)
 if len(MATERIAL_TYPES) > 1:
     Material = Annotated[Union[MATERIAL_TYPES], Field(discriminator="type")]  # type: ignore[valid-type]  # noqa: UP007
 else:
@@ -28,7 +29,7 @@ else:
 # Types of the contract that are not implemented yet: named in a clear error.
 PLANNED_TYPES = (
     "FEM.Muscle", "FEM.Cloth",
-    "PBD.Cloth", "PBD.Elastic", "PBD.Liquid", "PBD.Particle",
+    "PBD.Liquid", "PBD.Particle",
 )
 
 

@@ -16,6 +16,7 @@ from simcli.solvers.mpm.config import MPMOptions
 from simcli.solvers.sf.config import Jet, SFOptions
 from simcli.solvers.sph.config import SPHOptions
 from simcli.solvers.fem.config import FEMOptions
+from simcli.solvers.pbd.config import PBDOptions
 
 FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
@@ -166,6 +167,7 @@ class Solvers(Strict):
     sph: SPHOptions = Field(default_factory=SPHOptions, description="SPH solver options (WCSPH / DFSPH liquids).")
     sf: SFOptions = Field(default_factory=SFOptions, description="Stable-fluids grid solver options (SF.Smoke).")
     fem: FEMOptions = Field(default_factory=FEMOptions, description="FEM solver options (tetrahedral solids).")
+    pbd: PBDOptions = Field(default_factory=PBDOptions, description="PBD solver options (XPBD cloth and rods).")
 
 
 # ---------------------------------------------------------------------- entities

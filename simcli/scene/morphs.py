@@ -80,5 +80,60 @@ class MeshShape(_Shape):
     translate: Vec = Field(default_factory=lambda: [0.0, 0.0, 0.0], description="Translation [m], applied last.")
 
 
-Morph = Annotated[BoxShape | SphereShape | CylinderShape | MeshShape, Field(discriminator="type")]
+class RectangleShape(_Shape):
+    """A flat triangulated sheet (PBD cloth): (resolution[0] + 1) x (resolution[1] + 1) vertices."""
+
+    type: Literal["Rectangle"]
+    center: Vec = Field(description="Centre of the sheet [m] (3 components).")
+    size: list[float] = Field(description="Side lengths [m] along the sheet's two in-plane axes u and v "
+                              "(2 components). u is the x axis projected onto the sheet (the y axis when the "
+                              "normal is close to x), v = normal x u.", min_length=2, max_length=2)
+    resolution: int | list[int] = Field(
+        20, description="Segments along u and v (one number for both, or 2); each grid cell is split into two "
+        "triangles, diagonals alternating.")
+    normal: Vec = Field(default_factory=lambda: [0.0, 0.0, 1.0], description="Unit normal of the sheet [-] "
+                        "(normalised on load).")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if any(not s > 0 for s in self.size):
+            raise ValueError(f"size must be > 0 on both in-plane axes (got {self.size})")
+        res = [self.resolution] * 2 if isinstance(self.resolution, int) else list(self.resolution)
+        if len(res) != 2 or any(r < 1 for r in res):
+            raise ValueError(f"resolution must be one integer >= 1 or two (got {self.resolution})")
+        if len(self.normal) != 3 or sum(c * c for c in self.normal) == 0:
+            raise ValueError(f"normal must be a non-zero 3-vector (got {self.normal})")
+        return self
+
+    def bounds(self):
+        h = 0.5 * (self.size[0] ** 2 + self.size[1] ** 2) ** 0.5
+        return [c - h for c in self.center], [c + h for c in self.center]
+
+
+class LineShape(_Shape):
+    """A rope or chain along a polyline (PBD rods): ``segments`` equal segments along its arc length."""
+
+    type: Literal["Line"]
+    points: list[Vec] = Field(description="Polyline corners [m] (at least 2); the rest length is the polyline's "
+                              "length.", min_length=2)
+    segments: int | None = Field(
+        None, ge=1, description="Number of equal-length segments (vertices = segments + 1), spread along the "
+        "polyline by arc length (default: one per polyline piece).")
+    radius: float = Field(0.005, gt=0, description="Radius of the rod's cross-section [m]: mass = rho x pi "
+                          "radius^2 x length, and its contact thickness.")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if len({len(p) for p in self.points}) != 1:
+            raise ValueError("every point of a Line needs the same number of components")
+        return self
+
+    def bounds(self):
+        d = len(self.points[0])
+        return ([min(p[k] for p in self.points) for k in range(d)],
+                [max(p[k] for p in self.points) for k in range(d)])
+
+
+Morph = Annotated[BoxShape | SphereShape | CylinderShape | MeshShape | RectangleShape | LineShape,
+                  Field(discriminator="type")]
 Region = Annotated[BoxShape | SphereShape | CylinderShape, Field(discriminator="type")]

@@ -15,6 +15,7 @@ FAMILIES: dict[str, str] = {
     "SPH": "simcli.solvers.sph.solver:SPHSolver",
     "SF": "simcli.solvers.sf.solver:SFSolver",
     "FEM": "simcli.solvers.fem.solver:FEMSolver",
+    "PBD": "simcli.solvers.pbd.solver:PBDSolver",
 }
 
 

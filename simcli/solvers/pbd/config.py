@@ -1,0 +1,125 @@
+"""PBD configuration: solver options and materials (pydantic, no Taichi).
+
+Names follow Genesis (``gs.options.PBDOptions``, ``gs.materials.PBD.Cloth``): ``stretch_compliance``,
+``bending_compliance``, ``rho``, ``air_resistance``, ``static_friction``/``kinetic_friction``.
+Where simcli differs it says so in the field's description: the compliances are XPBD compliances
+(inverse stiffness, the same for any iteration count and substep), there is no ``*_relaxation``
+(XPBD needs none), and iteration counts are options of the solver, as in Genesis.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from simcli.scene.material_base import _Material
+
+Vec = list[float]
+
+
+class _Options(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class PBDOptions(_Options):
+    particle_size: float = Field(
+        0.01, gt=0,
+        description="Particle diameter [m]: the contact thickness of cloth vertices against colliders and walls "
+        "(half of it on each side of the sheet).",
+    )
+    stretch_iterations: int = Field(
+        4, ge=1, description="Gauss-Seidel sweeps over the stretch (distance) constraints per substep (Genesis: "
+        "max_stretch_solver_iterations).")
+    bending_iterations: int = Field(
+        1, ge=1, description="Gauss-Seidel sweeps over the bending constraints per substep (Genesis: "
+        "max_bending_solver_iterations).")
+
+
+class _PBDMaterial(_Material):
+    stretch_compliance: float = Field(
+        1.0e-7, ge=0, description="XPBD compliance of the stretch (distance) constraints [m/N]: the inverse of "
+        "an edge's spring stiffness; 0 = inextensible.")
+    bending_compliance: float = Field(
+        1.0e-5, ge=0, description="XPBD compliance of the bending constraints: [1/(N m)] for cloth (dihedral "
+        "angle in rad), [m/N] for rods (distance between every other vertex).")
+    air_resistance: float = Field(
+        0.0, ge=0, description="Linear air drag rate [1/s]: each substep velocities are multiplied by "
+        "exp(-air_resistance dt). (Genesis's air_resistance is a force coefficient [N s/m] per particle.)")
+
+
+class PBDCloth(_PBDMaterial):
+    """Triangle-mesh cloth: stretch constraints on edges, dihedral bending constraints on interior edges
+    (rest angle from the rest mesh)."""
+
+    type: Literal["PBD.Cloth"]
+    rho: float = Field(4.0, gt=0, description="Surface density [kg/m^2]; vertex mass = rho x a third of the "
+                       "area of its triangles.")
+
+
+class PBDElastic(_PBDMaterial):
+    """Rods and chains from `Line` morphs: stretch constraints on segments, bending constraints between
+    every other vertex (rest distance from the rest polyline)."""
+
+    type: Literal["PBD.Elastic"]
+    rho: float = Field(1000.0, gt=0, description="Density [kg/m^3]; a rod's mass is rho x pi radius^2 x length, "
+                       "shared equally by its vertices.")
+    initial_stretch: Vec | None = Field(
+        None, description="Start deformed: initial vertex positions scaled by these factors [-] per axis about "
+        "the body's centroid, the rest shape unchanged (a stretched spring released).")
+
+
+# Every PBD material type; the scene's material union is built from these.
+MATERIALS = (PBDCloth, PBDElastic)
+
+MORPHS = {"PBD.Cloth": ("Rectangle", "Mesh"), "PBD.Elastic": ("Line",)}
+
+
+def check_entity(e, dim: int, scene_dir, lo, hi) -> list[tuple[tuple, str]]:
+    """Semantic checks of a PBD entity: (path below the entity, message) per problem."""
+    out: list[tuple[tuple, str]] = []
+    m = e.morph
+    if dim != 3:
+        return [(("material", "type"), f"{e.material.type} entities need a 3D scene (sim.dim: 3)")]
+    allowed = MORPHS.get(e.material.type, ())
+    if m.type not in allowed:
+        what = {"PBD.Cloth": "cloth is a Rectangle or a triangle Mesh", "PBD.Elastic": "rods are Line morphs "
+                "(tetrahedral soft bodies are not available yet)"}.get(e.material.type, "")
+        return [(("morph", "type"), f"{e.material.type} takes {' or '.join(allowed)} morphs ({what}); got {m.type}")]
+    for j, r in enumerate(e.fixed_regions):
+        rpath = ("fixed",) + ((j,) if isinstance(e.fixed, list) else ())
+        for f in ("lower", "upper", "center", "size"):
+            v = getattr(r, f, None)
+            if v is not None and len(v) != 3:
+                out.append((rpath + (f,), f"expected 3 components for dim 3 (got {len(v)})"))
+    if m.type == "Rectangle" and len(m.center) != 3:
+        out.append((("morph", "center"), f"expected 3 components for dim 3 (got {len(m.center)})"))
+    if m.type == "Line":
+        if len(m.points[0]) != 3:
+            out.append((("morph", "points"), f"expected 3 components per point for dim 3 (got {len(m.points[0])})"))
+        elif _polyline_length(m.points) <= 0:
+            out.append((("morph", "points"), "the polyline has zero length"))
+    if e.material.type == "PBD.Elastic" and e.material.initial_stretch is not None \
+            and len(e.material.initial_stretch) != 3:
+        out.append((("material", "initial_stretch"), "expected 3 factors (x, y, z)"))
+    if out:
+        return out
+    try:
+        from simcli.solvers.pbd.topology import mesh_for_entity
+
+        x = mesh_for_entity(e, scene_dir).x
+    except Exception as ex:  # unreadable mesh file, no triangles
+        return [(("morph",) + (("file",) if m.type == "Mesh" else ()), str(ex))]
+    if lo is not None:
+        bad = [a for a in range(3) if x[:, a].min() < lo[a] - 1e-9 or x[:, a].max() > hi[a] + 1e-9]
+        if bad:
+            out.append((("morph",), f"entity '{e.name}' extends outside the domain along "
+                        f"{', '.join('xyz'[a] for a in bad)}; move it or enlarge domain"))
+    return out
+
+
+def _polyline_length(points) -> float:
+    import numpy as np
+
+    p = np.asarray(points, dtype=np.float64)
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())

@@ -1,0 +1,496 @@
+"""PBD solver: extended position-based dynamics (XPBD; Macklin, Mueller and Chentanez 2016) for cloth
+and rods.
+
+A substep reads like the paper (Algorithm 1)::
+
+    predict -> reset multipliers -> project constraints (stretch sweeps, bending sweeps)
+            -> contact (walls, colliders, friction) -> update velocities
+
+* Each constraint j keeps a Lagrange multiplier lambda_j, zeroed at the start of every substep and
+  accumulated over the iterations: dlambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~),
+  alpha~ = compliance / dt^2 (eq. 18). The converged state is the implicit-Euler step of the elastic
+  energy C^2 / (2 compliance), whatever the iteration count or substep; too few iterations only leave
+  it unconverged (softer), never change the stiffness the solver aims for.
+* Gauss-Seidel by graph colouring (topology.colour): no two constraints of one colour share a vertex,
+  so a colour is one parallel loop without atomics and the colours follow each other inside one
+  kernel (one Taichi task per colour). Gauss-Seidel propagates a correction through a chain in one
+  sweep where Jacobi with averaging needs many.
+* Contact (position level, after the constraints): a vertex closer than its radius (half
+  particle_size for cloth, the rod radius for rods) to a wall or collider is pushed out along the
+  surface normal; Coulomb friction acts on its tangential displacement over the substep (static:
+  removed if below mu x penetration, kinetic: shortened by mu x penetration; Macklin et al. 2014,
+  "Unified particle physics", sec. 6.1). Sticky walls and colliders remove it entirely.
+* Velocities are the positions' change over the substep (v = (x - x_prev) / dt); pinned vertices
+  (``fixed``) have inverse mass 0.
+"""
+
+import math
+from typing import Any
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.pbd.topology import colour, fixed_vertices, mesh_for_entity
+
+with stdout_to_stderr():
+    import taichi as ti
+
+OUTPUT_FIELDS = ("position", "velocity", "reaction", "displacement")
+
+
+class _ConstraintSet:
+    """Constraints of one kind (k vertices each), ordered by colour: indices, rest values,
+    compliances and multipliers as fields, colour offsets as a compile-time tuple."""
+
+    def __init__(self, name: str, arity: int, idx: np.ndarray, rest: np.ndarray, compliance: np.ndarray,
+                 n_vertices: int):
+        self.name, self.arity = name, arity
+        order, offsets = colour(idx, n_vertices)
+        self.idx = idx[order]
+        self.rest = rest[order]
+        self.compliance = compliance[order]
+        self.offsets = tuple(int(o) for o in offsets)
+        self.k = int(idx.shape[0])
+
+    @property
+    def colours(self) -> int:
+        return len(self.offsets) - 1
+
+    def allocate(self, f, npf):
+        k = max(self.k, 1)
+        self.f_idx = ti.Vector.field(self.arity, ti.i32, shape=k)
+        self.f_rest = ti.field(f, shape=k)
+        self.f_comp = ti.field(f, shape=k)
+        self.f_lam = ti.field(f, shape=k)
+        if self.k:
+            self.f_idx.from_numpy(self.idx.astype(np.int32))
+            self.f_rest.from_numpy(self.rest.astype(npf))
+            self.f_comp.from_numpy(self.compliance.astype(npf))
+
+
+class PBDSolver(Solver):
+    family = "pbd"
+
+    def __init__(self, scene: Any, bodies: list[Body], scene_dir=None) -> None:
+        super().__init__(scene, bodies)
+        if scene.sim.dim != 3:
+            raise ValueError("PBD entities need a 3D scene (sim.dim: 3)")
+        self.opts = scene.solvers.pbd
+        self.entities = [e for e in scene.entities if e.family == "PBD"]
+        self.meshes = [mesh_for_entity(e, scene_dir) for e in self.entities]
+        self._index = {e.name: k for k, e in enumerate(self.entities)}
+        self.offsets = [0]
+        for m in self.meshes:
+            self.offsets.append(self.offsets[-1] + m.n)
+        self.n = self.offsets[-1]
+        self._prepare_host()
+        self._built = False
+        self.time = 0.0
+        self.last_dt = 0.0
+
+    # ---------------------------------------------------------------- host side
+    def _prepare_host(self) -> None:
+        n = self.n
+        x0 = np.zeros((n, 3))
+        xs = np.zeros((n, 3))
+        v = np.zeros((n, 3))
+        mass = np.zeros(n)
+        fixed = np.zeros(n, bool)
+        radius = np.zeros(n)
+        drag = np.zeros(n)
+        st, st_r, st_c, bd, bd_r, bd_c, dh, dh_r, dh_c = ([] for _ in range(9))
+        self.warnings = []
+        for k, (e, m) in enumerate(zip(self.entities, self.meshes)):
+            lo, hi = self.offsets[k], self.offsets[k + 1]
+            mat = e.material
+            x0[lo:hi] = m.x
+            xs[lo:hi] = m.x
+            if getattr(mat, "initial_stretch", None) is not None:
+                c = m.x.mean(axis=0)
+                xs[lo:hi] = c + (m.x - c) * np.asarray(mat.initial_stretch, dtype=np.float64)
+            if e.velocity is not None:
+                v[lo:hi] = np.asarray(e.velocity, dtype=np.float64)
+            mass[lo:hi] = m.mass
+            held = fixed_vertices(e, m.x)
+            if e.fixed_regions and not held.any():
+                self.warnings.append(f"{e.name}: fixed region holds no vertex")
+            fixed[lo:hi] = held
+            radius[lo:hi] = m.radius if m.radius > 0 else 0.5 * self.opts.particle_size
+            drag[lo:hi] = mat.air_resistance
+            st.append(m.stretch + lo)
+            st_r.append(m.stretch_rest)
+            st_c.append(np.full(len(m.stretch), mat.stretch_compliance))
+            bd.append(m.bend_dist + lo)
+            bd_r.append(m.bend_dist_rest)
+            bd_c.append(np.full(len(m.bend_dist), mat.bending_compliance))
+            dh.append(m.dihedral + lo)
+            dh_r.append(m.dihedral_rest)
+            dh_c.append(np.full(len(m.dihedral), mat.bending_compliance))
+        v[fixed] = 0.0
+        self.x0, self.xstart, self.v0, self.mass, self.fixed = x0, xs, v, mass, fixed
+        self.radius, self.drag = radius, drag
+        self.inv_mass = np.where(fixed, 0.0, 1.0 / np.maximum(mass, 1e-300))
+        cat = np.concatenate
+        self.stretch = _ConstraintSet("stretch", 2, cat(st).astype(np.int64), cat(st_r), cat(st_c), n)
+        self.bend_dist = _ConstraintSet("bend_dist", 2, cat(bd).astype(np.int64).reshape(-1, 2), cat(bd_r),
+                                        cat(bd_c), n)
+        self.dihedral = _ConstraintSet("dihedral", 4, cat(dh).astype(np.int64).reshape(-1, 4), cat(dh_r),
+                                       cat(dh_c), n)
+        self.edge = float(np.mean(self.stretch.rest)) if self.stretch.k else self.opts.particle_size
+
+    # --------------------------------------------------------------------- build
+    def build(self) -> None:
+        if self._built:
+            return
+        from simcli.colliders import collider_specs, wall_specs
+
+        f = ti.f64 if self.scene.sim.precision == "f64" else ti.f32
+        self.f = f
+        npf = self.npf = np.float64 if f == ti.f64 else np.float32
+        n = self.n
+        V3 = lambda k: ti.Vector.field(3, f, shape=k)  # noqa: E731
+        self.x, self.v, self.xp, self.x0_f, self.reaction = V3(n), V3(n), V3(n), V3(n), V3(n)
+        self.w = ti.field(f, shape=n)
+        self.rad = ti.field(f, shape=n)
+        self.drag_f = ti.field(f, shape=n)
+        self.gravity = ti.Vector.field(3, f, shape=())
+        self.x.from_numpy(self.xstart.astype(npf))
+        self.v.from_numpy(self.v0.astype(npf))
+        self.x0_f.from_numpy(self.x0.astype(npf))
+        self.w.from_numpy(self.inv_mass.astype(npf))
+        self.rad.from_numpy(self.radius.astype(npf))
+        self.drag_f.from_numpy(self.drag.astype(npf))
+        self.gravity[None] = [float(c) for c in self.scene.sim.gravity_vec]
+        for cs in (self.stretch, self.bend_dist, self.dihedral):
+            cs.allocate(f, npf)
+        # walls and colliders: kinds compile-time, numbers in fields
+        self.walls = wall_specs(self.scene, 3)
+        self.cols = collider_specs(self.scene, 3)
+        nc = max(1, len(self.cols))
+        self.col_a, self.col_b = V3(nc), V3(nc)
+        self.col_r, self.col_hh, self.col_mu = (ti.field(f, shape=nc) for _ in range(3))
+        for k, c in enumerate(self.cols):
+            self.col_a[k], self.col_b[k] = c.a, c.b
+            self.col_r[k], self.col_hh[k], self.col_mu[k] = c.radius, c.half_height, c.friction
+        lo, hi = self.scene.domain.bounds(3)
+        self.dom_lo, self.dom_hi = V3(()), V3(())
+        self.dom_lo[None], self.dom_hi[None] = lo, hi
+        self.wall_mu = ti.field(f, shape=6)
+        self.wall_mu.from_numpy(np.array([w.friction for w in self.walls], npf))
+        nb = len(self.entities)
+        self.body_off = ti.field(ti.i32, shape=nb + 1)
+        self.body_off.from_numpy(np.array(self.offsets, np.int32))
+        self.stat_speed = ti.field(f, shape=nb)
+        self.stat_bad = ti.field(ti.i32, shape=nb)
+        self._make_kernels()
+        self._built = True
+        self.frame_check()
+
+    def _make_kernels(self) -> None:
+        n = self.n
+        x, v, xp, w, rad, drag, gravity = self.x, self.v, self.xp, self.w, self.rad, self.drag_f, self.gravity
+        eps = 1e-12 if self.f == ti.f64 else 1e-9
+
+        @ti.kernel
+        def predict(dt: float):
+            for i in range(n):
+                xp[i] = x[i]
+                if w[i] > 0:
+                    vi = (v[i] + dt * gravity[None]) * ti.exp(-drag[i] * dt)
+                    v[i] = vi
+                    x[i] = x[i] + dt * vi
+
+        sets = (self.stretch, self.bend_dist, self.dihedral)
+
+        @ti.kernel
+        def reset_multipliers():
+            for cs in ti.static(sets):
+                for k in range(cs.k):
+                    cs.f_lam[k] = 0.0
+
+        def make_distance(cs):
+            idx, rest, comp, lam = cs.f_idx, cs.f_rest, cs.f_comp, cs.f_lam
+
+            @ti.kernel
+            def solve(dt: float):
+                inv_dt2 = 1.0 / (dt * dt)
+                for c in ti.static(range(cs.colours)):
+                    for k in range(cs.offsets[c], cs.offsets[c + 1]):
+                        i, j = idx[k][0], idx[k][1]
+                        wsum = w[i] + w[j]
+                        d = x[i] - x[j]
+                        length = d.norm()
+                        if wsum > 0 and length > eps:
+                            nrm = d / length
+                            at = comp[k] * inv_dt2
+                            dl = (-(length - rest[k]) - at * lam[k]) / (wsum + at)
+                            lam[k] += dl
+                            x[i] += w[i] * dl * nrm
+                            x[j] -= w[j] * dl * nrm
+
+            return solve
+
+        def make_dihedral(cs):
+            idx, rest, comp, lam = cs.f_idx, cs.f_rest, cs.f_comp, cs.f_lam
+
+            @ti.kernel
+            def solve(dt: float):
+                inv_dt2 = 1.0 / (dt * dt)
+                for c in ti.static(range(cs.colours)):
+                    for k in range(cs.offsets[c], cs.offsets[c + 1]):
+                        q = idx[k]
+                        x1, x2, x3, x4 = x[q[0]], x[q[1]], x[q[2]], x[q[3]]
+                        E = x4 - x3
+                        le = E.norm()
+                        n1 = (x1 - x3).cross(x1 - x4)
+                        n2 = (x2 - x4).cross(x2 - x3)
+                        s1, s2 = n1.norm_sqr(), n2.norm_sqr()
+                        wsum = w[q[0]] + w[q[1]] + w[q[2]] + w[q[3]]
+                        if wsum > 0 and le > eps and s1 > eps * eps and s2 > eps * eps:
+                            a1, a2 = n1 / s1, n2 / s2
+                            g1 = -le * a1
+                            g2 = -le * a2
+                            g3 = -((x1 - x4).dot(E) * a1 + (x2 - x4).dot(E) * a2) / le
+                            g4 = ((x1 - x3).dot(E) * a1 + (x2 - x3).dot(E) * a2) / le
+                            u1, u2 = n1 / ti.sqrt(s1), n2 / ti.sqrt(s2)
+                            theta = ti.atan2(u1.cross(u2).dot(E) / le, u1.dot(u2))
+                            C = theta - rest[k]
+                            if C > math.pi:
+                                C -= 2.0 * math.pi
+                            elif C < -math.pi:
+                                C += 2.0 * math.pi
+                            den = (w[q[0]] * g1.norm_sqr() + w[q[1]] * g2.norm_sqr() + w[q[2]] * g3.norm_sqr()
+                                   + w[q[3]] * g4.norm_sqr())
+                            at = comp[k] * inv_dt2
+                            if den + at > eps:
+                                dl = (-C - at * lam[k]) / (den + at)
+                                lam[k] += dl
+                                x[q[0]] += w[q[0]] * dl * g1
+                                x[q[1]] += w[q[1]] * dl * g2
+                                x[q[2]] += w[q[2]] * dl * g3
+                                x[q[3]] += w[q[3]] * dl * g4
+
+            return solve
+
+        self._solve_stretch = make_distance(self.stretch) if self.stretch.k else None
+        self._solve_bend_dist = make_distance(self.bend_dist) if self.bend_dist.k else None
+        self._solve_dihedral = make_dihedral(self.dihedral) if self.dihedral.k else None
+
+        from simcli.colliders import sdf_box, sdf_cylinder, sdf_plane, sdf_sphere
+
+        walls, cols = self.walls, self.cols
+        nc = len(cols)
+        col_a, col_b, col_r, col_hh, col_mu = self.col_a, self.col_b, self.col_r, self.col_hh, self.col_mu
+        dom_lo, dom_hi, wall_mu = self.dom_lo, self.dom_hi, self.wall_mu
+
+        @ti.func
+        def push(xi, xpi, phi, nrm, r, mu, sticky: ti.template()):
+            """Move xi out to distance r from a surface (signed distance phi, unit normal nrm), then
+            Coulomb friction on the tangential displacement since the substep's start."""
+            pen = r - phi
+            xo = xi
+            if pen > 0:
+                xo = xi + pen * nrm
+                d = xo - xpi
+                dt_ = d - d.dot(nrm) * nrm
+                lt = dt_.norm()
+                if ti.static(sticky):
+                    xo -= dt_
+                elif lt > 0 and mu > 0:
+                    if lt <= mu * pen:
+                        xo -= dt_
+                    else:
+                        xo -= dt_ * (mu * pen / lt)
+            return xo
+
+        @ti.kernel
+        def contact():
+            for i in range(n):
+                if w[i] > 0:
+                    xi, xpi, r = x[i], xp[i], rad[i]
+                    for fc in ti.static(range(6)):
+                        ax = walls[fc].axis
+                        nrm = ti.Vector.zero(float, 3)
+                        phi = 0.0
+                        if ti.static(walls[fc].side < 0):
+                            nrm[ax] = 1.0
+                            phi = xi[ax] - dom_lo[None][ax]
+                        else:
+                            nrm[ax] = -1.0
+                            phi = dom_hi[None][ax] - xi[ax]
+                        xi = push(xi, xpi, phi, nrm, r, wall_mu[fc], walls[fc].contact == "sticky")
+                    for k in ti.static(range(nc)):
+                        phi = 1.0
+                        nrm = ti.Vector.zero(float, 3)
+                        if ti.static(cols[k].kind == "Plane"):
+                            phi, nrm = sdf_plane(xi, col_a[k], col_b[k])
+                        elif ti.static(cols[k].kind == "Sphere"):
+                            phi, nrm = sdf_sphere(xi, col_a[k], col_r[k])
+                        elif ti.static(cols[k].kind == "Box"):
+                            phi, nrm = sdf_box(xi, col_a[k], col_b[k])
+                        elif ti.static(cols[k].kind == "Cylinder"):
+                            phi, nrm = sdf_cylinder(xi, col_a[k], col_r[k], col_hh[k], cols[k].axis)
+                        xi = push(xi, xpi, phi, nrm, r, col_mu[k], cols[k].contact == "sticky")
+                    x[i] = xi
+
+        @ti.kernel
+        def update_velocity(dt: float):
+            for i in range(n):
+                if w[i] > 0:
+                    v[i] = (x[i] - xp[i]) / dt
+                else:
+                    v[i] = ti.Vector.zero(float, 3)
+
+        reaction = self.reaction
+
+        @ti.kernel
+        def reactions(dt: float):
+            """Force [N] the supports exert on the body through each pinned vertex: minus the constraint
+            forces lambda grad C / dt^2 of the last substep acting on it."""
+            inv_dt2 = 1.0 / (dt * dt)
+            for i in range(n):
+                reaction[i] = ti.Vector.zero(float, 3)
+            for cs in ti.static((self.stretch, self.bend_dist)):
+                for k in range(cs.k):
+                    i, j = cs.f_idx[k][0], cs.f_idx[k][1]
+                    d = x[i] - x[j]
+                    length = d.norm()
+                    if length > eps:
+                        fo = cs.f_lam[k] * inv_dt2 * d / length
+                        if w[i] == 0:
+                            reaction[i] -= fo
+                        if w[j] == 0:
+                            reaction[j] += fo
+
+        body_off, stat_speed, stat_bad = self.body_off, self.stat_speed, self.stat_bad
+        nb = len(self.entities)
+        f64 = self.f == ti.f64
+
+        @ti.func
+        def finite(a):
+            ok = True
+            for d in ti.static(range(3)):
+                if ti.static(f64):
+                    ok = ok and ((ti.bit_cast(a[d], ti.i64) >> 52) & 0x7FF) != 0x7FF
+                else:
+                    ok = ok and ((ti.bit_cast(a[d], ti.i32) >> 23) & 0xFF) != 0xFF
+            return ok
+
+        @ti.kernel
+        def frame_stats():
+            for b in range(nb):
+                stat_speed[b] = 0.0
+                stat_bad[b] = 0
+            for b in range(nb):
+                for i in range(body_off[b], body_off[b + 1]):
+                    if finite(x[i]) and finite(v[i]):
+                        stat_speed[b] = ti.max(stat_speed[b], v[i].norm())
+                    else:
+                        stat_bad[b] += 1
+
+        self._predict, self._reset, self._contact = predict, reset_multipliers, contact
+        self._update_velocity, self._reactions, self._frame_stats = update_velocity, reactions, frame_stats
+
+    # -------------------------------------------------------------- stepping
+    def substep(self, dt: float) -> None:
+        self._predict(dt)
+        self._reset()
+        if self._solve_stretch is not None:
+            for _ in range(self.opts.stretch_iterations):
+                self._solve_stretch(dt)
+        if self._solve_bend_dist is not None or self._solve_dihedral is not None:
+            for _ in range(self.opts.bending_iterations):
+                if self._solve_bend_dist is not None:
+                    self._solve_bend_dist(dt)
+                if self._solve_dihedral is not None:
+                    self._solve_dihedral(dt)
+        self._contact()
+        self._update_velocity(dt)
+        self.time += dt
+        self.last_dt = dt
+
+    def frame_check(self) -> dict[str, FrameStats]:
+        self._frame_stats()
+        speed, bad = self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
+        return {e.name: FrameStats(finite=int(bad[k]) == 0,
+                                   max_speed=float(speed[k]) if bad[k] == 0 else float("inf"), n_bad=int(bad[k]))
+                for k, e in enumerate(self.entities)}
+
+    def stable_dt(self) -> float:
+        """XPBD is unconditionally stable; contact needs a vertex to move less than its radius per
+        substep to be caught before it crosses a thin collider: half the smallest radius / largest speed."""
+        self._frame_stats()
+        vmax = float(np.max(self.stat_speed.to_numpy()))
+        if not math.isfinite(vmax) or vmax <= 0:
+            return math.inf
+        return 0.5 * float(self.radius.min()) / vmax
+
+    def length_scale(self) -> float:
+        return max(self.edge, self.opts.particle_size)
+
+    # ---------------------------------------------------------------- output
+    def entity_kind(self, name: str) -> str:
+        return self.meshes[self._index[name]].kind
+
+    def entity_cells(self, name: str):
+        return self.meshes[self._index[name]].cells
+
+    def entity_size(self, name: str) -> int:
+        return self.meshes[self._index[name]].n
+
+    def owns(self, name: str) -> bool:
+        return name in self._index
+
+    def default_fields(self, name: str) -> list[str]:
+        return ["position", "velocity"]
+
+    def output_fields(self) -> dict[str, tuple[int, str]]:
+        return {"position": (3, "m"), "velocity": (3, "m/s"), "reaction": (3, "N"), "displacement": (3, "m")}
+
+    def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
+        k = self._index[name]
+        lo, hi = self.offsets[k], self.offsets[k + 1]
+        out = {}
+        for fld in fields:
+            if fld == "position":
+                a = self.x.to_numpy()
+            elif fld == "velocity":
+                a = self.v.to_numpy()
+            elif fld == "displacement":
+                a = self.x.to_numpy() - self.x0
+            elif fld == "reaction":
+                if self.last_dt > 0:
+                    self._reactions(self.last_dt)
+                    a = self.reaction.to_numpy()
+                else:
+                    a = np.zeros((self.n, 3))
+            else:
+                raise KeyError(f"unknown PBD output field {fld!r}; known: {', '.join(OUTPUT_FIELDS)}")
+            out[fld] = np.array(a[lo:hi])
+        return out
+
+    # ----------------------------------------------------------------- state
+    def get_state(self) -> dict[str, np.ndarray]:
+        return {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "time": np.array([self.time]),
+                "last_dt": np.array([self.last_dt])}
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        for key, fld in (("x", self.x), ("v", self.v)):
+            arr = np.ascontiguousarray(state[key], dtype=self.npf)
+            if arr.shape != (self.n, 3):
+                raise ValueError(f"PBD state {key!r}: shape {arr.shape}, expected {(self.n, 3)}")
+            fld.from_numpy(arr)
+        self.time = float(np.asarray(state.get("time", [0.0])).reshape(-1)[0])
+        self.last_dt = float(np.asarray(state.get("last_dt", [0.0])).reshape(-1)[0])
+
+    def counts(self) -> dict[str, int]:
+        return {"vertices": self.n, "constraints": self.stretch.k + self.bend_dist.k + self.dihedral.k}
+
+    def info(self) -> dict[str, Any]:
+        return {"method": "XPBD, Gauss-Seidel by graph colouring", "vertices": self.n,
+                "stretch_constraints": self.stretch.k, "stretch_colours": self.stretch.colours,
+                "bending_constraints": self.bend_dist.k + self.dihedral.k,
+                "bending_colours": self.bend_dist.colours + self.dihedral.colours,
+                "stretch_iterations": self.opts.stretch_iterations,
+                "bending_iterations": self.opts.bending_iterations, "warnings": self.warnings}

@@ -1,0 +1,230 @@
+"""Host-side topology of PBD bodies (numpy, no Taichi): sheet and polyline meshes, their stretch and
+bending constraints with rest values from the rest shape, lumped masses, and the graph colouring
+that lets Gauss-Seidel sweeps run in parallel.
+
+Dihedral angle and its gradient (Bridson, Marino and Fedkiw 2003, "Simulation of clothing with
+folds and wrinkles", sec. 4): for the interior edge (x3, x4) between the triangles (x1, x3, x4) and
+(x2, x4, x3), E = x4 - x3, n1 = (x1 - x3) x (x1 - x4), n2 = (x2 - x4) x (x2 - x3) and the signed angle
+theta = atan2((n1^ x n2^) . E^, n1^ . n2^) (0 for a flat sheet). Its gradient is
+  d theta/dx1 = -|E| n1 / |n1|^2,   d theta/dx2 = -|E| n2 / |n2|^2,
+  d theta/dx3 = -((x1 - x4).E n1 / |n1|^2 + (x2 - x4).E n2 / |n2|^2) / |E|,
+  d theta/dx4 = +((x1 - x3).E n1 / |n1|^2 + (x2 - x3).E n2 / |n2|^2) / |E|
+(the four sum to zero: bending moves no centre of mass); tests check it against finite differences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from simcli.geometry.regions import points_in_regions
+
+
+@dataclass
+class PBDMesh:
+    """One PBD body: vertices, output cells and its constraints (vertex indices local to the body)."""
+
+    x: np.ndarray  # (n, 3) rest positions [m]
+    mass: np.ndarray  # (n,) lumped vertex masses [kg]
+    kind: str  # "triangles" | "lines"
+    cells: np.ndarray  # (m, 3) triangles or (m, 2) segments, for output
+    stretch: np.ndarray  # (k, 2) distance constraints
+    stretch_rest: np.ndarray  # (k,) rest lengths [m]
+    bend_dist: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))  # rods: i, i + 2
+    bend_dist_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    dihedral: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))  # x1, x2, x3, x4
+    dihedral_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))  # rest angles [rad]
+    radius: float = 0.0  # contact radius of a rod [m] (0: from solvers.pbd.particle_size)
+
+    @property
+    def n(self) -> int:
+        return int(self.x.shape[0])
+
+
+# ------------------------------------------------------------------ shapes
+
+
+def sheet_axes(normal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """In-plane axes (u, v) and unit normal of a Rectangle: u = x projected onto the sheet (y when the
+    normal is close to x), v = n x u."""
+    n = np.asarray(normal, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    ref = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = ref - ref.dot(n) * n
+    u /= np.linalg.norm(u)
+    return u, np.cross(n, u), n
+
+
+def rectangle_mesh(morph) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (n, 3) and triangles (m, 3) of a Rectangle morph; quad diagonals alternate (criss-cross
+    pattern), so the sheet has no preferred shear direction."""
+    nu, nv = ([morph.resolution] * 2) if isinstance(morph.resolution, int) else list(morph.resolution)
+    u, v, _ = sheet_axes(morph.normal)
+    a = (np.arange(nu + 1) / nu - 0.5) * morph.size[0]
+    b = (np.arange(nv + 1) / nv - 0.5) * morph.size[1]
+    A, B = np.meshgrid(a, b, indexing="ij")
+    x = np.asarray(morph.center, dtype=np.float64) + A.reshape(-1, 1) * u + B.reshape(-1, 1) * v
+    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+    i, j = i.reshape(-1), j.reshape(-1)
+    p00, p10, p01, p11 = i * (nv + 1) + j, (i + 1) * (nv + 1) + j, i * (nv + 1) + j + 1, (i + 1) * (nv + 1) + j + 1
+    flip = (i + j) % 2 == 1
+    t1 = np.where(flip[:, None], np.stack([p00, p10, p01], 1), np.stack([p00, p10, p11], 1))
+    t2 = np.where(flip[:, None], np.stack([p10, p11, p01], 1), np.stack([p00, p11, p01], 1))
+    return x, np.concatenate([t1, t2]).astype(np.int64)
+
+
+def line_vertices(morph) -> np.ndarray:
+    """``segments + 1`` vertices spread at equal arc length along the Line's polyline."""
+    p = np.asarray(morph.points, dtype=np.float64)
+    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if morph.segments is None:
+        return p.copy()
+    t = np.linspace(0.0, s[-1], morph.segments + 1)
+    return np.stack([np.interp(t, s, p[:, k]) for k in range(p.shape[1])], axis=1)
+
+
+def read_open_surface(morph, scene_dir) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles of a (possibly open) surface Mesh morph, transformed: a cloth mesh need not be closed."""
+    from simcli.geometry.mesh import (MeshError, MeshFileNotFoundError, _clean, _read_obj, _triangles_from_cells,
+                                      resolve_mesh_path, transform_points)
+
+    path = resolve_mesh_path(morph.file, scene_dir)
+    if not Path(path).is_file():
+        raise MeshFileNotFoundError(f"mesh file not found: '{morph.file}' (looked for '{path}'; relative paths "
+                                    "are relative to the scene file's folder)")
+    import warnings
+
+    import meshio
+
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            mesh = meshio.read(str(path))
+        tris = _triangles_from_cells(mesh, str(path))
+        pts = np.asarray(mesh.points, dtype=np.float64)
+    except Exception as exc:
+        if not str(path).lower().endswith(".obj"):
+            raise MeshError(f"cannot read mesh '{path}': {exc}") from exc
+        pts, tris = _read_obj(str(path))
+    pts, tris = _clean(pts, np.asarray(tris, dtype=np.int64), str(path))
+    try:
+        x = transform_points(pts, morph.scale, morph.rotate, morph.translate)
+    except ValueError as exc:
+        raise MeshError(f"mesh '{morph.file}': {exc}") from None
+    return x, tris
+
+
+# ------------------------------------------------------------- constraints
+
+
+def unique_edges(tris: np.ndarray) -> np.ndarray:
+    e = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def bending_quads(tris: np.ndarray) -> np.ndarray:
+    """(x1, x2, x3, x4) per interior edge (x3, x4) shared by exactly two triangles, x1 and x2 the wing tips,
+    ordered so that triangle 1 is (x1, x3, x4) as listed in ``tris`` (consistent orientation keeps the
+    sign of the angle meaningful)."""
+    he = np.concatenate([tris[:, [0, 1, 2]], tris[:, [1, 2, 0]], tris[:, [2, 0, 1]]])  # a, b (edge), opposite
+    key = np.sort(he[:, :2], axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    ks = key[order]
+    same = np.all(ks[1:] == ks[:-1], axis=1)
+    quads = []
+    starts = np.nonzero(same)[0]  # edges of more than two triangles: each pair of neighbours
+    for s in starts:
+        h1, h2 = he[order[s]], he[order[s + 1]]
+        a, b, c = h1  # triangle (a, b, c): edge a -> b, tip c
+        d = h2[2]
+        quads.append((c, d, b, a))
+    return np.asarray(quads, dtype=np.int64).reshape(-1, 4)
+
+
+def dihedral_angles(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """Signed dihedral angles [rad] (see the module docstring) of the quads (x1, x2, x3, x4)."""
+    x1, x2, x3, x4 = (x[quads[:, k]] for k in range(4))
+    E = x4 - x3
+    n1 = np.cross(x1 - x3, x1 - x4)
+    n2 = np.cross(x2 - x4, x2 - x3)
+    n1 /= np.maximum(np.linalg.norm(n1, axis=1, keepdims=True), 1e-300)
+    n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-300)
+    e = E / np.maximum(np.linalg.norm(E, axis=1, keepdims=True), 1e-300)
+    return np.arctan2(np.einsum("ij,ij->i", np.cross(n1, n2), e), np.einsum("ij,ij->i", n1, n2))
+
+
+def dihedral_gradient(x1, x2, x3, x4) -> np.ndarray:
+    """Gradient (4, 3) of the signed dihedral angle of one quad (module docstring)."""
+    E = x4 - x3
+    le = np.linalg.norm(E)
+    n1 = np.cross(x1 - x3, x1 - x4)
+    n2 = np.cross(x2 - x4, x2 - x3)
+    a1 = n1 / n1.dot(n1)
+    a2 = n2 / n2.dot(n2)
+    g1 = -le * a1
+    g2 = -le * a2
+    g3 = -((x1 - x4).dot(E) * a1 + (x2 - x4).dot(E) * a2) / le
+    g4 = ((x1 - x3).dot(E) * a1 + (x2 - x3).dot(E) * a2) / le
+    return np.stack([g1, g2, g3, g4])
+
+
+def colour(constraints: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy graph colouring: no two constraints of one colour share a vertex, so each colour is solved
+    in parallel and the colours one after another (a Gauss-Seidel sweep). Returns the permutation that
+    groups constraints by colour and the colour offsets (ncolours + 1)."""
+    k = constraints.shape[0]
+    if k == 0:
+        return np.zeros(0, np.int64), np.zeros(1, np.int64)
+    used = [0] * n_vertices  # bit mask of the colours already touching each vertex
+    col = np.empty(k, np.int64)
+    cons = constraints.tolist()
+    for c, vs in enumerate(cons):
+        mask = 0
+        for v in vs:
+            mask |= used[v]
+        free = ~mask & (mask + 1)  # lowest zero bit
+        col[c] = free.bit_length() - 1
+        for v in vs:
+            used[v] |= free
+    order = np.argsort(col, kind="stable")
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(col))]).astype(np.int64)
+    return order, offsets
+
+
+# ---------------------------------------------------------------- bodies
+
+
+def mesh_for_entity(e, scene_dir=None) -> PBDMesh:
+    """The PBD mesh of an entity: a cloth sheet (Rectangle, open or closed triangle Mesh) or a rod (Line)."""
+    m = e.morph
+    mat = e.material
+    if m.type in ("Rectangle", "Mesh"):
+        x, tris = rectangle_mesh(m) if m.type == "Rectangle" else read_open_surface(m, scene_dir)
+        area = 0.5 * np.linalg.norm(np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]), axis=1)
+        mass = np.zeros(len(x))
+        for a in range(3):
+            np.add.at(mass, tris[:, a], mat.rho * area / 3.0)
+        edges = unique_edges(tris)
+        quads = bending_quads(tris)
+        return PBDMesh(x=x, mass=mass, kind="triangles", cells=tris, stretch=edges,
+                       stretch_rest=np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1),
+                       dihedral=quads, dihedral_rest=dihedral_angles(x, quads))
+    if m.type == "Line":
+        x = line_vertices(m)
+        n = len(x)
+        seg = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
+        length = float(np.linalg.norm(np.diff(x, axis=0), axis=1).sum())
+        mass = np.full(n, mat.rho * np.pi * m.radius**2 * length / n)
+        skip = np.stack([np.arange(n - 2), np.arange(2, n)], axis=1) if n > 2 else np.zeros((0, 2), np.int64)
+        return PBDMesh(x=x, mass=mass, kind="lines", cells=seg, stretch=seg,
+                       stretch_rest=np.linalg.norm(x[seg[:, 1]] - x[seg[:, 0]], axis=1),
+                       bend_dist=skip, bend_dist_rest=np.linalg.norm(x[skip[:, 1]] - x[skip[:, 0]], axis=1),
+                       radius=float(m.radius))
+    raise ValueError(f"entity '{e.name}': {e.material.type} does not take {m.type} morphs")
+
+
+def fixed_vertices(e, x: np.ndarray) -> np.ndarray:
+    return points_in_regions(e.fixed_regions, x)
