@@ -6,6 +6,7 @@ entity name and the case's ``params``/``axis`` and returns ``(t, values)``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import h5py
@@ -280,6 +281,34 @@ def tet_volume_ratio(f, entity, **_):
     rest = x[0] - np.asarray(g["displacement"][0], dtype=np.float64)
     v0 = vol(rest)
     return f["time"][...], np.array([vol(xk) / v0 for xk in x])
+
+
+@measurement("be_decay_ratio")
+def be_decay_ratio(f, entity, w, axis=2, lower=None, upper=None, alpha=0.0, beta=0.0, skip=20, modes=2, **_):
+    """Measured over predicted per-step decay of a vibration's slowest mode under backward Euler [-] (FEM
+    implicit damping; output every step). The mean displacement along ``axis`` of the vertices initially in
+    [lower, upper] after ``skip`` frames is fitted by linear prediction with ``modes`` damped modes and a
+    constant (y_n+1 = sum_k a_k y_n-k + c: exact for a sum of modes of a linear one-step method); the root
+    pair of smallest phase is the slowest mode, |lambda| its amplification per step. Backward Euler gives a
+    mode of angular frequency ``w`` [rad/s] with Rayleigh damping c = alpha + beta w^2 the amplification
+    (1 + dt c + (w dt)^2)^-1/2 (|1 / (1 + i w dt)| without damping). Returns ln|lambda| / ln(prediction) at
+    the last frame's time."""
+    t, y = region_displacement(f, entity, axis=axis, lower=lower, upper=upper)
+    dt = float(t[1] - t[0])
+    y = np.asarray(y[int(skip):], dtype=np.float64)
+    p = 2 * int(modes)
+    if len(y) < 4 * p:
+        raise ValueError(f"be_decay_ratio: {len(y)} frames after skip, need at least {4 * p}")
+    A = np.stack([y[p - 1 - k:len(y) - 1 - k] for k in range(p)] + [np.ones(len(y) - p)], axis=1)
+    coef, *_ = np.linalg.lstsq(A, y[p:], rcond=None)
+    roots = np.roots(np.concatenate([[1.0], -coef[:p]]))
+    osc = roots[np.imag(roots) > 1e-12]
+    if len(osc) == 0:
+        raise ValueError("be_decay_ratio: no oscillating mode found in the series")
+    lam = osc[np.argmin(np.angle(osc))]
+    c = alpha + beta * w * w
+    predicted = (1.0 + dt * c + (w * dt) ** 2) ** -0.5
+    return t[-1:], np.array([math.log(abs(lam)) / math.log(predicted)])
 
 
 # ----------------------------------------------------------------------------- grid fluids (SF)

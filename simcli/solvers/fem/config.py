@@ -69,8 +69,15 @@ class FEMOptions(_Options):
     damping: float = Field(
         0.0, ge=0,
         description="Stiffness-proportional (Rayleigh beta) damping [s]: viscous stress beta (2 mu sym(L) + "
-        "lambda tr(L) I), L the spatial velocity gradient. Rigid motion, free fall and rigid rotation are "
-        "not damped. Both integrators.",
+        "lambda tr(L) I), L the spatial velocity gradient and mu, lambda the material's Lame parameters, i.e. "
+        "beta times the small-strain stiffness. Rigid motion, free fall and rigid rotation are not damped. "
+        "Both integrators (implicit: L from the substep's displacement and F at its start).",
+    )
+    mass_damping: float = Field(
+        0.0, ge=0,
+        description="Mass-proportional (Rayleigh alpha) damping [1/s]: force -alpha m v on every vertex. Unlike "
+        "damping it also slows rigid motion and free fall (terminal speed g / alpha). Both integrators; a mode "
+        "of angular frequency w gets the damping ratio (alpha / w + damping x w) / 2.",
     )
     contact_stiffness: float = Field(
         1.0e3, gt=0,

@@ -5,6 +5,7 @@
 
 Optional stiffness-proportional damping adds the viscous stress beta (2 mu sym(L) + lam tr(L) I), L the
 spatial velocity gradient: zero for any rigid motion, so gravity and spinning are not damped.
+Mass-proportional damping (alpha) is applied implicitly to the vertex velocity: v <- v / (1 + alpha dt).
 """
 
 from simcli.backend import stdout_to_stderr
@@ -20,12 +21,13 @@ class ExplicitIntegrator:
     def __init__(self, s) -> None:
         f = s.f
         x, v, xr, free, vfix, fext, mass = s.x, s.v, s.xr, s.free_f, s.vfix_f, s.fext_f, s.mass_f
-        vol, B, tet, mid, mat_mu, mat_lam = s.vol_f, s.B_f, s.tet_f, s.mid_f, s.mat_mu, s.mat_lam
+        vol, B, tet, mid, mat_mu, mat_lam = s.vol_f, s.B_f, s.tet_f, s.mid_f, s.mat_mu0, s.mat_lam0
         gravity = s.gravity
         deformation, law_call, scatter, gather = s.deformation, s.law_call, s.scatter_columns, s.gather
         nearest = make_nearest(s.scene)
         n, m = s.n, s.m
         beta = float(s.opts.damping)
+        alpha = float(s.opts.mass_damping)
 
         @ti.kernel
         def substep(dt: f, t: f):
@@ -44,6 +46,8 @@ class ExplicitIntegrator:
             for i in range(n):
                 fi = gather(i) + fext[i]
                 vi = v[i] + dt * (fi / mass[i] + gravity[None])
+                if ti.static(alpha > 0):
+                    vi /= 1.0 + alpha * dt
                 xi = x[i] + dt * vi
                 phi, nrm, kind, mu = nearest(xi)
                 if phi < 0:

@@ -12,6 +12,15 @@ are counted when hit. Held components are removed from the system (their residua
 direction are zero). Contact: a penalty kappa_i / 2 phi^2 (phi < 0) per vertex, kappa_i =
 contact_stiffness m_i / h^2; Coulomb friction is applied to the velocity afterwards.
 
+Rayleigh damping enters as the dissipation potential h R((x - x_n) / h) (R = v^T D v / 2, whose gradient
+is D (x - x_n) / h, i.e. minus the damping force at the end-of-step velocity):
+mass-proportional alpha m_i |x_i - x_n,i|^2 / (2 h); stiffness-proportional, per element,
+V_e J_n beta / h (mu |sym G|^2 + lam / 2 tr(G)^2), G = (F - F_n) F_n^-1 = h L (the spatial velocity
+gradient with F lagged at the substep start, J_n = det F_n clamped at 1e-3 as in the explicit
+integrator), mu, lam the material's Lame parameters: beta x the small-strain stiffness, zero for a
+translation and of second order in the rotation increment for a rigid rotation. Both are quadratic in x,
+so Newton's Hessian and the line search's energy include them exactly.
+
 Convergence tests need the residual on the host: one small read-back per PCG and Newton iteration
 (the only host syncs inside a substep in simcli; the explicit integrator has none).
 """
@@ -24,7 +33,7 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.fem.contact import friction_velocity, make_nearest
-from simcli.solvers.fem.models import apply_dP
+from simcli.solvers.fem.models import apply_dP, cofactor
 
 with stdout_to_stderr():
     import taichi as ti
@@ -49,6 +58,11 @@ class ImplicitIntegrator:
         self.cn = V3(n)  # contact normal x kappa-sqrt marker (zero when not in contact)
         self.ck = ti.field(f, shape=n)  # contact stiffness in effect
         self.red = ti.field(ti.f64, shape=5)
+        self.alpha = float(s.opts.mass_damping)
+        self.beta = float(s.opts.damping)
+        # stiffness damping: per element F_n^-1 (as cof(F_n)^T / J_n) and J_n, J_n clamped at 1e-3
+        self.dA = M3(m if self.beta > 0 else 1)
+        self.dJ = ti.field(f, shape=m if self.beta > 0 else 1)
         self.opts = s.opts
         # a Newton step smaller than this [m] moves positions by their round-off only
         self.round_off = (1e-6 if f == ti.f32 else 1e-13) * max(s.extent, 1e-3)
@@ -68,9 +82,34 @@ class ImplicitIntegrator:
         fe = s.fe
         nearest = make_nearest(s.scene)
         kc = float(self.opts.contact_stiffness)
+        ray_a, ray_b = self.alpha, self.beta
+        dA, dJ, mid, mu0, lam0 = self.dA, self.dJ, s.mid_f, s.mat_mu0, s.mat_lam0
+
+        @ti.func
+        def damp_pk1(e, dF):
+            """beta J_n sigma'(dF A) A^T with sigma'(G) = 2 mu sym G + lam tr(G) I, A = F_n^-1: the first
+            Piola-Kirchhoff damping stress times h for the deformation increment dF (linear in dF)."""
+            A = dA[e]
+            G = dF @ A
+            k = mid[e]
+            sig = mu0[k] * (G + G.transpose()) + lam0[k] * G.trace() * ti.Matrix.identity(float, 3)
+            return ray_b * dJ[e] * sig @ A.transpose()
+
+        @ti.func
+        def damp_energy(e, dF):
+            G = dF @ dA[e]
+            k = mid[e]
+            S = 0.5 * (G + G.transpose())
+            return ray_b * dJ[e] * (mu0[k] * (S * S).sum() + 0.5 * lam0[k] * G.trace() ** 2)
 
         @ti.kernel
         def begin(dt: f, t: f):
+            if ti.static(ray_b > 0):
+                for e in range(m):
+                    F = deformation(e, x)
+                    J = ti.max(F.determinant(), 1e-3)
+                    dA[e] = cofactor(F).transpose() / J
+                    dJ[e] = J
             for i in range(n):
                 xn[i] = x[i]
                 xhat[i] = x[i] + dt * v[i] + dt * dt * gravity[None]
@@ -87,6 +126,8 @@ class ImplicitIntegrator:
             for e in range(m):
                 F = deformation(e, x)
                 P = law_call(e, F, "pk1")
+                if ti.static(ray_b > 0):
+                    P += damp_pk1(e, F - deformation(e, xn)) / dt
                 U, V, Hs, ls, lt = law_hessian(e, F)
                 hU[e], hV[e], hS[e], hls[e], hlt[e] = U, V, Hs, ls, lt
                 scatter(e, vol[e] * P @ B[e].transpose())
@@ -105,6 +146,8 @@ class ImplicitIntegrator:
                         for j in ti.static(range(3)):
                             E[c, j] = ga[j]
                         dP = apply_dP(U, V, Hs, ls, lt, E)
+                        if ti.static(ray_b > 0):
+                            dP += damp_pk1(e, E) / dt
                         col = vol[e] * dP @ ga
                         for rr in ti.static(range(3)):
                             blk[rr, c] = col[rr]
@@ -115,6 +158,9 @@ class ImplicitIntegrator:
                 mi = mass[i]
                 gi = mi / (dt * dt) * (x[i] - xhat[i]) + gather(i) - fext[i]
                 D = ti.Matrix.identity(float, 3) * (mi / (dt * dt))
+                if ti.static(ray_a > 0):
+                    gi += ray_a * mi / dt * (x[i] - xn[i])
+                    D += ti.Matrix.identity(float, 3) * (ray_a * mi / dt)
                 for qq in range(s.adj_start_f[i], s.adj_start_f[i + 1]):
                     D += db[s.adj_f[qq]]
                 phi, nrm, kind, mu = nearest(x[i])
@@ -160,11 +206,15 @@ class ImplicitIntegrator:
             for e in range(m):
                 dF = deformation(e, p)
                 dP = apply_dP(hU[e], hV[e], hS[e], hls[e], hlt[e], dF)
+                if ti.static(ray_b > 0):
+                    dP += damp_pk1(e, dF) / dt
                 scatter(e, vol[e] * dP @ B[e].transpose())
             pq = ti.cast(0.0, ti.f64)
             for i in range(n):
                 pi = p[i]
                 qi = mass[i] / (dt * dt) * pi + gather(i)
+                if ti.static(ray_a > 0):
+                    qi += ray_a * mass[i] / dt * pi
                 if ck[i] > 0:
                     qi += ck[i] * cn[i].dot(pi) * cn[i]
                 qi = qi * free[i]
@@ -196,10 +246,16 @@ class ImplicitIntegrator:
                 ti.atomic_max(red[4], ti.cast(ti.abs(d[i]).max(), ti.f64))
             for e in range(m):
                 F = deformation(e, q)
-                E += ti.cast(vol[e] * law_call(e, F, "energy"), ti.f64)
+                Ee = law_call(e, F, "energy")
+                if ti.static(ray_b > 0):
+                    Ee += damp_energy(e, F - deformation(e, xn)) / dt
+                E += ti.cast(vol[e] * Ee, ti.f64)
             for i in range(n):
                 dx = q[i] - xhat[i]
                 Ei = 0.5 * mass[i] / (dt * dt) * dx.dot(dx) - fext[i].dot(q[i])
+                if ti.static(ray_a > 0):
+                    dn = q[i] - xn[i]
+                    Ei += 0.5 * ray_a * mass[i] / dt * dn.dot(dn)
                 phi, nrm, kind, mu = nearest(q[i])
                 if phi < 0:
                     Ei += 0.5 * kc * mass[i] / (dt * dt) * phi * phi

@@ -158,6 +158,9 @@ class FEMSolver(Solver):
         nm = len(self.materials)
         self.mat_mu = ti.field(f, shape=nm)
         self.mat_lam = ti.field(f, shape=nm)
+        # the materials' own Lame parameters (Rayleigh stiffness damping: beta x the small-strain stiffness)
+        self.mat_mu0 = ti.field(f, shape=nm)
+        self.mat_lam0 = ti.field(f, shape=nm)
         self.mat_law = ti.field(ti.i32, shape=nm)
         self.gravity = ti.Vector.field(3, f, shape=())
         nb = len(self.entities)
@@ -188,6 +191,8 @@ class FEMSolver(Solver):
             lams.append(lam)
         self.mat_mu.from_numpy(np.array(mus, npf))
         self.mat_lam.from_numpy(np.array(lams, npf))
+        self.mat_mu0.from_numpy(np.array([mat.mu for mat in self.materials], npf))
+        self.mat_lam0.from_numpy(np.array([mat.lam for mat in self.materials], npf))
         self.mat_law.from_numpy(np.array([self.models.index(mt.model) for mt in self.materials], np.int32))
         self.gravity[None] = [float(c) for c in self.scene.sim.gravity_vec]
         self.body_off.from_numpy(np.array(self.offsets, np.int32))
