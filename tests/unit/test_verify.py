@@ -90,6 +90,7 @@ def test_report_table_has_every_result():
     assert "| a | 1 | gd=64 | 0.02 | 0.05 | pass | 2.32 |" in md and "(coarser level)" in md
 
 
+@pytest.mark.validation
 @pytest.mark.timeout(1800)
 def test_verify_fast_set_passes_end_to_end(tmp_path):
     """`simcli verify` (the fast set) as CI runs it: every case passes, the report is written."""
