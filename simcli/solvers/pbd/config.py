@@ -40,9 +40,10 @@ class _PBDMaterial(_Material):
     stretch_compliance: float = Field(
         1.0e-7, ge=0, description="XPBD compliance of the stretch (distance) constraints [m/N]: the inverse of "
         "an edge's spring stiffness; 0 = inextensible.")
-    bending_compliance: float = Field(
+    bending_compliance: float | None = Field(
         1.0e-5, ge=0, description="XPBD compliance of the bending constraints: [1/(N m)] for cloth (dihedral "
-        "angle in rad), [m/N] for rods (distance between every other vertex).")
+        "angle in rad), [m/N] for rods (distance between every other vertex); null: no bending constraints "
+        "(a chain).")
     air_resistance: float = Field(
         0.0, ge=0, description="Linear air drag rate [1/s]: each substep velocities are multiplied by "
         "exp(-air_resistance dt). (Genesis's air_resistance is a force coefficient [N s/m] per particle.)")

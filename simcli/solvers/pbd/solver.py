@@ -121,6 +121,9 @@ class PBDSolver(Solver):
             st.append(m.stretch + lo)
             st_r.append(m.stretch_rest)
             st_c.append(np.full(len(m.stretch), mat.stretch_compliance))
+            if mat.bending_compliance is None:  # a chain: no bending constraints
+                m.bend_dist, m.dihedral = m.bend_dist[:0], m.dihedral[:0]
+                m.bend_dist_rest, m.dihedral_rest = m.bend_dist_rest[:0], m.dihedral_rest[:0]
             bd.append(m.bend_dist + lo)
             bd_r.append(m.bend_dist_rest)
             bd_c.append(np.full(len(m.bend_dist), mat.bending_compliance))
