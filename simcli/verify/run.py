@@ -15,7 +15,7 @@ from simcli.verify.cases import Case
 from simcli.verify.measure import run_measurement
 from simcli.verify.reference import compute_error
 
-_DONE: dict[str, tuple[int, str, float]] = {}  # runs made by this process, by scene+overrides
+_DONE: dict[str, tuple[int, str, float, Path]] = {}  # runs made by this process, by scene+overrides
 
 
 @dataclass
@@ -98,12 +98,13 @@ def run_case(case: Case, level: int, out_root: Path, backend: str | None = None,
     # cases that measure different things on the same scene and resolution share one run
     key = hashlib.sha1(json.dumps([str(case.scene_path), sets, backend]).encode()).hexdigest()[:10]
     out = out_root / "runs" / f"{case.scene_path.stem}-L{level}-{key}"
-    reused = _reusable(case, sets, out) if reuse else None
     if key in _DONE:
-        code, stderr, wall = _DONE[key]
-    elif reused is not None:
+        # the same run (another case on this scene, or a level a case without refine factors repeats):
+        # read it where it was made
+        code, stderr, wall, out = _DONE[key]
+    elif reuse and (reused := _reusable(case, sets, out)) is not None:
         code, stderr, wall = 0, "", reused
-        _DONE[key] = (code, stderr, wall)
+        _DONE[key] = (code, stderr, wall, out)
     else:
         cmd = [sys.executable, "-m", "simcli", "run", str(case.scene_path), "-o", str(out), "--quiet"]
         for s in sets:
@@ -117,7 +118,7 @@ def run_case(case: Case, level: int, out_root: Path, backend: str | None = None,
         except subprocess.TimeoutExpired:
             code, stderr = 124, f"timed out after {case.timeout_s} s"
         wall = time.perf_counter() - t0
-        _DONE[key] = (code, stderr, wall)
+        _DONE[key] = (code, stderr, wall, out)
     info = {}
     try:
         info = json.loads((out / "run.json").read_text())
