@@ -408,6 +408,24 @@ def grid_max_speed(f, entity, **_):
     return f["time"][...], np.sqrt((v * v).sum(axis=-1)).reshape(len(v), -1).max(axis=1)
 
 
+@measurement("grid_change_rate")
+def grid_change_rate(f, entity, **_):
+    """How fast a grid entity's velocity still changes: max over cells of |u(t_k) - u(t_k-1)| / (t_k - t_k-1)
+    [m/s^2] between successive frames, at the later frame's time (a run-to-steady-state check)."""
+    v, _, _ = _grid(f, entity)
+    t = f["time"][...]
+    d = np.abs(np.diff(v, axis=0)).reshape(len(v) - 1, -1).max(axis=1)
+    return t[1:], d / np.diff(t)
+
+
+@measurement("grid_field_drift")
+def grid_field_drift(f, entity, field="density", **_):
+    """Largest change of a grid entity's cell field ``field`` from its first frame, max over cells of
+    |q(t) - q(0)|, in each frame (a state at rest must keep its smoke where it is)."""
+    q, _, _ = _grid(f, entity, field)
+    return f["time"][...], np.abs(q - q[0]).reshape(len(q), -1).max(axis=1)
+
+
 @measurement("divergence_per_substep")
 def divergence_per_substep(f, entity, **_):
     """Largest cell divergence times the substep, max |div u| dt [-] (the relative volume change of a cell
@@ -488,3 +506,7 @@ def column_height(f, entity, width, axis=0, up=None, wall=0.0, q=99.0, spacing=0
         sel = np.abs(xf[:, axis] - wall) <= width
         out.append(np.percentile(xf[sel, up], q) + 0.5 * spacing if sel.sum() else 0.0)
     return f["time"][...], np.asarray(out)
+
+
+# the PBD family's measurements register themselves in MEASUREMENTS on import
+from simcli.solvers.pbd import measures as _pbd_measures  # noqa: E402,F401

@@ -1,8 +1,14 @@
 """Stable fluids (Stam 1999, "Stable Fluids") on a MAC grid, 2D and 3D, f32 and f64.
 
-A substep is the paper's sequence of named stages::
+A substep is the paper's sequence of named stages, with the forces added after the advection
+(as in Bridson's book) so that the smoke and the velocity are carried by the projected, divergence-free
+velocity of the last step::
 
-    add_sources -> advect -> diffuse -> project
+    advect -> add_sources -> diffuse -> project
+
+(Stam's order, forces first, advects the smoke by a field that still holds the unprojected body
+force: a heavy layer at rest then drains through its own interface, 13 % of it in 10 s in the
+validation tank.)
 
 * ``add_sources`` (jets.py): jets (smoke, heat, imposed velocity or acceleration, moving on a
   path), exponential decay, Boussinesq buoyancy, vorticity confinement; one kernel launch.
@@ -214,12 +220,12 @@ class SFSolver(Solver):
     # ---------------------------------------------------------------- stepping
 
     def substep(self, dt: float) -> None:
-        self.sources(dt, self.time)  # add_sources
         if self.opts.reflection:
             its, vits = self._reflection_step(dt)
             res, rel = self.projection.last_residual(dt / 2)
         else:
             self.advector.advect(dt)  # advect
+            self.sources(dt, self.time)  # add_sources
             vits = 0
             if self.diffusion is not None:  # diffuse
                 vits, _ = self.diffusion.solve(dt)
@@ -243,6 +249,7 @@ class SFSolver(Solver):
         half = 0.5 * dt
         vits = 0
         self.advector.advect(half)
+        self.sources(dt, self.time)  # the whole substep's forces and sources, projected with the first half
         if self.diffusion is not None:
             vits += self.diffusion.solve(half)[0]
         its = self.projection.solve(half)[0]
