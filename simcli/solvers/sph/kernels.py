@@ -40,6 +40,18 @@ def cubic_gradW(x: np.ndarray, h: float, dim: int) -> np.ndarray:
     return g
 
 
+def lattice_sum(support_factor: float, dim: int) -> float:
+    """sum_j W(|x_j|) V over the infinite lattice of spacing 1 (V = 1) around a lattice point, support radius
+    ``support_factor``: 1.00086 (2D) / 0.99997 (3D) at support 2, 1.0034 / 1.0018 at support 3. Particle mass
+    and volume are divided by it, so that a lattice sits exactly at rest density: in 2D the bare kernel puts
+    it 0.09-0.3% over, which Tait's n = 7 turns into a pressure at rest of 0.6-2.4% of the stiffness (a
+    hidden background pressure of 300 Pa for water at 50 kPa, 340 Pa in the Taylor-Green case)."""
+    n = int(np.ceil(support_factor))
+    ax = np.arange(-n, n + 1, dtype=np.float64)
+    g = np.stack([c.ravel() for c in np.meshgrid(*[ax] * dim, indexing="ij")], axis=1)
+    return float(cubic_W(np.linalg.norm(g, axis=1), support_factor, dim).sum())
+
+
 def make_kernels(h: float, dim: int, f):
     """Taichi funcs ``W(r)``, ``gradW(x, r)`` (r = |x| given, to share the square root), the cohesion
     kernel ``C(r)`` and ``W_gradW(x, r)`` (both at once), with h, dim and the float type ``f`` compiled in."""

@@ -28,7 +28,7 @@ from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver
 from simcli.solvers.sph.boundary import make_pushout, sample_boundary
 from simcli.solvers.sph.dfsph import SolveStats, make_dfsph
-from simcli.solvers.sph.kernels import kernel_constant, make_kernels
+from simcli.solvers.sph.kernels import kernel_constant, lattice_sum, make_kernels
 from simcli.solvers.sph.neighbours import CellGrid, make_neighbour_funcs, neighbour_capacity
 from simcli.solvers.sph.wcsph import make_wcsph
 
@@ -82,6 +82,9 @@ class SPHSolver(Solver):
         self.has_tension = any(m.gamma > 0 for m in self.materials)
         self.frame_time = float(scene.sim.dt) * int(scene.output.every)
         self.g_norm = float(np.linalg.norm(scene.sim.gravity_vec))
+        # rest volume of a particle [m^dim]: the lattice cell over the kernel's lattice sum, so that a lattice
+        # of liquid (and of wall particles) sits at rho0 exactly
+        self.V_rest = self.ps**self.dim / lattice_sum(self.support / self.ps, self.dim)
         self.fall_height = float(
             np.linalg.norm(self.domain_hi - self.domain_lo)
         )  # longest drop in the domain
@@ -122,6 +125,7 @@ class SPHSolver(Solver):
         self.nb_g = ti.Vector.field(dim, f, shape=(n, self.K))
         self.nrm = vec() if self.has_tension else None
         self.Mv = ti.Matrix.field(dim, dim, f, shape=n) if self.has_noslip else None
+        self.shift = vec() if self.opts.shifting > 0 else None
         self.mw = vec() if self.has_noslip else None
         dfsph = self.opts.pressure_solver == "DFSPH"
         self.alpha = scal() if dfsph else None
@@ -173,7 +177,7 @@ class SPHSolver(Solver):
         npf = self.npf
         if self.nbp:
             self.bx.from_numpy(bp.x[keep][order].astype(npf))
-            self.bV.from_numpy(bp.volume[keep][order].astype(npf))
+            self.bV.from_numpy((bp.volume[keep][order] * (self.V_rest / self.ps**dim)).astype(npf))
             self.bvel.from_numpy(bp.velocity[keep][order].astype(npf))
             self.bns.from_numpy(bp.no_slip[keep][order].astype(np.int32))
         self.bstart.from_numpy(bstart.astype(np.int32))
@@ -222,12 +226,12 @@ class SPHSolver(Solver):
                 )
         self.x.from_numpy(np.clip(xs, self.domain_lo, self.domain_hi).astype(npf))
         self.v.from_numpy(np.concatenate([b.v for b in self.bodies]).astype(npf))
-        # mass = rho0 particle_size^dim: the mass that gives rho0 on the sampling lattice (the kernel's
-        # lattice sum is 1 to 1e-4); the body's exact-volume mass would put a curved body off rest density
+        # mass = rho0 V_rest: the mass that gives rho0 on the sampling lattice; the body's exact-volume mass
+        # would put a curved body off rest density
         self.mass.from_numpy(
-            np.concatenate(
-                [np.full(b.n, b.entity.material.rho * self.ps**self.dim) for b in self.bodies]
-            ).astype(npf)
+            np.concatenate([np.full(b.n, b.entity.material.rho * self.V_rest) for b in self.bodies]).astype(
+                npf
+            )
         )
         self.mid.from_numpy(
             np.concatenate([np.full(b.n, m, np.int32) for b, m in zip(self.bodies, self.body_mid)])
@@ -285,7 +289,10 @@ class SPHSolver(Solver):
         W0 = kernel_constant(h, dim)  # W(0)
         x, v, mass, mid, rho = self.x, self.v, self.mass, self.mid, self.rho
         nb_cnt, nbb_cnt, nb_j, nb_g, B, Sb = self.nb_cnt, self.nbb_cnt, self.nb_j, self.nb_g, self.B, self.Sb
-        nrm, Mv, mw, alpha = self.nrm, self.Mv, self.mw, self.alpha
+        nrm, Mv, mw, alpha, shift = self.nrm, self.Mv, self.mw, self.alpha, self.shift
+        has_shift = shift is not None
+        shift_c = float(self.opts.shifting * self.ps**2)
+        shift_max = 0.1 * self.ps
         start, bstart, bx, bV, bvel, bns = self.start, self.bstart, self.bx, self.bV, self.bvel, self.bns
         bnear = self.bnear
         mat_rho0, mat_nu, mat_gamma, gravity = self.mat_rho0, self.mat_nu, self.mat_gamma, self.gravity
@@ -304,8 +311,8 @@ class SPHSolver(Solver):
         from simcli.solvers.sph.dfsph import BFAC as bfac
 
         uniform = len(self.materials) == 1
-        m_c = float(self.materials[0].rho * self.ps**dim)
-        V_c = float(self.ps**dim)
+        m_c = float(self.materials[0].rho * self.V_rest)
+        V_c = float(self.V_rest)
 
         @ti.func
         def mass_of(j):
@@ -402,6 +409,16 @@ class SPHSolver(Solver):
                 mw[i] = m_w
             if ti.static(has_tension):
                 nrm[i] = h * G  # surface normal of Akinci et al. 2013 (eq. 4), fluid part only
+            if ti.static(has_shift):
+                # particle shifting (Lind et al. 2012): down the concentration gradient grad C = sum_j V_j
+                # grad W_ij + sum_b V_b grad W_ib, none in the deficient support of a free surface
+                ds = ti.Vector.zero(f, dim)
+                if r_i > 0.95 * rho0_i:
+                    ds = -shift_c * (G + Bi)
+                    ln = ds.norm()
+                    if ln > shift_max:
+                        ds *= shift_max / ln
+                shift[i] = ds
             if ti.static(dfsph):
                 # diagonal of the pressure operator as the solve applies it: own velocity change
                 # -dt k_i (G + bfac B) against the density rate's (G + B), plus the neighbours' reaction
@@ -458,6 +475,8 @@ class SPHSolver(Solver):
         def advect(i, vi, dt):
             """x += dt v; then the guards: clamp to the domain, push out of colliders."""
             xi = x[i] + dt * vi
+            if ti.static(has_shift):
+                xi += shift[i]
             for d in ti.static(range(dim)):
                 if xi[d] < dom_lo[d]:
                     xi[d] = dom_lo[d]
