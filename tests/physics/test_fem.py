@@ -40,6 +40,15 @@ for model in (("linear", "linear_corotated", "stable_neohookean") if what == "pa
     out["patch_" + model] = dict(ex_min=ex.min(), ex_max=ex.max(), ey_min=ey.min(), ey_max=ey.max(),
                                  info=s.info())
 
+# the muscle patch: linear in the fast set, the nonlinear models with the slow dynamics
+for model in (("linear",) if what == "patch" else ("linear_corotated", "stable_neohookean")):
+    sc = load_scene(root + "/configs/validation/fem_muscle_patch.yaml", [f"entities.0.material.model={model}"]).scene
+    s = FEMSolver(sc, []); s.build(); s.substep(sc.sim.dt)
+    x0, x = s.x0, s.positions(); u = x - x0
+    i = x0[:, 0] > 0.5; j = x0[:, 1] > 0.5
+    ex = u[i, 0] / x0[i, 0]; ey = u[j, 1] / x0[j, 1]
+    out["muscle_" + model] = dict(ex_min=ex.min(), ex_max=ex.max(), ey_min=ey.min(), ey_max=ey.max())
+
 def spin(model, integrator):
     sets = [f"entities.0.material.model={model}", f"solvers.fem.integrator={integrator}"]
     sc = load_scene(root + "/configs/validation/fem_spin.yaml", sets).scene
@@ -112,6 +121,29 @@ def test_patch_nonlinear_within_0p2_percent(res, model):
         assert abs(p[k] / 1e-3 - 1) < 2e-3, (k, p[k])
     for k in ("ey_min", "ey_max"):
         assert abs(p[k] / -3e-4 - 1) < 2e-3, (k, p[k])
+
+
+MUSCLE_EPS = -1e-3 / (1 + 1e-3)  # E eps + k a (1 + eps) = 0 with k = E, a = 1e-3
+
+
+def test_muscle_patch_linear_exact(res):
+    """FEM.Muscle, fibres along x, constant activation: the uniaxial equilibrium strain, exact for the
+    linear model (its active stress is linear in F)."""
+    p = res["muscle_linear"]
+    for k in ("ex_min", "ex_max"):
+        assert abs(p[k] - MUSCLE_EPS) < 1e-12, (k, p[k])
+    for k in ("ey_min", "ey_max"):
+        assert abs(p[k] + 0.3 * MUSCLE_EPS) < 1e-12, (k, p[k])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("model", ["linear_corotated", "stable_neohookean"])
+def test_muscle_patch_nonlinear_within_0p2_percent(dyn, model):
+    p = dyn["muscle_" + model]
+    for k in ("ex_min", "ex_max"):
+        assert abs(p[k] / MUSCLE_EPS - 1) < 2e-3, (k, p[k])
+    for k in ("ey_min", "ey_max"):
+        assert abs(p[k] / (-0.3 * MUSCLE_EPS) - 1) < 2e-3, (k, p[k])
 
 
 @pytest.mark.slow

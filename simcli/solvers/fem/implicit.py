@@ -83,6 +83,7 @@ class ImplicitIntegrator:
         nearest = make_nearest(s.scene)
         kc = float(self.opts.contact_stiffness)
         ray_a, ray_b = self.alpha, self.beta
+        has_muscle, active_dP = s.has_muscle, s.active_dP
         dA, dJ, mid, mu0, lam0 = self.dA, self.dJ, s.mid_f, s.mat_mu0, s.mat_lam0
 
         @ti.func
@@ -148,6 +149,8 @@ class ImplicitIntegrator:
                         dP = apply_dP(U, V, Hs, ls, lt, E)
                         if ti.static(ray_b > 0):
                             dP += damp_pk1(e, E) / dt
+                        if ti.static(has_muscle):
+                            dP += active_dP(e, E)
                         col = vol[e] * dP @ ga
                         for rr in ti.static(range(3)):
                             blk[rr, c] = col[rr]
@@ -208,6 +211,8 @@ class ImplicitIntegrator:
                 dP = apply_dP(hU[e], hV[e], hS[e], hls[e], hlt[e], dF)
                 if ti.static(ray_b > 0):
                     dP += damp_pk1(e, dF) / dt
+                if ti.static(has_muscle):
+                    dP += active_dP(e, dF)
                 scatter(e, vol[e] * dP @ B[e].transpose())
             pq = ti.cast(0.0, ti.f64)
             for i in range(n):

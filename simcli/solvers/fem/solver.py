@@ -25,6 +25,13 @@ with stdout_to_stderr():
 OUTPUT_FIELDS = ("position", "velocity", "displacement", "von_mises", "J")
 
 
+def _active_factor(m) -> float:
+    """FEM.Muscle: the P-wave modulus grows by at most stiffness x max|a| (explicit stability)."""
+    if getattr(m, "type", "") != "FEM.Muscle":
+        return 1.0
+    return 1.0 + m.active_stiffness * m.max_activation() / (m.lam + 2.0 * m.mu)
+
+
 class FEMSolver(Solver):
     family = "fem"
 
@@ -132,9 +139,48 @@ class FEMSolver(Solver):
             faces_area.append(0.5 * np.linalg.norm(np.cross(x[T[:, j]] - x[T[:, i]], x[T[:, k_]] - x[T[:, i]]), axis=1))
         height = 3.0 * vol / np.max(np.stack(faces_area), axis=0)
         self.h_min = float(height.min())
-        self.c_p = max(math.sqrt((m.E * (1 - m.nu) / ((1 + m.nu) * (1 - 2 * m.nu))) / m.rho) for m in self.materials)
+        self.c_p = max(math.sqrt((m.E * (1 - m.nu) / ((1 + m.nu) * (1 - 2 * m.nu))) / m.rho * _active_factor(m))
+                       for m in self.materials)
+        self._prepare_muscles()
         self.edge = float(np.mean(np.linalg.norm(x[T[:, 1]] - x[T[:, 0]], axis=1)))
         self.extent = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+
+    def _prepare_muscles(self) -> None:
+        """FEM.Muscle: per element its group (first group whose region holds the rest centroid), fibre
+        direction (rest frame, unit) and active stiffness; the groups' signals in global group order."""
+        self.signals: list = []
+        self.el_group = np.zeros(self.m, np.int32)
+        self.el_fiber = np.zeros((self.m, 3))
+        self.el_fiber[:, 2] = 1.0
+        self.el_k = np.zeros(self.m)
+        for k, e in enumerate(self.entities):
+            mat = e.material
+            if getattr(mat, "type", "") != "FEM.Muscle":
+                continue
+            lo, hi = self.toffsets[k], self.toffsets[k + 1]
+            cen = self.x0[self.tets[lo:hi]].mean(axis=1)
+            taken = np.zeros(hi - lo, bool)
+            default = mat.fiber_direction if mat.fiber_direction is not None else [0.0, 0.0, 1.0]
+            for grp in mat.group_list():
+                d = np.asarray(grp.fiber_direction if grp.fiber_direction is not None else default, np.float64)
+                sel = ~taken & (points_in_regions(grp.regions, cen) if grp.regions else True)
+                self.el_group[lo:hi][sel] = len(self.signals)
+                self.el_fiber[lo:hi][sel] = d / np.linalg.norm(d)
+                self.el_k[lo:hi][sel] = mat.active_stiffness
+                taken |= sel
+                if not sel.any():
+                    self.warnings.append(f"{e.name}: muscle group {len(self.signals)} holds no element")
+                self.signals.append(grp.actuation)
+        self.has_muscle = bool(self.signals)
+        self._last_act = None
+
+    def _update_activation(self, t: float) -> None:
+        if not self.has_muscle:
+            return
+        a = np.array([float(sig(t)) for sig in self.signals])
+        if self._last_act is None or not np.array_equal(a, self._last_act):  # a constant one is uploaded once
+            self.act_f.from_numpy(a.astype(self.npf))
+            self._last_act = a
 
     # --------------------------------------------------------------------- build
     def build(self) -> None:
@@ -169,6 +215,15 @@ class FEMSolver(Solver):
         self.stat_bad = ti.field(ti.i32, shape=nb)
         self.out_vm = ti.field(f, shape=n)
         self.out_J = ti.field(f, shape=n)
+        mm = m if self.has_muscle else 1
+        self.el_group_f = ti.field(ti.i32, shape=mm)
+        self.el_fiber_f = V3(mm)
+        self.el_k_f = ti.field(f, shape=mm)
+        self.act_f = ti.field(f, shape=max(1, len(self.signals)))
+        if self.has_muscle:
+            self.el_group_f.from_numpy(self.el_group)
+            self.el_fiber_f.from_numpy(self.el_fiber.astype(self.npf))
+            self.el_k_f.from_numpy(self.el_k.astype(self.npf))
 
         npf = self.npf
         self.x.from_numpy(self.xstart.astype(npf))
@@ -223,9 +278,32 @@ class FEMSolver(Solver):
             Ds = ti.Matrix.cols([xf[t[1]] - x0, xf[t[2]] - x0, xf[t[3]] - x0])
             return Ds @ B[e]
 
+        has_muscle = self.has_muscle
+        el_group, el_fiber, el_k, act = self.el_group_f, self.el_fiber_f, self.el_k_f, self.act_f
+
+        @ti.func
+        def active_energy(e, F):
+            """FEM.Muscle: energy k a (|F f0|^2 - 1) / 2 of the active fibre stress."""
+            Ff = F @ el_fiber[e]
+            return el_k[e] * act[el_group[e]] * 0.5 * (Ff.dot(Ff) - 1.0)
+
+        @ti.func
+        def active_pk1(e, F):
+            """FEM.Muscle: first Piola-Kirchhoff active stress k a (F f0) f0^T."""
+            f0 = el_fiber[e]
+            return el_k[e] * act[el_group[e]] * (F @ f0).outer_product(f0)
+
+        @ti.func
+        def active_dP(e, dF):
+            """dP of the active stress for the increment dF, activation clamped at 0 (positive semi-definite)."""
+            ka = ti.max(el_k[e] * act[el_group[e]], 0.0)
+            f0 = el_fiber[e]
+            return ka * (dF @ f0).outer_product(f0)
+
         @ti.func
         def law_call(e, F, which: ti.template()):
-            """energy or pk1 of element e's law (compiled only for the laws present)."""
+            """energy or pk1 of element e's law (compiled only for the laws present), plus the active
+            fibre stress of FEM.Muscle elements when the scene has any."""
             k = mid[e]
             mu, lam = mat_mu[k], mat_lam[k]
             r = ti.static(getattr(laws[0], which))(F, mu, lam)
@@ -234,6 +312,11 @@ class FEMSolver(Solver):
                 for q in ti.static(range(1, nl)):
                     if lid == q:
                         r = ti.static(getattr(laws[q], which))(F, mu, lam)
+            if ti.static(has_muscle):
+                if ti.static(which == "energy"):
+                    r += active_energy(e, F)
+                else:
+                    r += active_pk1(e, F)
             return r
 
         @ti.func
@@ -267,6 +350,7 @@ class FEMSolver(Solver):
             return s
 
         self.deformation, self.law_call, self.law_hessian = deformation, law_call, law_hessian
+        self.active_dP = active_dP
         self.scatter_columns, self.gather = scatter_columns, gather
 
         nb = len(self.entities)
@@ -337,6 +421,8 @@ class FEMSolver(Solver):
 
     # -------------------------------------------------------------- stepping
     def substep(self, dt: float) -> None:
+        # activation at the substep's start (explicit) or end (implicit: backward Euler's forces are at t + dt)
+        self._update_activation(self.time + (dt if self.implicit else 0.0))
         self.integrator.substep(dt, self.time)
         self.time += dt
         self._version += 1
