@@ -91,18 +91,23 @@ def compute_error(case: Case, t: np.ndarray, measured: np.ndarray) -> dict:
     diff = meas - ref
     scale = spec.scale if spec.scale is not None else None
     m = spec.metric
+    # the measured value the error is computed from, and the reference it is compared with (report)
+    judged, judged_ref = float(meas.mean()), float(ref.mean())
     if m == "max_abs":
-        err = np.abs(diff).max()
+        k = int(np.argmax(np.abs(diff)))
+        err, judged, judged_ref = np.abs(diff)[k], float(meas[k]), float(ref[k])
     elif m == "max_rel":
-        err = (np.abs(diff) / (scale or np.maximum(np.abs(ref), 1e-300))).max()
+        rel = np.abs(diff) / (scale or np.maximum(np.abs(ref), 1e-300))
+        k = int(np.argmax(rel))
+        err, judged, judged_ref = rel[k], float(meas[k]), float(ref[k])
     elif m == "rms":
         err = math.sqrt(float(np.mean(diff**2)))
     elif m == "rms_rel":
         err = math.sqrt(float(np.mean(diff**2))) / (scale or float(np.sqrt(np.mean(ref**2))))
     elif m == "final_abs":
-        err = abs(diff[-1])
+        err, judged, judged_ref = abs(diff[-1]), float(meas[-1]), float(ref[-1])
     elif m == "final_rel":
-        err = abs(diff[-1]) / (scale or abs(ref[-1]))
+        err, judged, judged_ref = abs(diff[-1]) / (scale or abs(ref[-1])), float(meas[-1]), float(ref[-1])
     elif m == "mean_abs":
         err = np.abs(diff).mean()
     elif m == "mean_rel":
@@ -111,16 +116,18 @@ def compute_error(case: Case, t: np.ndarray, measured: np.ndarray) -> dict:
         # the static state an undamped oscillation swings about: its time average over the largest
         # whole number of periods in the window (period from the crossings of its mean); a
         # settled, non-oscillating series: the mean of the window's second half
-        err = abs(period_mean(tt, meas) - ref.mean()) / (scale or abs(ref.mean()))
+        judged = float(period_mean(tt, meas))
+        err = abs(judged - ref.mean()) / (scale or abs(ref.mean()))
     elif m == "midrange_rel":
         # (max + min) / 2 of an oscillation about a static state: the static value, whatever
         # the period, once the window holds a full period
-        err = abs(0.5 * (meas.max() + meas.min()) - ref.mean()) / (scale or abs(ref.mean()))
+        judged = float(0.5 * (meas.max() + meas.min()))
+        err = abs(judged - ref.mean()) / (scale or abs(ref.mean()))
     elif m == "mean_value_abs":
         err = abs(meas.mean() - ref.mean())
     elif m == "mean_value_rel":
         err = abs(meas.mean() - ref.mean()) / (scale or abs(ref.mean()))
     else:  # pragma: no cover - the model restricts metric
         raise ValueError(m)
-    return {"error": float(err), "measured_mean": float(meas.mean()), "reference_mean": float(ref.mean()),
-            "points": len(tt)}
+    return {"error": float(err), "measured": judged, "reference": judged_ref, "measured_mean": float(meas.mean()),
+            "reference_mean": float(ref.mean()), "points": len(tt)}

@@ -142,7 +142,10 @@ def run_case(case: Case, level: int, out_root: Path, backend: str | None = None,
         res.message = f"measurement failed: {type(ex).__name__}: {ex}"
         return res
     res.error = e["error"]
-    res.message = f"measured {e['measured_mean']:.6g}, reference {e['reference_mean']:.6g}"
+    where = {"max_abs": " (worst point)", "max_rel": " (worst point)", "final_abs": " (final)",
+             "final_rel": " (final)", "rms": " (mean)", "rms_rel": " (mean)", "mean_abs": " (mean)",
+             "mean_rel": " (mean)"}.get(case.error.metric, "")
+    res.message = f"measured {e['measured']:.6g}, reference {e['reference']:.6g}{where}"
     if judge:
         res.passed = bool(math.isfinite(res.error) and res.error <= case.tolerance)
     return res
