@@ -417,7 +417,9 @@ class Runner:
             kw = {} if grid is None else {"grid_shape": grid[0], "origin": grid[1], "spacing": grid[2]}
             metas.append(EntityMeta(name=e.name, kind=s.entity_kind(e.name), n=s.entity_size(e.name),
                                     dim=self.scene.sim.dim, fields={f: avail[f] for f in fields},
-                                    cells=s.entity_cells(e.name), **kw))
+                                    cells=s.entity_cells(e.name),
+                                    cell_fields=tuple(f for f in fields if f in getattr(s, "cell_fields", ())),
+                                    **kw))
             self._entity_fields[e.name] = (s, fields)
         return metas
 

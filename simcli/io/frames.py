@@ -52,6 +52,7 @@ class EntityMeta:
     origin: tuple | None = None  # lower corner, x y z order
     spacing: tuple | None = None  # cell size, x y z order
     dtype: str = "float32"  # default storage type of the fields
+    cell_fields: tuple = ()  # names in ``fields`` given per cell (n_cells values) of a mesh, not per point
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -93,6 +94,10 @@ class EntityMeta:
                 raise ValueError(f"entity {self.name!r}: a {self.kind} entity needs a 'position' field")
             if self.fields["position"][0] != self.dim:
                 raise ValueError(f"entity {self.name!r}: position must have {self.dim} components")
+        self.cell_fields = tuple(self.cell_fields)
+        for fname in self.cell_fields:
+            if fname not in self.fields or fname == "position" or self.kind not in NODES_PER_CELL:
+                raise ValueError(f"entity {self.name!r}: cell field {fname!r} needs a declared field of a mesh")
         if self.kind in NODES_PER_CELL:
             if self.cells is None:
                 raise ValueError(f"mesh entity {self.name!r} ({self.kind}) needs cells")
@@ -113,10 +118,14 @@ class EntityMeta:
         assert self.grid_shape is not None
         return tuple(reversed(self.grid_shape))
 
+    def _rows(self, fname: str) -> int:
+        """Values per frame of a mesh or particle field: one per cell for cell fields, else one per point."""
+        return int(self.cells.shape[0]) if fname in self.cell_fields else self.n
+
     def frame_shape(self, fname: str) -> tuple[int, ...]:
         """Shape of one frame of a field as stored (without the leading frame axis)."""
         comps = self.fields[fname][0]
-        base = self.zyx_shape if self.kind == "grid" else (self.n,)
+        base = self.zyx_shape if self.kind == "grid" else (self._rows(fname),)
         return base + ((comps,) if comps > 1 else ())
 
     def prepare(self, fname: str, arr) -> np.ndarray:
@@ -125,10 +134,11 @@ class EntityMeta:
         a = np.asarray(arr)
         want = self.frame_shape(fname)
         if a.shape != want:
-            flat = (self.n,) + ((comps,) if comps > 1 else ())
+            rows = self.n if self.kind == "grid" else self._rows(fname)
+            flat = (rows,) + ((comps,) if comps > 1 else ())
             ok = a.size == int(np.prod(want)) and (
                 a.shape == flat
-                or (self.kind != "grid" and a.shape[:1] == (self.n,))  # (n, 1) scalars, (n, 3, 3) tensors
+                or (self.kind != "grid" and a.shape[:1] == (rows,))  # (n, 1) scalars, (n, 3, 3) tensors
             )
             if not ok:
                 hint = " (grids are stored z, y, x: x varies fastest)" if self.kind == "grid" else ""

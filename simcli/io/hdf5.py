@@ -234,6 +234,8 @@ class H5Writer:
                     d.attrs["origin"] = np.asarray(e.origin, dtype="f8")
                     d.attrs["spacing"] = np.asarray(e.spacing, dtype="f8")
                     d.attrs["center"] = "cell"
+                elif fname in e.cell_fields:  # one value per cell of the mesh (rows of "cells")
+                    d.attrs["center"] = "cell"
                 self._ds.append((d, e.name, fname))
         self._time, self._step = t, s
         self._times = []

@@ -149,14 +149,18 @@ class _EntityFiles:
         self.entries.append((frame, time, f"{self.e.name}/{self.fname(frame)}"))
         self.write_pvd()
 
-    def _point_arrays(self, data: dict[str, np.ndarray]) -> list[tuple[str, np.ndarray, int]]:
+    def _point_arrays(self, data: dict[str, np.ndarray], cell: bool = False) -> list[tuple[str, np.ndarray, int]]:
+        """Point data arrays (cell=False) or the per-cell fields of a mesh (cell=True)."""
         out = []
         for fname, (comps, _u, _dt) in self.e.fields.items():
             if fname == "position" and self.e.kind != "grid":
                 continue
+            if (fname in self.e.cell_fields) != cell:
+                continue
             a = data[fname]
             if self.e.kind != "grid":
-                a = a.reshape(self.e.n, comps) if comps > 1 else a.reshape(self.e.n)
+                rows = self.e.frame_shape(fname)[0]
+                a = a.reshape(rows, comps) if comps > 1 else a.reshape(rows)
             if comps == 2 and self.e.dim == 2:  # 2D vectors as 3D so ParaView glyphs them
                 a = np.concatenate([a, np.zeros(a.shape[:-1] + (1,), a.dtype)], axis=-1)
                 comps = 3
@@ -212,9 +216,10 @@ class _EntityFiles:
             'header_type="UInt64" compressor="vtkZLibDataCompressor">\n<UnstructuredGrid>\n'
             f'<Piece NumberOfPoints="{e.n}" NumberOfCells="{self._ncell}">'
         )
-        sections = [
-            ("PointData", self._point_arrays(data)), ("Points", [("Points", pos, 3)]), ("Cells", self._static)
-        ]
+        sections = [("PointData", self._point_arrays(data))]
+        if e.cell_fields:
+            sections.append(("CellData", self._point_arrays(data, cell=True)))
+        sections += [("Points", [("Points", pos, 3)]), ("Cells", self._static)]
         return self._body(head, sections, "</Piece>\n</UnstructuredGrid>\n")
 
     def _vti(self, data: dict[str, np.ndarray]) -> list[bytes]:

@@ -142,9 +142,10 @@ class XdmfWriter:
         for fname, (comps, _unit, _dt) in e.fields.items():
             if fname == "position" and e.kind != "grid":
                 continue
+            c = "Cell" if fname in e.cell_fields else center
             parts.append(
                 f'<Attribute Name={quoteattr(fname)} AttributeType="{_attribute_type(comps, e.dim)}" '
-                f'Center="{center}">{self._slab(e, fname, frame)}</Attribute>'
+                f'Center="{c}">{self._slab(e, fname, frame)}</Attribute>'
             )
         parts.append("</Grid>")
         return "".join(parts)

@@ -22,7 +22,7 @@ from simcli.solvers.fem.models import LAWS, lame_for
 with stdout_to_stderr():
     import taichi as ti
 
-OUTPUT_FIELDS = ("position", "velocity", "displacement", "von_mises", "J")
+OUTPUT_FIELDS = ("position", "velocity", "displacement", "von_mises", "J", "von_mises_nodal", "J_nodal")
 
 
 def _active_factor(m) -> float:
@@ -34,6 +34,8 @@ def _active_factor(m) -> float:
 
 class FEMSolver(Solver):
     family = "fem"
+    # per element (cell data in .vtu, sim.h5 and XDMF); the *_nodal fields are volume-weighted vertex means
+    cell_fields = ("von_mises", "J")
 
     def __init__(self, scene: Any, bodies: list[Body], scene_dir=None) -> None:
         super().__init__(scene, bodies)
@@ -215,6 +217,8 @@ class FEMSolver(Solver):
         self.stat_bad = ti.field(ti.i32, shape=nb)
         self.out_vm = ti.field(f, shape=n)
         self.out_J = ti.field(f, shape=n)
+        self.el_vm = ti.field(f, shape=m)
+        self.el_J = ti.field(f, shape=m)
         mm = m if self.has_muscle else 1
         self.el_group_f = ti.field(ti.i32, shape=mm)
         self.el_fiber_f = V3(mm)
@@ -358,7 +362,7 @@ class FEMSolver(Solver):
         n, m = self.n, self.m
         f64 = self.f == ti.f64
         f = self.f
-        vol, xr, out_vm, out_J = self.vol_f, self.xr, self.out_vm, self.out_J
+        vol, out_vm, out_J, el_vm, el_J = self.vol_f, self.out_vm, self.out_J, self.el_vm, self.el_J
 
         @ti.func
         def finite(a):
@@ -384,7 +388,8 @@ class FEMSolver(Solver):
 
         @ti.kernel
         def outputs():
-            """Per vertex: the volume-weighted mean of the adjacent elements' von Mises Cauchy stress and J."""
+            """Per element the von Mises Cauchy stress and J; per vertex their volume-weighted means over the
+            adjacent elements."""
             for e in range(m):
                 F = deformation(e, x)
                 J = F.determinant()
@@ -395,6 +400,8 @@ class FEMSolver(Solver):
                 p = s.trace() / 3.0
                 dev = s - p * ti.Matrix.identity(float, 3)
                 vm = ti.sqrt(1.5 * (dev * dev).sum())
+                el_vm[e] = vm
+                el_J[e] = J
                 self.fe[4 * e] = ti.Vector([vm * vol[e], J * vol[e], vol[e]])
             for i in range(n):
                 acc = ti.Vector.zero(float, 3)
@@ -470,24 +477,28 @@ class FEMSolver(Solver):
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
         return {"position": (3, "m"), "velocity": (3, "m/s"), "displacement": (3, "m"), "von_mises": (1, "Pa"),
-                "J": (1, "1")}
+                "J": (1, "1"), "von_mises_nodal": (1, "Pa"), "J_nodal": (1, "1")}
 
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
         k = self._index[name]
         lo, hi = self.offsets[k], self.offsets[k + 1]
         out = {}
-        if any(f in ("von_mises", "J") for f in fields):
+        if any(f in ("von_mises", "J", "von_mises_nodal", "J_nodal") for f in fields):
             self._outputs()
+        tlo, thi = self.toffsets[k], self.toffsets[k + 1]
         for fld in fields:
+            if fld in self.cell_fields:
+                out[fld] = np.array((self.el_vm if fld == "von_mises" else self.el_J).to_numpy()[tlo:thi])
+                continue
             if fld == "position":
                 a = self.x.to_numpy()
             elif fld == "velocity":
                 a = self.v.to_numpy()
             elif fld == "displacement":
                 a = self.x.to_numpy() - self.x0
-            elif fld == "von_mises":
+            elif fld == "von_mises_nodal":
                 a = self.out_vm.to_numpy()
-            elif fld == "J":
+            elif fld == "J_nodal":
                 a = self.out_J.to_numpy()
             else:
                 raise KeyError(f"unknown FEM output field {fld!r}; known: {', '.join(OUTPUT_FIELDS)}")
