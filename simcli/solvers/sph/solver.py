@@ -89,6 +89,13 @@ class SPHSolver(Solver):
             np.linalg.norm(self.domain_hi - self.domain_lo)
         )  # longest drop in the domain
         self.dfsph_stats = SolveStats()
+        self.dt_limits: dict[str, Any] = {
+            "checks": 0,
+            "bound_by": {},
+            "sum_dt": 0.0,
+            "sum_sound_share": 0.0,
+            "sum_compression_factor": 0.0,
+        }
         self._built = False
 
     # ------------------------------------------------------------------ build
@@ -596,11 +603,21 @@ class SPHSolver(Solver):
             ratio = max(1.0, float(self.stat_rho[None]))
             n_max = max(m.exponent for m in self.materials)
             c = self.c_max * ratio ** (0.5 * (n_max - 1.0)) if math.isfinite(ratio) else self.c_max
-        dt = self.opts.max_substep
+        limits = {"max_substep": self.opts.max_substep}
         if v_est + c > 0:
-            dt = min(dt, self.opts.cfl * self.ps / (v_est + c))
+            limits["cfl"] = self.opts.cfl * self.ps / (v_est + c)
         if self.nu_max > 0:
-            dt = min(dt, VISCOUS_SAFETY * self.ps**2 / self.nu_max)
+            limits["viscous"] = VISCOUS_SAFETY * self.ps**2 / self.nu_max
+        bound = min(limits, key=limits.get)
+        dt = limits[bound]
+        # what set the substep, for run.json: which limit, and in a CFL limit the share of the sound speed
+        a = self.dt_limits
+        a["checks"] += 1
+        a["bound_by"][bound] = a["bound_by"].get(bound, 0) + 1
+        a["sum_dt"] += dt
+        if bound == "cfl":
+            a["sum_sound_share"] += c / (v_est + c)
+            a["sum_compression_factor"] += c / self.c_max if c > 0 else 1.0
         return float(dt)
 
     # ------------------------------------------------------------------ output
@@ -693,6 +710,18 @@ class SPHSolver(Solver):
         }
         if self._built:
             d["neighbour_overflow"] = int(self.overflow[None])
+        a = self.dt_limits
+        if a["checks"]:
+            ncfl = a["bound_by"].get("cfl", 0)
+            d["stable_dt"] = {
+                "checks": a["checks"],
+                "bound_by": dict(a["bound_by"]),
+                "mean_dt_s": a["sum_dt"] / a["checks"],
+                # in the CFL-bound checks: c / (v + c), and c / c0 (Tait's sound speed at the largest
+                # compression over the sound speed at rest)
+                "cfl_sound_speed_share_mean": a["sum_sound_share"] / ncfl if ncfl else None,
+                "cfl_compression_factor_mean": a["sum_compression_factor"] / ncfl if ncfl else None,
+            }
         if self.opts.pressure_solver == "DFSPH":
             d["dfsph"] = self.dfsph_stats.report()
             d["tolerances_percent"] = {
