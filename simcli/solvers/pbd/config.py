@@ -34,6 +34,10 @@ class PBDOptions(_Options):
     bending_iterations: int = Field(
         1, ge=1, description="Gauss-Seidel sweeps over the bending constraints per substep (Genesis: "
         "max_bending_solver_iterations).")
+    collisions: bool = Field(
+        True, description="Particle-particle contact between PBD vertices (cloth self-collision, bodies against "
+        "each other) at a distance of the two radii (particle_size for cloth), with Coulomb friction; vertices "
+        "of one body closer than that in the rest shape are exempt.")
 
 
 class _PBDMaterial(_Material):
@@ -44,6 +48,10 @@ class _PBDMaterial(_Material):
         1.0e-5, ge=0, description="XPBD compliance of the bending constraints: [1/(N m)] for cloth (dihedral "
         "angle in rad), [m/N] for rods (distance between every other vertex); null: no bending constraints "
         "(a chain).")
+    static_friction: float = Field(0.15, ge=0, description="Static Coulomb friction coefficient [-] of "
+                                   "particle-particle contact (the larger of the two vertices' applies).")
+    kinetic_friction: float = Field(0.15, ge=0, description="Kinetic Coulomb friction coefficient [-] of "
+                                    "particle-particle contact.")
     air_resistance: float = Field(
         0.0, ge=0, description="Linear air drag rate [1/s]: each substep velocities are multiplied by "
         "exp(-air_resistance dt). (Genesis's air_resistance is a force coefficient [N s/m] per particle.)")

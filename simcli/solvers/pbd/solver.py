@@ -4,7 +4,7 @@ and rods.
 A substep reads like the paper (Algorithm 1)::
 
     predict -> reset multipliers -> project constraints (stretch sweeps, bending sweeps)
-            -> contact (walls, colliders, friction) -> update velocities
+            -> particle contact (contact.py) -> walls and colliders (friction) -> update velocities
 
 * Each constraint j keeps a Lagrange multiplier lambda_j, zeroed at the start of every substep and
   accumulated over the iterations: dlambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~),
@@ -37,6 +37,9 @@ with stdout_to_stderr():
     import taichi as ti
 
 OUTPUT_FIELDS = ("position", "velocity", "reaction", "displacement")
+# Up to this many constraints the sweeps of a substep run in one single-threaded kernel launch: a launch
+# and a task per colour cost ~10-60 us on a CPU, a constraint ~20 ns.
+SERIAL_CONSTRAINTS = 4000
 
 
 class _ConstraintSet:
@@ -99,6 +102,9 @@ class PBDSolver(Solver):
         fixed = np.zeros(n, bool)
         radius = np.zeros(n)
         drag = np.zeros(n)
+        body = np.zeros(n, np.int32)
+        mu_s = np.zeros(n)
+        mu_k = np.zeros(n)
         st, st_r, st_c, bd, bd_r, bd_c, dh, dh_r, dh_c = ([] for _ in range(9))
         self.warnings = []
         for k, (e, m) in enumerate(zip(self.entities, self.meshes)):
@@ -118,6 +124,8 @@ class PBDSolver(Solver):
             fixed[lo:hi] = held
             radius[lo:hi] = m.radius if m.radius > 0 else 0.5 * self.opts.particle_size
             drag[lo:hi] = mat.air_resistance
+            body[lo:hi] = k
+            mu_s[lo:hi], mu_k[lo:hi] = mat.static_friction, mat.kinetic_friction
             st.append(m.stretch + lo)
             st_r.append(m.stretch_rest)
             st_c.append(np.full(len(m.stretch), mat.stretch_compliance))
@@ -132,7 +140,7 @@ class PBDSolver(Solver):
             dh_c.append(np.full(len(m.dihedral), mat.bending_compliance))
         v[fixed] = 0.0
         self.x0, self.xstart, self.v0, self.mass, self.fixed = x0, xs, v, mass, fixed
-        self.radius, self.drag = radius, drag
+        self.radius, self.drag, self.body, self.mu_s, self.mu_k = radius, drag, body, mu_s, mu_k
         self.inv_mass = np.where(fixed, 0.0, 1.0 / np.maximum(mass, 1e-300))
         cat = np.concatenate
         self.stretch = _ConstraintSet("stretch", 2, cat(st).astype(np.int64), cat(st_r), cat(st_c), n)
@@ -141,6 +149,8 @@ class PBDSolver(Solver):
         self.dihedral = _ConstraintSet("dihedral", 4, cat(dh).astype(np.int64).reshape(-1, 4), cat(dh_r),
                                        cat(dh_c), n)
         self.edge = float(np.mean(self.stretch.rest)) if self.stretch.k else self.opts.particle_size
+        # small bodies: every sweep of a substep in one single-threaded launch (see project_serial)
+        self.serial = self.stretch.k + self.bend_dist.k + self.dihedral.k <= SERIAL_CONSTRAINTS
 
     # --------------------------------------------------------------------- build
     def build(self) -> None:
@@ -186,6 +196,17 @@ class PBDSolver(Solver):
         self.body_off.from_numpy(np.array(self.offsets, np.int32))
         self.stat_speed = ti.field(f, shape=nb)
         self.stat_bad = ti.field(ti.i32, shape=nb)
+        self.contact = None
+        if self.opts.collisions:
+            from simcli.solvers.pbd.contact import ParticleContact
+
+            body_f = ti.field(ti.i32, shape=n)
+            body_f.from_numpy(self.body)
+            mus, muk = ti.field(f, shape=n), ti.field(f, shape=n)
+            mus.from_numpy(self.mu_s.astype(npf))
+            muk.from_numpy(self.mu_k.astype(npf))
+            self.contact = ParticleContact(n, f, 4.0 * float(self.radius.max()), self.x, self.xp, self.x0_f, self.w,
+                                           self.rad, body_f, mus, muk)
         self._make_kernels()
         self._built = True
         self.frame_check()
@@ -212,73 +233,99 @@ class PBDSolver(Solver):
                 for k in range(cs.k):
                     cs.f_lam[k] = 0.0
 
-        def make_distance(cs):
+        def distance_func(cs):
             idx, rest, comp, lam = cs.f_idx, cs.f_rest, cs.f_comp, cs.f_lam
 
+            @ti.func
+            def project(k, inv_dt2):
+                i, j = idx[k][0], idx[k][1]
+                wsum = w[i] + w[j]
+                d = x[i] - x[j]
+                length = d.norm()
+                if wsum > 0 and length > eps:
+                    nrm = d / length
+                    at = comp[k] * inv_dt2
+                    dl = (-(length - rest[k]) - at * lam[k]) / (wsum + at)
+                    lam[k] += dl
+                    x[i] += w[i] * dl * nrm
+                    x[j] -= w[j] * dl * nrm
+
+            return project
+
+        def dihedral_func(cs):
+            idx, rest, comp, lam = cs.f_idx, cs.f_rest, cs.f_comp, cs.f_lam
+
+            @ti.func
+            def project(k, inv_dt2):
+                q = idx[k]
+                x1, x2, x3, x4 = x[q[0]], x[q[1]], x[q[2]], x[q[3]]
+                E = x4 - x3
+                le = E.norm()
+                n1 = (x1 - x3).cross(x1 - x4)
+                n2 = (x2 - x4).cross(x2 - x3)
+                s1, s2 = n1.norm_sqr(), n2.norm_sqr()
+                wsum = w[q[0]] + w[q[1]] + w[q[2]] + w[q[3]]
+                if wsum > 0 and le > eps and s1 > eps * eps and s2 > eps * eps:
+                    a1, a2 = n1 / s1, n2 / s2
+                    g1 = -le * a1
+                    g2 = -le * a2
+                    g3 = -((x1 - x4).dot(E) * a1 + (x2 - x4).dot(E) * a2) / le
+                    g4 = ((x1 - x3).dot(E) * a1 + (x2 - x3).dot(E) * a2) / le
+                    u1, u2 = n1 / ti.sqrt(s1), n2 / ti.sqrt(s2)
+                    C = ti.atan2(u1.cross(u2).dot(E) / le, u1.dot(u2)) - rest[k]
+                    if C > math.pi:  # the angle wraps at +-pi
+                        C -= 2.0 * math.pi
+                    elif C < -math.pi:
+                        C += 2.0 * math.pi
+                    den = (w[q[0]] * g1.norm_sqr() + w[q[1]] * g2.norm_sqr() + w[q[2]] * g3.norm_sqr()
+                           + w[q[3]] * g4.norm_sqr())
+                    at = comp[k] * inv_dt2
+                    if den + at > eps:
+                        dl = (-C - at * lam[k]) / (den + at)
+                        lam[k] += dl
+                        x[q[0]] += w[q[0]] * dl * g1
+                        x[q[1]] += w[q[1]] * dl * g2
+                        x[q[2]] += w[q[2]] * dl * g3
+                        x[q[3]] += w[q[3]] * dl * g4
+
+            return project
+
+        def sweep_kernel(cs, project):
+            """One Gauss-Seidel sweep: the colours one after another, each colour one parallel loop."""
+
             @ti.kernel
-            def solve(dt: float):
+            def sweep(dt: float):
                 inv_dt2 = 1.0 / (dt * dt)
                 for c in ti.static(range(cs.colours)):
                     for k in range(cs.offsets[c], cs.offsets[c + 1]):
-                        i, j = idx[k][0], idx[k][1]
-                        wsum = w[i] + w[j]
-                        d = x[i] - x[j]
-                        length = d.norm()
-                        if wsum > 0 and length > eps:
-                            nrm = d / length
-                            at = comp[k] * inv_dt2
-                            dl = (-(length - rest[k]) - at * lam[k]) / (wsum + at)
-                            lam[k] += dl
-                            x[i] += w[i] * dl * nrm
-                            x[j] -= w[j] * dl * nrm
+                        project(k, inv_dt2)
 
-            return solve
+            return sweep
 
-        def make_dihedral(cs):
-            idx, rest, comp, lam = cs.f_idx, cs.f_rest, cs.f_comp, cs.f_lam
+        st, bd, dh = self.stretch, self.bend_dist, self.dihedral
+        p_st, p_bd, p_dh = distance_func(st), distance_func(bd), dihedral_func(dh)
+        self._solve_stretch = sweep_kernel(st, p_st) if st.k else None
+        self._solve_bend_dist = sweep_kernel(bd, p_bd) if bd.k else None
+        self._solve_dihedral = sweep_kernel(dh, p_dh) if dh.k else None
 
-            @ti.kernel
-            def solve(dt: float):
-                inv_dt2 = 1.0 / (dt * dt)
-                for c in ti.static(range(cs.colours)):
-                    for k in range(cs.offsets[c], cs.offsets[c + 1]):
-                        q = idx[k]
-                        x1, x2, x3, x4 = x[q[0]], x[q[1]], x[q[2]], x[q[3]]
-                        E = x4 - x3
-                        le = E.norm()
-                        n1 = (x1 - x3).cross(x1 - x4)
-                        n2 = (x2 - x4).cross(x2 - x3)
-                        s1, s2 = n1.norm_sqr(), n2.norm_sqr()
-                        wsum = w[q[0]] + w[q[1]] + w[q[2]] + w[q[3]]
-                        if wsum > 0 and le > eps and s1 > eps * eps and s2 > eps * eps:
-                            a1, a2 = n1 / s1, n2 / s2
-                            g1 = -le * a1
-                            g2 = -le * a2
-                            g3 = -((x1 - x4).dot(E) * a1 + (x2 - x4).dot(E) * a2) / le
-                            g4 = ((x1 - x3).dot(E) * a1 + (x2 - x3).dot(E) * a2) / le
-                            u1, u2 = n1 / ti.sqrt(s1), n2 / ti.sqrt(s2)
-                            theta = ti.atan2(u1.cross(u2).dot(E) / le, u1.dot(u2))
-                            C = theta - rest[k]
-                            if C > math.pi:
-                                C -= 2.0 * math.pi
-                            elif C < -math.pi:
-                                C += 2.0 * math.pi
-                            den = (w[q[0]] * g1.norm_sqr() + w[q[1]] * g2.norm_sqr() + w[q[2]] * g3.norm_sqr()
-                                   + w[q[3]] * g4.norm_sqr())
-                            at = comp[k] * inv_dt2
-                            if den + at > eps:
-                                dl = (-C - at * lam[k]) / (den + at)
-                                lam[k] += dl
-                                x[q[0]] += w[q[0]] * dl * g1
-                                x[q[1]] += w[q[1]] * dl * g2
-                                x[q[2]] += w[q[2]] * dl * g3
-                                x[q[3]] += w[q[3]] * dl * g4
+        @ti.kernel
+        def project_serial(dt: float, stretch_iters: int, bending_iters: int):
+            """Every sweep of a substep in one launch, on one thread (small bodies, where launching a
+            kernel per sweep and a task per colour costs more than the constraints; same order, same
+            result as the parallel sweeps)."""
+            inv_dt2 = 1.0 / (dt * dt)
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                for it in range(stretch_iters):
+                    for k in range(st.k):
+                        p_st(k, inv_dt2)
+                for it in range(bending_iters):
+                    for k in range(bd.k):
+                        p_bd(k, inv_dt2)
+                    for k in range(dh.k):
+                        p_dh(k, inv_dt2)
 
-            return solve
-
-        self._solve_stretch = make_distance(self.stretch) if self.stretch.k else None
-        self._solve_bend_dist = make_distance(self.bend_dist) if self.bend_dist.k else None
-        self._solve_dihedral = make_dihedral(self.dihedral) if self.dihedral.k else None
+        self._project_serial = project_serial
 
         from simcli.colliders import sdf_box, sdf_cylinder, sdf_plane, sdf_sphere
 
@@ -399,15 +446,19 @@ class PBDSolver(Solver):
     def substep(self, dt: float) -> None:
         self._predict(dt)
         self._reset()
-        if self._solve_stretch is not None:
+        if self.serial:
+            self._project_serial(dt, self.opts.stretch_iterations, self.opts.bending_iterations)
+        elif self._solve_stretch is not None:
             for _ in range(self.opts.stretch_iterations):
                 self._solve_stretch(dt)
-        if self._solve_bend_dist is not None or self._solve_dihedral is not None:
+        if not self.serial and (self._solve_bend_dist is not None or self._solve_dihedral is not None):
             for _ in range(self.opts.bending_iterations):
                 if self._solve_bend_dist is not None:
                     self._solve_bend_dist(dt)
                 if self._solve_dihedral is not None:
                     self._solve_dihedral(dt)
+        if self.contact is not None:
+            self.contact.step()
         self._contact()
         self._update_velocity(dt)
         self.time += dt
@@ -492,6 +543,7 @@ class PBDSolver(Solver):
 
     def info(self) -> dict[str, Any]:
         return {"method": "XPBD, Gauss-Seidel by graph colouring", "vertices": self.n,
+                "sweeps": "one single-threaded launch per substep" if self.serial else "one launch per sweep",
                 "stretch_constraints": self.stretch.k, "stretch_colours": self.stretch.colours,
                 "bending_constraints": self.bend_dist.k + self.dihedral.k,
                 "bending_colours": self.bend_dist.colours + self.dihedral.colours,
