@@ -47,6 +47,7 @@ from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver
 from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, elastic_moduli, law_key
+from simcli.solvers.taichi_funcs import make_body_of, make_finite
 
 with stdout_to_stderr():
     import taichi as ti
@@ -587,29 +588,8 @@ class MPMSolver(Solver):
         body_offsets, stat_speed, stat_bad = self.body_offsets, self.stat_speed, self.stat_bad
         f64 = f == ti.f64
 
-        @ti.func
-        def finite(a):
-            # exponent bits all ones = inf or NaN; bit test because fast-math may drop isnan
-            ok = True
-            for d in ti.static(range(a.n)):
-                if ti.static(f64):
-                    ok = ok and ((ti.bit_cast(a[d], ti.i64) >> 52) & 0x7FF) != 0x7FF
-                else:
-                    ok = ok and ((ti.bit_cast(a[d], ti.i32) >> 23) & 0xFF) != 0xFF
-            return ok
-
-        @ti.func
-        def body_of(p):
-            lo = 0
-            if ti.static(nb > 1):
-                hi = nb
-                while hi - lo > 1:
-                    m = (lo + hi) // 2
-                    if body_offsets[m] <= p:
-                        lo = m
-                    else:
-                        hi = m
-            return lo
+        finite = make_finite(f64)
+        body_of = make_body_of(nb, body_offsets)
 
         stat_stiff = self.stat_stiff
         any_hardening = any(law.hardens for law in laws)

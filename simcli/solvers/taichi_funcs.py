@@ -1,0 +1,47 @@
+"""Small Taichi functions that every solver family's per-frame checks use.
+
+Built by factories because they close over compile-time constants (the float type, the body
+offsets of a solver's particle arrays).
+"""
+
+from simcli.backend import stdout_to_stderr
+
+with stdout_to_stderr():
+    import taichi as ti
+
+
+def make_finite(f64: bool):
+    """``finite(v)``: True when no component of vector ``v`` is inf or NaN. A bit test of the
+    exponent (all ones = inf or NaN), because fast-math may fold ``isnan`` away."""
+
+    @ti.func
+    def finite(a):
+        ok = True
+        for d in ti.static(range(a.n)):
+            if ti.static(f64):
+                ok = ok and ((ti.bit_cast(a[d], ti.i64) >> 52) & 0x7FF) != 0x7FF
+            else:
+                ok = ok and ((ti.bit_cast(a[d], ti.i32) >> 23) & 0xFF) != 0xFF
+        return ok
+
+    return finite
+
+
+def make_body_of(nb: int, body_offsets):
+    """``body_of(p)``: the body (entity) that item ``p`` belongs to, by bisection over the
+    ascending first-item offsets ``body_offsets`` (an i32 field of ``nb`` entries)."""
+
+    @ti.func
+    def body_of(p):
+        lo = 0
+        if ti.static(nb > 1):
+            hi = nb
+            while hi - lo > 1:
+                m = (lo + hi) // 2
+                if body_offsets[m] <= p:
+                    lo = m
+                else:
+                    hi = m
+        return lo
+
+    return body_of
