@@ -97,6 +97,19 @@ _Loader.add_implicit_resolver(
 )
 
 
+def read_yaml_file(path: Path) -> Located:
+    """Read and parse a YAML file, keeping positions. Raises SceneError when the file is missing,
+    unreadable or malformed."""
+    shown = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SceneError([f"{shown}: file not found"]) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneError([f"{shown}: cannot read: {e}"]) from None
+    return parse_yaml(text, shown)
+
+
 def parse_yaml(text: str, file: str) -> Located:
     """Parse YAML text, keeping positions. Raises SceneError for malformed YAML."""
     loc = Located(data=None, file=file)
@@ -357,14 +370,7 @@ def load_scene(path: str | Path, sets: list[str] | tuple[str, ...] = (), check: 
     Raises SceneError with every problem found, one formatted line each.
     """
     path = Path(path)
-    shown = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SceneError([f"{shown}: file not found"]) from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise SceneError([f"{shown}: cannot read: {e}"]) from None
-    loc = parse_yaml(text, shown)
+    loc = read_yaml_file(path)
     if sets:
         errors = []
         for s in sets:

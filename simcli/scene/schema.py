@@ -10,16 +10,25 @@ from simcli.scene.models import Scene
 SCHEMA_ID = "https://simcli.dev/schemas/scene.schema.json"
 
 
-def scene_schema() -> dict:
-    schema = Scene.model_json_schema(mode="validation")
+def model_schema(model, schema_id: str, title: str) -> dict:
+    """The JSON Schema (draft 2020-12) of a pydantic model, as editors read it."""
+    schema = model.model_json_schema(mode="validation")
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
-    schema["$id"] = SCHEMA_ID
-    schema["title"] = "simcli scene"
+    schema["$id"] = schema_id
+    schema["title"] = title
     return schema
 
 
+def schema_json(schema: dict) -> str:
+    return json.dumps(schema, indent=2, sort_keys=True) + "\n"
+
+
+def scene_schema() -> dict:
+    return model_schema(Scene, SCHEMA_ID, "simcli scene")
+
+
 def schema_text() -> str:
-    return json.dumps(scene_schema(), indent=2, sort_keys=True) + "\n"
+    return schema_json(scene_schema())
 
 
 def write_schemas(out_dir: Path) -> list[Path]:

@@ -29,8 +29,17 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from simcli.errors import SceneError
-from simcli.scene.loader import LoadedScene, Located, _clean_loc, _describe, parse_yaml, sort_lines
+from simcli.scene.loader import (
+    LoadedScene,
+    Located,
+    _clean_loc,
+    _describe,
+    parse_yaml,
+    read_yaml_file,
+    sort_lines,
+)
 from simcli.scene.overrides import apply_overrides, split_path
+from simcli.scene.schema import model_schema, schema_json
 
 SCHEMA_ID = "https://simcli.dev/schemas/sweep.schema.json"
 # where a sweep keeps its own files (sbatch script, submissions, logs) inside its output folder
@@ -82,15 +91,11 @@ class Sweep(BaseModel):
 
 
 def sweep_schema() -> dict:
-    schema = Sweep.model_json_schema(mode="validation")
-    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
-    schema["$id"] = SCHEMA_ID
-    schema["title"] = "simcli sweep"
-    return schema
+    return model_schema(Sweep, SCHEMA_ID, "simcli sweep")
 
 
 def sweep_schema_text() -> str:
-    return json.dumps(sweep_schema(), indent=2, sort_keys=True) + "\n"
+    return schema_json(sweep_schema())
 
 
 def looks_like_sweep(path: str | Path) -> bool:
@@ -251,14 +256,7 @@ def _format_model_errors(exc: ValidationError, loc: Located) -> list[str]:
 def load_sweep(path: str | Path) -> LoadedSweep:
     """Read, validate and expand a sweep file. Raises SceneError with every problem found."""
     path = Path(path)
-    shown = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SceneError([f"{shown}: file not found"]) from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise SceneError([f"{shown}: cannot read: {e}"]) from None
-    loc = parse_yaml(text, shown)
+    loc = read_yaml_file(path)
     errors: list[str] = []
     data = loc.data
     for section in ("grid", "zip"):
