@@ -43,3 +43,12 @@ def pbd_support_force(f, entity, axis=2, **_):
                        "velocity, reaction])")
     r = np.asarray(g["reaction"][...], dtype=np.float64)
     return f["time"][...], r[:, :, axis].sum(axis=1)
+
+
+@measurement("pbd_sphere_penetration")
+def pbd_sphere_penetration(f, entity, center, radius, **_):
+    """How far the deepest vertex is inside a sphere of ``center`` and ``radius`` [m] (0 when none is)."""
+    _, g = _entity(f, entity)
+    x = np.asarray(g["position"][...], dtype=np.float64)
+    d = np.linalg.norm(x - np.asarray(center, dtype=np.float64), axis=2).min(axis=1)
+    return f["time"][...], np.maximum(0.0, float(radius) - d)

@@ -1,0 +1,107 @@
+"""PBD against references (shared/reference/README.md and issue #7).
+
+* free fall: a cloth with no contact falls as z0 - g t^2 / 2 (symplectic Euler's g dt t / 2 offset
+  allowed) and keeps its edge lengths;
+* hanging chain of 20 unit masses: the support force is 19 m g (f64, in a subprocess);
+* stiffness independence (slow): a cloth strip's sag changes by less than 3 % between 20 and 160
+  stretch iterations and between dt and dt / 2.
+The spring period, catenary and drape cases are validation cases (configs/validation/pbd_*).
+"""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_free_fall_of_a_cloth(ti_f32):
+    from simcli.scene.models import Scene
+    from simcli.solvers.pbd.solver import PBDSolver
+
+    dt, n = 1e-3, 200
+    scene = Scene.model_validate({
+        "sim": {"dt": dt, "substeps": 1},
+        "domain": {"lower": [-1, -1, 0], "upper": [1, 1, 2]},
+        "entities": [{"name": "c", "material": {"type": "PBD.Cloth", "rho": 0.3},
+                      "morph": {"type": "Rectangle", "center": [0, 0, 1.5], "size": [0.4, 0.3], "resolution": 8}}]})
+    s = PBDSolver(scene, [])
+    s.build()
+    for _ in range(n):
+        s.substep(dt)
+    x = s.x.to_numpy().astype(np.float64)
+    t = n * dt
+    exact = 1.5 - 0.5 * 9.81 * t * t
+    assert x[:, 2].mean() == pytest.approx(exact, abs=0.5 * 9.81 * dt * t + 1e-5)
+    e = s.stretch.idx
+    assert np.allclose(np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1), s.stretch.rest, atol=1e-5)
+    v = s.v.to_numpy()
+    assert np.allclose(v[:, 2], -9.81 * t, rtol=1e-4) and np.abs(v[:, :2]).max() < 1e-5
+
+
+CHAIN = r"""
+import json, sys
+from simcli.backend import init_taichi
+init_taichi("cpu", "f64")
+from simcli.scene.loader import load_scene
+from simcli.solvers.pbd.solver import PBDSolver
+out = {}
+for it in (5, 50):
+    sc = load_scene(sys.argv[1], [f"solvers.pbd.stretch_iterations={it}", "sim.precision=f64"]).scene
+    s = PBDSolver(sc, []); s.build()
+    dt = sc.sim.dt / sc.sim.substeps
+    for _ in range(1000):
+        s.substep(dt)
+    out[it] = float(s.entity_arrays("chain", ["reaction"])["reaction"][:, 2].sum())
+print(json.dumps(out))
+"""
+
+
+def test_hanging_chain_support_force_is_19_m_g():
+    r = subprocess.run([sys.executable, "-c", CHAIN, str(ROOT / "configs/validation/pbd_chain.yaml")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    force = json.loads(r.stdout.strip().splitlines()[-1])
+    for it, fz in force.items():
+        assert fz == pytest.approx(19 * 9.81, rel=1e-3), it
+
+
+SAG = r"""
+import json, sys
+import numpy as np
+from simcli.backend import init_taichi
+init_taichi("cpu", "f64")
+from simcli.scene.loader import load_scene
+from simcli.solvers.pbd.solver import PBDSolver
+out = {}
+for name, sets in (("it20", ["solvers.pbd.stretch_iterations=20"]),
+                   ("it160", ["solvers.pbd.stretch_iterations=160"]),
+                   ("half_dt", ["solvers.pbd.stretch_iterations=20", "sim.substeps=20"])):
+    sc = load_scene(sys.argv[1], sets).scene
+    s = PBDSolver(sc, []); s.build()
+    dt = sc.sim.dt / sc.sim.substeps
+    steps = int(round(sc.sim.duration / dt))
+    z0 = s.x.to_numpy()[:, 2].max()
+    sag = []
+    for k in range(steps):
+        s.substep(dt)
+        if k * dt >= 2.0 and k % 10 == 0:
+            sag.append(z0 - s.x.to_numpy()[:, 2].min())
+    out[name] = float(np.mean(sag))
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+def test_cloth_sag_does_not_depend_on_iterations_or_substep():
+    r = subprocess.run([sys.executable, "-c", SAG, str(ROOT / "configs/validation/pbd_cloth_sag.yaml")],
+                       capture_output=True, text=True, timeout=1200)
+    assert r.returncode == 0, r.stderr[-2000:]
+    sag = json.loads(r.stdout.strip().splitlines()[-1])
+    assert sag["it20"] > 0.02  # the strip does sag (it is exactly as long as the span)
+    assert abs(sag["it160"] / sag["it20"] - 1) < 0.03
+    assert abs(sag["half_dt"] / sag["it20"] - 1) < 0.03
