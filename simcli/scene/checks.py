@@ -93,6 +93,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
     seen: dict[str, int] = {}
     n_particles = 0
     n_sph = 0
+    fem_v = fem_t = 0
     mpm = s.solvers.mpm
     sph = s.solvers.sph
     for i, e in enumerate(s.entities):
@@ -116,12 +117,20 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         if e.family == "PBD":  # sheets, polylines and open meshes: the PBD family checks its own morphs
             from simcli.solvers.pbd.config import check_entity
 
-            for p, msg in check_entity(e, dim, loaded.scene_dir, lo if ok_dom else None, hi):
+            for p, msg in check_entity(e, dim, loaded.scene_dir, lo if ok_dom else None, hi, s.solvers.pbd):
                 err(base + p, msg)
             continue
         if e.family == "SF" and m.type == "Mesh":
             err(mpath + ("type",), "SF.Smoke morphs are Box, Sphere or Cylinder (Mesh is not available)")
             continue
+        if e.family == "FEM":  # 3D only; TetGen needed for Sphere, Cylinder and surface meshes
+            from simcli.solvers.fem.mesh import check_entity as fem_check
+
+            found = fem_check(e, dim, loaded.scene_dir)
+            for p, msg in found:
+                err(base + p, msg)
+            if found:
+                continue
         shape_ok = True
         for f in ("lower", "upper", "center", "size"):
             shape_ok &= need_len(mpath + (f,), getattr(m, f, None))
@@ -149,6 +158,11 @@ def check_scene(loaded: LoadedScene) -> list[str]:
                 n_particles += estimate_particle_count(m, mpm.spacing, dim, loaded.scene_dir)
             elif e.family == "SPH":
                 n_sph += estimate_particle_count(m, sph.particle_size, dim, loaded.scene_dir)
+            elif e.family == "FEM":
+                from simcli.solvers.fem.mesh import estimate_counts
+
+                nv, nt = estimate_counts(e, s.solvers.fem, loaded.scene_dir)
+                fem_v, fem_t = fem_v + nv, fem_t + nt
         except Exception as ex:  # mesh unreadable or not closed
             err(mpath + ("file",) if m.type == "Mesh" else mpath, str(ex))
             continue
@@ -190,8 +204,17 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         need += (n_sph * _sph_bytes_per_particle(dim, sph.support_factor) + n_bnd * _SPH_BYTES_PER_BOUNDARY[dim]
                  + sph_cells * _SPH_BYTES_PER_CELL) * fp
         n_particles += n_sph
+    if fem_t:
+        from simcli.solvers.fem.mesh import estimate_bytes as fem_bytes
+
+        need += fem_bytes(fem_v, fem_t, s.solvers.fem.integrator, s.sim.precision)
     avail = _available_memory()
-    if need > MEMORY_FRACTION * avail and sf_cells:
+    if need > MEMORY_FRACTION * avail and fem_t and not (n_particles or sf_cells):
+        err(("solvers", "fem", "resolution"),
+            f"scene too large: needs about {need / 2**30:.1f} GiB (about {fem_v:,} FEM vertices, {fem_t:,} "
+            f"tetrahedra) but only {avail / 2**30:.1f} GiB is available; lower solvers.fem.resolution (Box) "
+            f"or raise max_volume (Sphere, Cylinder, surface meshes)")
+    elif need > MEMORY_FRACTION * avail and sf_cells:
         err(("solvers", "sf", "resolution"),
             f"scene too large: needs about {need / 2**30:.1f} GiB ({sf_cells:,} SF grid cells"
             f"{f', {n_particles:,} particles' if n_particles else ''}) but only {avail / 2**30:.1f} GiB is "

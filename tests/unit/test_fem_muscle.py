@@ -75,3 +75,46 @@ def test_bad_muscle_is_an_invalid_scene(tmp_path, patch, message):
     r = subprocess.run([sys.executable, "-m", "simcli", "validate", str(p)], capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 65 and message in r.stderr, r.stderr
+
+
+# --------------------------------------------------------------- FEM scene checks (simcli validate)
+
+CHECK_SCENE = """version: 1
+sim: {dim: 3, dt: 1.0e-3, steps: 1}
+domain: {lower: [-1, -1, -1], upper: [1, 1, 1]}
+solvers:
+  fem: {resolution: RES}
+entities:
+  - name: b
+    material: {type: FEM.Elastic}
+    morph: MORPH
+"""
+
+
+def _validate(tmp_path, res=20, morph="{type: Box, lower: [-0.5, -0.5, -0.5], upper: [0.5, 0.5, 0.5]}", dim=3):
+    text = CHECK_SCENE.replace("RES", str(res)).replace("MORPH", morph)
+    if dim == 2:
+        text = (text.replace("dim: 3", "dim: 2").replace("[-1, -1, -1]", "[-1, -1]").replace("[1, 1, 1]", "[1, 1]")
+                .replace("[-0.5, -0.5, -0.5]", "[-0.5, -0.5]").replace("[0.5, 0.5, 0.5]", "[0.5, 0.5]"))
+    p = tmp_path / "s.yaml"
+    p.write_text(text)
+    return subprocess.run([sys.executable, "-m", "simcli", "validate", str(p)], capture_output=True, text=True,
+                          timeout=120)
+
+
+def test_fem_scene_checks(tmp_path):
+    assert _validate(tmp_path).returncode == 0
+    r = _validate(tmp_path, dim=2)
+    assert r.returncode == 65 and "FEM.Elastic entities need a 3D scene (sim.dim: 3)" in r.stderr, r.stderr
+    r = _validate(tmp_path, res=3000)
+    assert r.returncode == 65 and "solvers.fem.resolution: scene too large" in r.stderr, r.stderr
+    assert "162,000,000,000 tetrahedra" in r.stderr, r.stderr  # 3000^3 cells x 6
+
+
+def test_fem_sphere_without_tetgen_names_the_package(tmp_path):
+    import importlib.util
+
+    if importlib.util.find_spec("tetgen") is not None:
+        pytest.skip("tetgen is installed here")
+    r = _validate(tmp_path, morph="{type: Sphere, center: [0, 0, 0], radius: 0.2}")
+    assert r.returncode == 65 and "pip install tetgen" in r.stderr, r.stderr
