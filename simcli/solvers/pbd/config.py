@@ -34,20 +34,16 @@ class PBDOptions(_Options):
     bending_iterations: int = Field(
         1, ge=1, description="Gauss-Seidel sweeps over the bending constraints per substep (Genesis: "
         "max_bending_solver_iterations).")
+    tet_resolution: float = Field(
+        20.0, gt=0, description="PBD.Elastic soft bodies: cells per metre of the tetrahedralisation (as FEM's "
+        "resolution: Box morphs split each cell into 6 tets; other solids get tets of about that size).")
     collisions: bool = Field(
-        True, description="Particle-particle contact between PBD vertices (cloth self-collision, bodies against "
+        True, description="Particle-particle contact between PBD vertices and particles (cloth self-collision, bodies against "
         "each other) at a distance of the two radii (particle_size for cloth), with Coulomb friction; vertices "
         "of one body closer than that in the rest shape are exempt.")
 
 
-class _PBDMaterial(_Material):
-    stretch_compliance: float = Field(
-        1.0e-7, ge=0, description="XPBD compliance of the stretch (distance) constraints [m/N]: the inverse of "
-        "an edge's spring stiffness; 0 = inextensible.")
-    bending_compliance: float | None = Field(
-        1.0e-5, ge=0, description="XPBD compliance of the bending constraints: [1/(N m)] for cloth (dihedral "
-        "angle in rad), [m/N] for rods (distance between every other vertex); null: no bending constraints "
-        "(a chain).")
+class _PBDBase(_Material):
     static_friction: float = Field(0.15, ge=0, description="Static Coulomb friction coefficient [-] of "
                                    "particle-particle contact (the larger of the two vertices' applies).")
     kinetic_friction: float = Field(0.15, ge=0, description="Kinetic Coulomb friction coefficient [-] of "
@@ -55,6 +51,16 @@ class _PBDMaterial(_Material):
     air_resistance: float = Field(
         0.0, ge=0, description="Linear air drag rate [1/s]: each substep velocities are multiplied by "
         "exp(-air_resistance dt). (Genesis's air_resistance is a force coefficient [N s/m] per particle.)")
+
+
+class _PBDMaterial(_PBDBase):
+    stretch_compliance: float = Field(
+        1.0e-7, ge=0, description="XPBD compliance of the stretch (distance) constraints [m/N]: the inverse of "
+        "an edge's spring stiffness; 0 = inextensible.")
+    bending_compliance: float | None = Field(
+        1.0e-5, ge=0, description="XPBD compliance of the bending constraints: [1/(N m)] for cloth (dihedral "
+        "angle in rad), [m/N] for rods (distance between every other vertex); null: no bending constraints "
+        "(a chain).")
 
 
 class PBDCloth(_PBDMaterial):
@@ -68,23 +74,39 @@ class PBDCloth(_PBDMaterial):
 
 class PBDElastic(_PBDMaterial):
     """Rods and chains from `Line` morphs: stretch constraints on segments, bending constraints between
-    every other vertex (rest distance from the rest polyline)."""
+    every other vertex (rest distance from the rest polyline). Soft bodies from Box, Sphere, Cylinder and
+    Mesh morphs, tetrahedralised as for FEM: stretch constraints on the tet edges and a volume constraint
+    per tet."""
 
     type: Literal["PBD.Elastic"]
     rho: float = Field(1000.0, gt=0, description="Density [kg/m^3]; a rod's mass is rho x pi radius^2 x length, "
-                       "shared equally by its vertices.")
+                       "shared equally by its vertices; a soft body's vertex gets a quarter of each adjacent "
+                       "tet's mass.")
+    volume_compliance: float = Field(
+        0.0, ge=0, description="Soft bodies: XPBD compliance of the tet volume constraints C = V - V0 [m^5/N] "
+        "(energy C^2 / (2 compliance)); 0 = incompressible.")
     initial_stretch: Vec | None = Field(
         None, description="Start deformed: initial vertex positions scaled by these factors [-] per axis about "
         "the body's centroid, the rest shape unchanged (a stretched spring released).")
 
 
+class PBDParticle(_PBDBase):
+    """Particles that only collide (granular crowds): the morph is filled with a lattice of spacing
+    solvers.pbd.particle_size; contact with each other, walls and colliders, with Coulomb friction."""
+
+    type: Literal["PBD.Particle"]
+    rho: float = Field(1000.0, gt=0, description="Density [kg/m^3]; particle mass = rho x morph volume / "
+                       "particle count.")
+
+
 # Every PBD material type; the scene's material union is built from these.
-MATERIALS = (PBDCloth, PBDElastic)
+MATERIALS = (PBDCloth, PBDElastic, PBDParticle)
 
-MORPHS = {"PBD.Cloth": ("Rectangle", "Mesh"), "PBD.Elastic": ("Line",)}
+MORPHS = {"PBD.Cloth": ("Rectangle", "Mesh"), "PBD.Elastic": ("Line", "Box", "Sphere", "Cylinder", "Mesh"),
+          "PBD.Particle": ("Box", "Sphere", "Cylinder", "Mesh")}
 
 
-def check_entity(e, dim: int, scene_dir, lo, hi) -> list[tuple[tuple, str]]:
+def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple, str]]:
     """Semantic checks of a PBD entity: (path below the entity, message) per problem."""
     out: list[tuple[tuple, str]] = []
     m = e.morph
@@ -92,8 +114,9 @@ def check_entity(e, dim: int, scene_dir, lo, hi) -> list[tuple[tuple, str]]:
         return [(("material", "type"), f"{e.material.type} entities need a 3D scene (sim.dim: 3)")]
     allowed = MORPHS.get(e.material.type, ())
     if m.type not in allowed:
-        what = {"PBD.Cloth": "cloth is a Rectangle or a triangle Mesh", "PBD.Elastic": "rods are Line morphs "
-                "(tetrahedral soft bodies are not available yet)"}.get(e.material.type, "")
+        what = {"PBD.Cloth": "cloth is a Rectangle or a triangle Mesh", "PBD.Elastic": "rods are Line morphs, "
+                "soft bodies solids", "PBD.Particle": "a solid shape filled with particles"}.get(e.material.type,
+                                                                                              "")
         return [(("morph", "type"), f"{e.material.type} takes {' or '.join(allowed)} morphs ({what}); got {m.type}")]
     for j, r in enumerate(e.fixed_regions):
         rpath = ("fixed",) + ((j,) if isinstance(e.fixed, list) else ())
@@ -101,7 +124,11 @@ def check_entity(e, dim: int, scene_dir, lo, hi) -> list[tuple[tuple, str]]:
             v = getattr(r, f, None)
             if v is not None and len(v) != 3:
                 out.append((rpath + (f,), f"expected 3 components for dim 3 (got {len(v)})"))
-    if m.type == "Rectangle" and len(m.center) != 3:
+    for f in ("lower", "upper", "size") if m.type == "Box" else ():
+        v = getattr(m, f, None)
+        if v is not None and len(v) != 3:
+            out.append((("morph", f), f"expected 3 components for dim 3 (got {len(v)})"))
+    if m.type in ("Rectangle", "Sphere", "Cylinder") and len(m.center) != 3:
         out.append((("morph", "center"), f"expected 3 components for dim 3 (got {len(m.center)})"))
     if m.type == "Line":
         if len(m.points[0]) != 3:
@@ -116,7 +143,7 @@ def check_entity(e, dim: int, scene_dir, lo, hi) -> list[tuple[tuple, str]]:
     try:
         from simcli.solvers.pbd.topology import mesh_for_entity
 
-        x = mesh_for_entity(e, scene_dir).x
+        x = mesh_for_entity(e, scene_dir, opts).x
     except Exception as ex:  # unreadable mesh file, no triangles
         return [(("morph",) + (("file",) if m.type == "Mesh" else ()), str(ex))]
     if lo is not None:

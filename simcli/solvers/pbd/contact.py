@@ -9,8 +9,9 @@ two cells only adds candidates that the distance test rejects. Each vertex compu
 correction from all its neighbours (no atomics, order independent) and the corrections are applied
 together: Jacobi, like Genesis's, which is enough for contact (one pair, one push).
 
-Two vertices of the same body are not pushed apart when they were closer than the contact distance
-in the rest shape (mesh neighbours): what a sheet's own edges hold together is not a collision.
+Two vertices of the same meshed body (cloth, rod, soft body) are not pushed apart when they were
+closer than the contact distance in the rest shape (mesh neighbours): what a sheet's own edges hold
+together is not a collision. Free particles get a body id of their own each (``body`` < 0).
 """
 
 from __future__ import annotations
@@ -80,7 +81,7 @@ class ParticleContact:
                                 d = x[i] - x[j]
                                 dist = d.norm()
                                 target = rad[i] + rad[j]
-                                near_at_rest = body[i] == body[j] and (x0[i] - x0[j]).norm() <= target
+                                near_at_rest = body[i] == body[j] and (x0[i] - x0[j]).norm() <= target * 1.0001
                                 if dist < target and dist > 1e-12 and not near_at_rest:
                                     nrm = d / dist
                                     share = w[i] / (w[i] + w[j])

@@ -82,7 +82,7 @@ class PBDSolver(Solver):
             raise ValueError("PBD entities need a 3D scene (sim.dim: 3)")
         self.opts = scene.solvers.pbd
         self.entities = [e for e in scene.entities if e.family == "PBD"]
-        self.meshes = [mesh_for_entity(e, scene_dir) for e in self.entities]
+        self.meshes = [mesh_for_entity(e, scene_dir, self.opts) for e in self.entities]
         self._index = {e.name: k for k, e in enumerate(self.entities)}
         self.offsets = [0]
         for m in self.meshes:
@@ -106,7 +106,8 @@ class PBDSolver(Solver):
         body = np.zeros(n, np.int32)
         mu_s = np.zeros(n)
         mu_k = np.zeros(n)
-        st, st_r, st_c, bd, bd_r, bd_c, dh, dh_r, dh_c = ([] for _ in range(9))
+        st, st_r, st_c, bd, bd_r, bd_c, dh, dh_r, dh_c, tv, tv_r, tv_c = ([] for _ in range(12))
+        meshed = np.zeros(n, np.int32)
         self.warnings = []
         for k, (e, m) in enumerate(zip(self.entities, self.meshes)):
             lo, hi = self.offsets[k], self.offsets[k + 1]
@@ -129,29 +130,35 @@ class PBDSolver(Solver):
             mu_s[lo:hi], mu_k[lo:hi] = mat.static_friction, mat.kinetic_friction
             st.append(m.stretch + lo)
             st_r.append(m.stretch_rest)
-            st_c.append(np.full(len(m.stretch), mat.stretch_compliance))
-            if mat.bending_compliance is None:  # a chain: no bending constraints
+            st_c.append(np.full(len(m.stretch), getattr(mat, "stretch_compliance", 0.0)))
+            meshed[lo:hi] = int(m.meshed)
+            if getattr(mat, "bending_compliance", None) is None:  # a chain, particles: no bending constraints
                 m.bend_dist, m.dihedral = m.bend_dist[:0], m.dihedral[:0]
                 m.bend_dist_rest, m.dihedral_rest = m.bend_dist_rest[:0], m.dihedral_rest[:0]
             bd.append(m.bend_dist + lo)
             bd_r.append(m.bend_dist_rest)
-            bd_c.append(np.full(len(m.bend_dist), mat.bending_compliance))
+            bd_c.append(np.full(len(m.bend_dist), getattr(mat, "bending_compliance", None) or 0.0))
             dh.append(m.dihedral + lo)
             dh_r.append(m.dihedral_rest)
-            dh_c.append(np.full(len(m.dihedral), mat.bending_compliance))
+            dh_c.append(np.full(len(m.dihedral), getattr(mat, "bending_compliance", None) or 0.0))
+            tv.append(m.tets + lo)
+            tv_r.append(m.tets_rest)
+            tv_c.append(np.full(len(m.tets), getattr(mat, "volume_compliance", 0.0)))
         v[fixed] = 0.0
         self.x0, self.xstart, self.v0, self.mass, self.fixed = x0, xs, v, mass, fixed
         self.radius, self.drag, self.body, self.mu_s, self.mu_k = radius, drag, body, mu_s, mu_k
+        self.meshed = meshed
         self.inv_mass = np.where(fixed, 0.0, 1.0 / np.maximum(mass, 1e-300))
         cat = np.concatenate
-        self.stretch = _ConstraintSet("stretch", 2, cat(st).astype(np.int64), cat(st_r), cat(st_c), n)
+        self.stretch = _ConstraintSet("stretch", 2, cat(st).astype(np.int64).reshape(-1, 2), cat(st_r), cat(st_c), n)
         self.bend_dist = _ConstraintSet("bend_dist", 2, cat(bd).astype(np.int64).reshape(-1, 2), cat(bd_r),
                                         cat(bd_c), n)
         self.dihedral = _ConstraintSet("dihedral", 4, cat(dh).astype(np.int64).reshape(-1, 4), cat(dh_r),
                                        cat(dh_c), n)
+        self.volume = _ConstraintSet("volume", 4, cat(tv).astype(np.int64).reshape(-1, 4), cat(tv_r), cat(tv_c), n)
         self.edge = float(np.mean(self.stretch.rest)) if self.stretch.k else self.opts.particle_size
         # small bodies: every sweep of a substep in one single-threaded launch (see project_serial)
-        self.serial = self.stretch.k + self.bend_dist.k + self.dihedral.k <= SERIAL_CONSTRAINTS
+        self.serial = self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k <= SERIAL_CONSTRAINTS
 
     # --------------------------------------------------------------------- build
     def build(self) -> None:
@@ -176,7 +183,7 @@ class PBDSolver(Solver):
         self.rad.from_numpy(self.radius.astype(npf))
         self.drag_f.from_numpy(self.drag.astype(npf))
         self.gravity[None] = [float(c) for c in self.scene.sim.gravity_vec]
-        for cs in (self.stretch, self.bend_dist, self.dihedral):
+        for cs in (self.stretch, self.bend_dist, self.dihedral, self.volume):
             cs.allocate(f, npf)
         # walls and colliders: kinds compile-time, numbers in fields
         self.walls = wall_specs(self.scene, 3)
@@ -202,7 +209,7 @@ class PBDSolver(Solver):
             from simcli.solvers.pbd.contact import ParticleContact
 
             body_f = ti.field(ti.i32, shape=n)
-            body_f.from_numpy(self.body)
+            body_f.from_numpy(np.where(self.meshed > 0, self.body, -1 - np.arange(n)).astype(np.int32))
             mus, muk = ti.field(f, shape=n), ti.field(f, shape=n)
             mus.from_numpy(self.mu_s.astype(npf))
             muk.from_numpy(self.mu_k.astype(npf))
@@ -226,7 +233,7 @@ class PBDSolver(Solver):
                     v[i] = vi
                     x[i] = x[i] + dt * vi
 
-        sets = (self.stretch, self.bend_dist, self.dihedral)
+        sets = (self.stretch, self.bend_dist, self.dihedral, self.volume)
 
         @ti.kernel
         def reset_multipliers():
@@ -291,6 +298,32 @@ class PBDSolver(Solver):
 
             return project
 
+        def volume_func(cs):
+            """Tet volume C = V - V0, V = (x2 - x1) x (x3 - x1) . (x4 - x1) / 6 (Macklin et al. 2016 sec. 5)."""
+            idx, rest, comp, lam = cs.f_idx, cs.f_rest, cs.f_comp, cs.f_lam
+
+            @ti.func
+            def project(k, inv_dt2):
+                q = idx[k]
+                x1, x2, x3, x4 = x[q[0]], x[q[1]], x[q[2]], x[q[3]]
+                g2 = (x3 - x1).cross(x4 - x1) / 6.0
+                g3 = (x4 - x1).cross(x2 - x1) / 6.0
+                g4 = (x2 - x1).cross(x3 - x1) / 6.0
+                g1 = -(g2 + g3 + g4)
+                C = (x2 - x1).dot(g2) - rest[k]
+                den = (w[q[0]] * g1.norm_sqr() + w[q[1]] * g2.norm_sqr() + w[q[2]] * g3.norm_sqr()
+                       + w[q[3]] * g4.norm_sqr())
+                at = comp[k] * inv_dt2
+                if den + at > eps * eps * eps:
+                    dl = (-C - at * lam[k]) / (den + at)
+                    lam[k] += dl
+                    x[q[0]] += w[q[0]] * dl * g1
+                    x[q[1]] += w[q[1]] * dl * g2
+                    x[q[2]] += w[q[2]] * dl * g3
+                    x[q[3]] += w[q[3]] * dl * g4
+
+            return project
+
         def sweep_kernel(cs, project):
             """One Gauss-Seidel sweep: the colours one after another, each colour one parallel loop."""
 
@@ -303,8 +336,9 @@ class PBDSolver(Solver):
 
             return sweep
 
-        st, bd, dh = self.stretch, self.bend_dist, self.dihedral
-        p_st, p_bd, p_dh = distance_func(st), distance_func(bd), dihedral_func(dh)
+        st, bd, dh, tv = self.stretch, self.bend_dist, self.dihedral, self.volume
+        p_st, p_bd, p_dh, p_tv = distance_func(st), distance_func(bd), dihedral_func(dh), volume_func(tv)
+        self._solve_volume = sweep_kernel(tv, p_tv) if tv.k else None
         self._solve_stretch = sweep_kernel(st, p_st) if st.k else None
         self._solve_bend_dist = sweep_kernel(bd, p_bd) if bd.k else None
         self._solve_dihedral = sweep_kernel(dh, p_dh) if dh.k else None
@@ -320,6 +354,8 @@ class PBDSolver(Solver):
                 for it in range(stretch_iters):
                     for k in range(st.k):
                         p_st(k, inv_dt2)
+                    for k in range(tv.k):  # volume with the stretch sweeps (soft bodies)
+                        p_tv(k, inv_dt2)
                 for it in range(bending_iters):
                     for k in range(bd.k):
                         p_bd(k, inv_dt2)
@@ -458,6 +494,8 @@ class PBDSolver(Solver):
         elif self._solve_stretch is not None:
             for _ in range(self.opts.stretch_iterations):
                 self._solve_stretch(dt)
+                if self._solve_volume is not None:
+                    self._solve_volume(dt)
         if not self.serial and (self._solve_bend_dist is not None or self._solve_dihedral is not None):
             for _ in range(self.opts.bending_iterations):
                 if self._solve_bend_dist is not None:
@@ -495,7 +533,8 @@ class PBDSolver(Solver):
         return self.meshes[self._index[name]].kind
 
     def entity_cells(self, name: str):
-        return self.meshes[self._index[name]].cells
+        m = self.meshes[self._index[name]]
+        return None if m.kind == "particles" else m.cells
 
     def entity_size(self, name: str) -> int:
         return self.meshes[self._index[name]].n
@@ -504,7 +543,8 @@ class PBDSolver(Solver):
         return name in self._index
 
     def default_fields(self, name: str) -> list[str]:
-        return ["position", "velocity"]
+        tets = self.meshes[self._index[name]].kind == "tets"
+        return ["position", "velocity", "displacement"] if tets else ["position", "velocity"]
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
         return {"position": (3, "m"), "velocity": (3, "m/s"), "reaction": (3, "N"), "displacement": (3, "m")}
@@ -546,7 +586,7 @@ class PBDSolver(Solver):
         self.last_dt = float(np.asarray(state.get("last_dt", [0.0])).reshape(-1)[0])
 
     def counts(self) -> dict[str, int]:
-        return {"vertices": self.n, "constraints": self.stretch.k + self.bend_dist.k + self.dihedral.k}
+        return {"vertices": self.n, "constraints": self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k}
 
     def info(self) -> dict[str, Any]:
         return {"method": "XPBD, Gauss-Seidel by graph colouring", "vertices": self.n,
@@ -555,4 +595,5 @@ class PBDSolver(Solver):
                 "bending_constraints": self.bend_dist.k + self.dihedral.k,
                 "bending_colours": self.bend_dist.colours + self.dihedral.colours,
                 "stretch_iterations": self.opts.stretch_iterations,
+                "volume_constraints": self.volume.k, "volume_colours": self.volume.colours,
                 "bending_iterations": self.opts.bending_iterations, "warnings": self.warnings}

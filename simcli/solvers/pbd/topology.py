@@ -36,7 +36,10 @@ class PBDMesh:
     bend_dist_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))
     dihedral: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))  # x1, x2, x3, x4
     dihedral_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))  # rest angles [rad]
+    tets: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))  # volume constraints
+    tets_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))  # rest volumes [m^3]
     radius: float = 0.0  # contact radius of a rod [m] (0: from solvers.pbd.particle_size)
+    meshed: bool = True  # vertices joined by constraints (False: free particles)
 
     @property
     def n(self) -> int:
@@ -197,10 +200,46 @@ def colour(constraints: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.nda
 # ---------------------------------------------------------------- bodies
 
 
-def mesh_for_entity(e, scene_dir=None) -> PBDMesh:
-    """The PBD mesh of an entity: a cloth sheet (Rectangle, open or closed triangle Mesh) or a rod (Line)."""
+def tet_volumes(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    a = x[tets[:, 0]]
+    return np.einsum("ij,ij->i", np.cross(x[tets[:, 1]] - a, x[tets[:, 2]] - a), x[tets[:, 3]] - a) / 6.0
+
+
+def mesh_for_entity(e, scene_dir=None, opts=None) -> PBDMesh:
+    """The PBD mesh of an entity: a cloth sheet (Rectangle, open or closed triangle Mesh), a rod (Line),
+    a tetrahedral soft body (PBD.Elastic solids, meshed as FEM does) or free particles (PBD.Particle)."""
     m = e.morph
     mat = e.material
+    if opts is None:
+        from simcli.solvers.pbd.config import PBDOptions
+
+        opts = PBDOptions()
+    if mat.type == "PBD.Particle":
+        from simcli.geometry.sampling import sample_morph
+
+        x, volume, _ = sample_morph(m, opts.particle_size, 3, scene_dir)
+        n = len(x)
+        if n == 0:
+            raise ValueError(f"entity '{e.name}' got no particles: its morph is thinner than "
+                             "solvers.pbd.particle_size")
+        z2 = np.zeros((0, 2), np.int64)
+        return PBDMesh(x=x, mass=np.full(n, mat.rho * volume / n), kind="particles", cells=np.zeros((0, 1)),
+                       stretch=z2, stretch_rest=np.zeros(0), meshed=False)
+    if mat.type == "PBD.Elastic" and m.type != "Line":
+        from simcli.solvers.fem.config import FEMOptions
+        from simcli.solvers.fem.mesh import mesh_for_entity as fem_mesh
+
+        tm = fem_mesh(e, FEMOptions(resolution=opts.tet_resolution), scene_dir)
+        x, tets = tm.x, tm.tets
+        vol = tet_volumes(x, tets)
+        mass = np.zeros(len(x))
+        for a in range(4):
+            np.add.at(mass, tets[:, a], 0.25 * mat.rho * vol)
+        pairs = np.concatenate([tets[:, [a, b]] for a in range(4) for b in range(a + 1, 4)])
+        edges = np.unique(np.sort(pairs, axis=1), axis=0)
+        return PBDMesh(x=x, mass=mass, kind="tets", cells=tets, stretch=edges,
+                       stretch_rest=np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1), tets=tets,
+                       tets_rest=vol)
     if m.type in ("Rectangle", "Mesh"):
         x, tris = rectangle_mesh(m) if m.type == "Rectangle" else read_open_surface(m, scene_dir)
         area = 0.5 * np.linalg.norm(np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]), axis=1)
