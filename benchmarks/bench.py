@@ -38,6 +38,7 @@ SCENES = {
     "B2W": ("configs/bench/b2_wcsph.yaml", ["sph", "--plane", "0"], 60),
     "B2D": ("configs/bench/b2_dfsph.yaml", ["sph", "--plane", "0", "--sph_solver", "DFSPH"], 30),
     "B5": ("configs/bench/b5.yaml", ["sf", "--res", "64"], 100),
+    "B3": ("configs/bench/b3.yaml", ["pbd_cloth", "--plane", "0"], 100),
 }
 # Grid scenes whose pressure-solve accuracy is compared too (see b5_accuracy)
 GRID_SCENES = {"B5"}
