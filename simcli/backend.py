@@ -45,6 +45,12 @@ def _has_gpu_driver() -> bool:
     return sys.platform == "darwin"  # Metal
 
 
+def platform_hint(backend: str) -> str:
+    if backend in ("cuda", "gpu") and not _has_gpu_driver():
+        return "no CUDA driver library (libcuda) found"
+    return f"Taichi found no usable {backend} device"
+
+
 def init_taichi(backend: str = "cpu", precision: str = "f32", threads: int | None = None,
                 debug: bool = False) -> dict:
     """Initialise Taichi once per process and return facts about it.
@@ -63,6 +69,11 @@ def init_taichi(backend: str = "cpu", precision: str = "f32", threads: int | Non
     arch_map = {"cpu": ti.cpu, "gpu": ti.gpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "metal": ti.metal, "auto": ti.gpu}
     if backend == "auto" and not _has_gpu_driver():
         backend = "cpu"
+    elif backend in ("cuda", "gpu") and not _has_gpu_driver():
+        from simcli.errors import SimcliError
+
+        raise SimcliError(f"backend '{backend}' requested but not available on this machine ({platform_hint(backend)}). "
+                          f"Use --backend auto (a GPU if present, else the CPU) or --backend cpu")
     fp = ti.f64 if precision == "f64" else ti.f32
     cache = os.environ.get("SIMCLI_KERNEL_CACHE", default_cache_dir())
     kwargs = dict(default_fp=fp, default_ip=ti.i32, offline_cache=True, offline_cache_file_path=cache,
@@ -85,9 +96,14 @@ def init_taichi(backend: str = "cpu", precision: str = "f32", threads: int | Non
     init_s = time.perf_counter() - t0
     arch = ti.lang.impl.current_cfg().arch
     arch_name = str(arch).split(".")[-1]
-    if backend not in ("auto", "cpu", "gpu") and arch_name != backend:
-        # Taichi falls back to the CPU silently when the requested arch is missing.
-        print(f"simcli: warning: backend '{backend}' not available, running on {arch_name}", file=sys.stderr)
+    if backend not in ("auto", "cpu") and arch_name in ("x64", "arm64"):
+        # Taichi falls back to the CPU when the requested arch is missing. A batch job that asked
+        # for a GPU must not run for hours on the CPU instead: stop and say so.
+        from simcli.errors import SimcliError
+
+        raise SimcliError(f"backend '{backend}' requested but not available on this machine ({platform_hint(backend)}); "
+                          f"Taichi would fall back to the CPU. Use --backend auto (a GPU if present, else the CPU) "
+                          f"or --backend cpu")
     _STATE.update(arch=arch_name, import_s=import_s, init_s=init_s, threads=threads if arch_name == "x64" or
                   arch_name == "arm64" else None, cache=cache, precision=precision, taichi=ti.__version__)
     return dict(_STATE)

@@ -224,7 +224,7 @@ class Runner:
                 self.warn(f"{b.name}: {w}")
             if len(b.x) == 0:
                 fam = b.entity.family
-                opt = "solvers.sph.particle_size" if fam == "SPH" else "solvers.mpm.spacing"
+                opt = f"solvers.{fam.lower()}.particle_size"
                 raise SimcliError(f"entity '{b.name}' got no particles: its morph is thinner than the "
                                   f"{fam} particle spacing {opt} = {family_spacing(scene, fam):g} m; lower it")
         self.timings["setup_s"] = time.perf_counter() - t0
