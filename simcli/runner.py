@@ -440,9 +440,13 @@ class Runner:
                 what = (f"{st.n_bad} particle(s) with NaN/Inf" if not st.finite
                         else f"a particle speed of {st.max_speed:.3g} m/s (it crosses {cfl:.1f} cells per substep)")
                 if s.family == "sph":
-                    advice = (f"use substeps: auto (now {subs}; it follows the CFL, sound-speed and viscous limits), "
-                              f"or lower sim.dt (now {sim.dt:g} s), the stiffness of '{name}' or "
-                              f"solvers.sph.particle_size (now {dx:g} m)")
+                    if subs == "auto":
+                        advice = (f"lower solvers.sph.cfl or solvers.sph.max_substep, or the stiffness of '{name}' "
+                                  f"(WCSPH)")
+                    else:
+                        advice = (f"use substeps: auto (it follows the CFL, sound-speed and viscous limits), lower "
+                                  f"sim.dt (now {sim.dt:g} s) or the stiffness of '{name}' (WCSPH)")
+                    advice += f", or change solvers.sph.particle_size (now {dx:g} m)"
                 else:
                     advice = (f"lower sim.dt (now {sim.dt:g} s), raise sim.substeps (now {subs}) or use substeps: "
                               f"auto, or lower the stiffness E of '{name}'")
