@@ -247,7 +247,11 @@ def main() -> None:
                          f"over the run): Genesis, 200 Jacobi sweeps: {r['genesis_residual']:.3g} (its last step); "
                          f"simcli, {s_.get('pressure_solver')} {fmt(s_.get('iterations'))} sweeps: "
                          f"{fmt(s_.get('relative_residual'))}; simcli, MGPCG stopped at Genesis's residual: "
-                         f"{fmt(m_.get('relative_residual'))} in {fmt(m_.get('iterations'))} iterations.")
+                         f"{fmt(m_.get('relative_residual'))} in {fmt(m_.get('iterations'))} iterations. "
+                         f"The two codes' residuals are of different equations: simcli's (MAC grid) is the "
+                         f"divergence left in the projected velocity; Genesis's is that of its compact-Laplacian "
+                         f"equation, while its collocated approximate projection leaves most of the divergence "
+                         f"in the velocity (docs/SF.md, Benchmark).")
     # rows and notes of scenes not measured this time are kept from the last report, so that running one
     # family's scenes does not erase the others'
     measured = {r["id"] for r in rows}
