@@ -15,6 +15,10 @@ SPH for incompressible and viscous fluids"), as in SPlisHSPlasH's DFSPH.cpp. A s
   when the mean error is at or below max_divergence_error_percent / max_density_error_percent (at least 1
   and 2 iterations), or at the iteration cap. RELAX = 0.5: without relaxation the projected iteration
   diverged in our tests (SPlisHSPlasH clamps the residual instead, which ratchets the warm-started k up).
+* Without a free surface (clamp_pressure false: a confined flow) the solves are preconditioned conjugate
+  gradients on A k = s with A = dt^2 D G (D the density rate of a velocity field, G the symmetric pressure
+  gradient; D = G^T, so A is symmetric positive semi-definite), alpha as the preconditioner: the relaxed
+  Jacobi iteration diverged on that problem at support 3 and hit its cap at support 2.
 * Warm start: each solve starts from the previous substep's total stiffness: the density solve's k as it
   was (a liquid at rest needs the same k for any dt), the divergence solve's k dt / dt_now halved (as in
   SPlisHSPlasH). The very first density solve starts from each column's hydrostatic k = |g| depth.
@@ -99,6 +103,78 @@ def make_dfsph(S):
         v[i] -= dt * dv
         kacc[i] += ki
 
+    # ---- conjugate gradients for a liquid without a free surface (clamp_pressure false): the unprojected
+    # pressure problem A k = s, A = dt^2 D G (D the density rate of a velocity field, G the symmetric
+    # pressure gradient: D = G^T, so A is symmetric positive semi-definite), Jacobi (alpha) preconditioned.
+    # Relaxed Jacobi diverges on it at support 3 and stalls at support 2; CG converges. Sums are serial in
+    # f64 so that the iteration count does not depend on threads.
+    use_cg = not clamp
+    if use_cg:
+        dvt = ti.Vector.field(dim, f, shape=n)
+        cg_r, cg_z, cg_p, cg_Ap = (ti.field(f, shape=n) for _ in range(4))
+        cg_s = ti.field(ti.f64, shape=3)  # r.z, p.Ap, alpha
+
+    @ti.func
+    def residual(i, dt, mode: ti.template()):
+        s = density_rate(i) * dt
+        if ti.static(mode == DENS):
+            s += rho[i] / mat_rho0[mid[i]] - 1.0
+        return s
+
+    @ti.func
+    def serial_dot(a, b, slot):
+        acc = ti.cast(0.0, ti.f64)
+        ti.loop_config(serialize=True)
+        for i in range(n):
+            acc += ti.cast(a[i], ti.f64) * ti.cast(b[i], ti.f64)
+        cg_s[slot] = acc
+
+    @ti.func
+    def cg_start(dt, mode: ti.template()):
+        for i in range(n):
+            r = residual(i, dt, mode)
+            cg_r[i] = r
+            cg_z[i] = alpha[i] * r
+            cg_p[i] = cg_z[i]
+        serial_dot(cg_r, cg_z, 0)
+
+    @ti.func
+    def cg_iteration(dt):
+        for i in range(n):  # dvt = -dt G p
+            pi = cg_p[i]
+            g = BFAC * pi * B[i]
+            for k in range(nb_cnt[i]):
+                j = nb_j[i, k]
+                g += (pi + cg_p[j]) * S.volume_of(j) * nb_g[i, k]
+            dvt[i] = -dt * g
+        for i in range(n):  # Ap = -dt D(dvt) = dt^2 D G p
+            dv = dvt[i]
+            d = dv.dot(B[i])
+            for k in range(nb_cnt[i]):
+                j = nb_j[i, k]
+                d += S.volume_of(j) * (dv - dvt[j]).dot(nb_g[i, k])
+            cg_Ap[i] = -dt * d
+        serial_dot(cg_p, cg_Ap, 1)
+        a = ti.cast(0.0, ti.f64)
+        if cg_s[1] > 0:
+            a = cg_s[0] / cg_s[1]
+        af = ti.cast(a, f)
+        err_acc[None] = 0
+        for i in range(n):
+            kacc[i] += af * cg_p[i]
+            v[i] += af * dvt[i]
+            r = cg_r[i] - af * cg_Ap[i]
+            cg_r[i] = r
+            cg_z[i] = alpha[i] * r
+            ti.atomic_add(err_acc[None], ti.cast(ti.abs(r) * FIXED, ti.i64))
+        rz_old = cg_s[0]
+        serial_dot(cg_r, cg_z, 0)
+        beta = ti.cast(0.0, f)
+        if rz_old > 0:
+            beta = ti.cast(cg_s[0] / rz_old, f)
+        for i in range(n):
+            cg_p[i] = cg_z[i] + beta * cg_p[i]
+
     @ti.func
     def solve_begin(dt, mode: ti.template()):
         """First residual, then (warm start) the previous substep's stiffness and the residual after it."""
@@ -112,14 +188,19 @@ def make_dfsph(S):
             err_acc[None] = 0
             for i in range(n):
                 density_change(i, dt, mode, False)
+        if ti.static(use_cg):
+            cg_start(dt, mode)
 
     @ti.func
     def iteration(dt, mode: ti.template()):
-        for i in range(n):
-            velocity_update(i, dt)
-        err_acc[None] = 0
-        for i in range(n):
-            density_change(i, dt, mode, False)
+        if ti.static(use_cg):
+            cg_iteration(dt)
+        else:
+            for i in range(n):
+                velocity_update(i, dt)
+            err_acc[None] = 0
+            for i in range(n):
+                density_change(i, dt, mode, False)
 
     @ti.kernel
     def divergence_begin(dt: f):
