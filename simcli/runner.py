@@ -327,6 +327,11 @@ class Runner:
                 if step % every == 0:
                     frame += 1
                     sink.write_frame(frame, step, step * sim.dt, self._frame_data())
+                    stop = next((r for r in (s.steady() for s in solvers) if r), None)
+                    if stop:  # a solver's steady-state criterion met (e.g. solvers.sf.steady_tolerance)
+                        self.info["stopped_steady"] = {"step": step, "time": step * sim.dt, **stop}
+                        self.timings["output_s"] += time.perf_counter() - t0
+                        break
                 self.timings["output_s"] += time.perf_counter() - t0
             interrupted = self.signals.received is not None
             if interrupted or (ckpt_every and step % ckpt_every == 0 and step < n_steps):

@@ -118,6 +118,11 @@ class Solver:
         """How an entity is written: particles | tets | triangles | lines | grid."""
         return "particles"
 
+    def steady(self) -> dict | None:
+        """Called after each written frame: a dict describing why the state has stopped changing by
+        the family's own criterion (the runner then ends the run there), or None to go on."""
+        return None
+
     def entity_cells(self, name: str):
         """Static topology (n_cells, nodes per cell) of a mesh entity, or None."""
         return None
