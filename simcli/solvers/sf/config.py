@@ -94,6 +94,14 @@ class SFOptions(_Options):
         gt=0,
         description="A substep whose CFL number exceeds this is reported as a blow-up (exit 70) [-].",
     )
+    steady_tolerance: float = Field(
+        0.0,
+        ge=0,
+        description="Stop the run at steady state: after each written frame, the largest change of any face "
+        "velocity since the previous frame divided by the time between them [m/s^2]; the run ends (status done, "
+        "run.json stopped_steady) once it is at or below this. The run's duration (or steps) is the cap. "
+        "0 = off.",
+    )
 
     def cells(self, lower: list[float], upper: list[float]) -> tuple[list[int], list[float]]:
         """Cells per axis and cell size per axis [m] over the box lower-upper."""

@@ -386,6 +386,20 @@ class SFSolver(Solver):
     def entity_kind(self, name: str) -> str:
         return "grid"
 
+    def steady(self) -> dict | None:
+        """solvers.sf.steady_tolerance: the largest face-velocity change since the last written frame per
+        second [m/s^2], on the host (once per frame); the run stops once it is at or below the tolerance."""
+        tol = self.opts.steady_tolerance
+        if tol <= 0:
+            return None
+        v = self.vel.to_numpy().astype(np.float64)
+        prev, self._steady_prev = getattr(self, "_steady_prev", None), (self.time, v)
+        if prev is None or self.time <= prev[0]:
+            return None
+        rate = float(np.abs(v - prev[1]).max()) / (self.time - prev[0])
+        self._steady_rate = rate
+        return {"criterion": "solvers.sf.steady_tolerance", "change_rate": rate, "tolerance": tol} if rate <= tol else None
+
     def entity_grid(self, name: str):
         L = self.layout
         return tuple(L.n), tuple(float(o) for o in L.origin), tuple(float(h) for h in L.dx)
@@ -440,6 +454,9 @@ class SFSolver(Solver):
                                             if self.projection._checking else None))
             if self.diffusion is not None:
                 d["viscosity_iterations_mean"] = float(np.mean(h["viscosity_iterations"]))
+        if self.opts.steady_tolerance > 0:
+            d["steady_tolerance"] = self.opts.steady_tolerance
+            d["steady_change_rate_last"] = getattr(self, "_steady_rate", None)
         d["per_substep"] = {"iterations": list(map(int, its)),
                             "residual": [float(f"{r:.4g}") for r in h["residual"]],
                             "relative_residual": [float(f"{r:.4g}") for r in h["relative_residual"]]}
