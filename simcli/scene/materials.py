@@ -29,7 +29,6 @@ else:
 # Types of the contract that are not implemented yet: named in a clear error.
 PLANNED_TYPES = (
     "FEM.Cloth",
-    "PBD.Liquid",
 )
 
 

@@ -73,11 +73,17 @@ class ParticleContact:
                 dp = ti.Vector.zero(float, 3)
                 if w[i] > 0:
                     ci = ti.floor(x[i] * inv_cell - 0.5, ti.i32)  # the 2 x 2 x 2 cells within reach
-                    for off in ti.static(ti.grouped(ti.ndrange(2, 2, 2))):
-                        s = slot_of(ci + off)
-                        for q in range(start[s], start[s + 1]):
+                    seen = ti.Vector([-1] * 8)
+                    for t in ti.static(range(8)):
+                        s = slot_of(ci + ti.Vector([t // 4, (t // 2) % 2, t % 2]))
+                        dup = False  # two of the 8 cells hashed to one slot: visit it once
+                        for u in ti.static(range(t)):
+                            if seen[u] == s:
+                                dup = True
+                        seen[t] = s
+                        for q in range(start[s], start[s + 1] if not dup else start[s]):
                             j = srt[q]
-                            if j != i:
+                            if j != i and not (body[i] == body[j] and body[i] >= 1 << 20):  # liquid pairs
                                 d = x[i] - x[j]
                                 dist = d.norm()
                                 target = rad[i] + rad[j]

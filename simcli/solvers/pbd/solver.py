@@ -37,10 +37,11 @@ from simcli.solvers.pbd.topology import colour, fixed_vertices, mesh_for_entity
 with stdout_to_stderr():
     import taichi as ti
 
-OUTPUT_FIELDS = ("position", "velocity", "reaction", "displacement")
+OUTPUT_FIELDS = ("position", "velocity", "reaction", "displacement", "density")
 # Up to this many constraints the sweeps of a substep run in one single-threaded kernel launch: a launch
 # and a task per colour cost ~10-60 us on a CPU, a constraint ~20 ns.
 SERIAL_CONSTRAINTS = 4000
+LIQUID_BODY = 1 << 20  # contact body ids of liquid particles (liquid-liquid pairs are the fluid's business)
 
 
 class _ConstraintSet:
@@ -209,12 +210,26 @@ class PBDSolver(Solver):
             from simcli.solvers.pbd.contact import ParticleContact
 
             body_f = ti.field(ti.i32, shape=n)
-            body_f.from_numpy(np.where(self.meshed > 0, self.body, -1 - np.arange(n)).astype(np.int32))
+            liquid = np.zeros(n, bool)
+            for k, e in enumerate(self.entities):
+                liquid[self.offsets[k]:self.offsets[k + 1]] = e.material.type == "PBD.Liquid"
+            ids = np.where(self.meshed > 0, self.body, -1 - np.arange(n))
+            ids = np.where(liquid, LIQUID_BODY + self.body, ids)
+            body_f.from_numpy(ids.astype(np.int32))
             mus, muk = ti.field(f, shape=n), ti.field(f, shape=n)
             mus.from_numpy(self.mu_s.astype(npf))
             muk.from_numpy(self.mu_k.astype(npf))
             self.contact = ParticleContact(n, f, 4.0 * float(self.radius.max()), self.x, self.xp, self.x0_f, self.w,
                                            self.rad, body_f, mus, muk)
+        self.liquids = []
+        for k, e in enumerate(self.entities):
+            if e.material.type == "PBD.Liquid":
+                from simcli.solvers.pbd.liquid import PBFLiquid
+
+                lo, hi = self.offsets[k], self.offsets[k + 1]
+                self.liquids.append(PBFLiquid(self, lo, hi, self.opts.particle_size, float(self.mass[lo]), self.opts,
+                                              (e.material.density_relaxation, e.material.viscosity_relaxation),
+                                              e.material.artificial_pressure))
         self._make_kernels()
         self._built = True
         self.frame_check()
@@ -372,7 +387,7 @@ class PBDSolver(Solver):
         dom_lo, dom_hi, wall_mu = self.dom_lo, self.dom_hi, self.wall_mu
 
         @ti.func
-        def push(xi, xpi, phi, nrm, r, mu, sticky: ti.template()):
+        def push(xi, xpi, phi, nrm, r, mu, sticky: ti.template(), friction: ti.template()):
             """Move xi out to distance r from a surface (signed distance phi, unit normal nrm), then
             Coulomb friction on the tangential displacement since the substep's start."""
             pen = r - phi
@@ -382,7 +397,9 @@ class PBDSolver(Solver):
                 d = xo - xpi
                 dt_ = d - d.dot(nrm) * nrm
                 lt = dt_.norm()
-                if ti.static(sticky):
+                if ti.static(not friction):
+                    pass
+                elif ti.static(sticky):
                     xo -= dt_
                 elif lt > 0 and mu > 0:
                     if lt <= mu * pen:
@@ -392,7 +409,7 @@ class PBDSolver(Solver):
             return xo
 
         @ti.kernel
-        def contact():
+        def contact(friction: ti.template()):
             for i in range(n):
                 if w[i] > 0:
                     xi, xpi, r = x[i], xp[i], rad[i]
@@ -406,7 +423,7 @@ class PBDSolver(Solver):
                         else:
                             nrm[ax] = -1.0
                             phi = dom_hi[None][ax] - xi[ax]
-                        xi = push(xi, xpi, phi, nrm, r, wall_mu[fc], walls[fc].contact == "sticky")
+                        xi = push(xi, xpi, phi, nrm, r, wall_mu[fc], walls[fc].contact == "sticky", friction)
                     for k in ti.static(range(nc)):
                         phi = 1.0
                         nrm = ti.Vector.zero(float, 3)
@@ -418,7 +435,7 @@ class PBDSolver(Solver):
                             phi, nrm = sdf_box(xi, col_a[k], col_b[k])
                         elif ti.static(cols[k].kind == "Cylinder"):
                             phi, nrm = sdf_cylinder(xi, col_a[k], col_r[k], col_hh[k], cols[k].axis)
-                        xi = push(xi, xpi, phi, nrm, r, col_mu[k], cols[k].contact == "sticky")
+                        xi = push(xi, xpi, phi, nrm, r, col_mu[k], cols[k].contact == "sticky", friction)
                     x[i] = xi
 
         @ti.kernel
@@ -502,12 +519,19 @@ class PBDSolver(Solver):
                     self._solve_bend_dist(dt)
                 if self._solve_dihedral is not None:
                     self._solve_dihedral(dt)
+        for liq in self.liquids:
+            liq.project(self._clamp)
         if self.contact is not None:
             self.contact.step()
-        self._contact()
+        self._contact(True)
         self._update_velocity(dt)
+        for liq in self.liquids:
+            liq.after_velocity()
         self.time += dt
         self.last_dt = dt
+
+    def _clamp(self) -> None:
+        self._contact(False)
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
@@ -547,7 +571,8 @@ class PBDSolver(Solver):
         return ["position", "velocity", "displacement"] if tets else ["position", "velocity"]
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
-        return {"position": (3, "m"), "velocity": (3, "m/s"), "reaction": (3, "N"), "displacement": (3, "m")}
+        return {"position": (3, "m"), "velocity": (3, "m/s"), "reaction": (3, "N"), "displacement": (3, "m"),
+                "density": (1, "kg/m^3")}
 
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
         k = self._index[name]
@@ -560,6 +585,10 @@ class PBDSolver(Solver):
                 a = self.v.to_numpy()
             elif fld == "displacement":
                 a = self.x.to_numpy() - self.x0
+            elif fld == "density":
+                a = np.zeros(self.n)
+                for liq in self.liquids:
+                    a[liq.lo:liq.hi] = liq.rho.to_numpy()
             elif fld == "reaction":
                 if self.last_dt > 0:
                     self._reactions(self.last_dt)
@@ -586,7 +615,9 @@ class PBDSolver(Solver):
         self.last_dt = float(np.asarray(state.get("last_dt", [0.0])).reshape(-1)[0])
 
     def counts(self) -> dict[str, int]:
-        return {"vertices": self.n, "constraints": self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k}
+        free = sum(m.n for m in self.meshes if m.kind == "particles")  # PBD.Particle and PBD.Liquid
+        return {"vertices": self.n - free, "particles": free,
+                "constraints": self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k}
 
     def info(self) -> dict[str, Any]:
         return {"method": "XPBD, Gauss-Seidel by graph colouring", "vertices": self.n,
@@ -596,4 +627,7 @@ class PBDSolver(Solver):
                 "bending_colours": self.bend_dist.colours + self.dihedral.colours,
                 "stretch_iterations": self.opts.stretch_iterations,
                 "volume_constraints": self.volume.k, "volume_colours": self.volume.colours,
-                "bending_iterations": self.opts.bending_iterations, "warnings": self.warnings}
+                "bending_iterations": self.opts.bending_iterations, "warnings": self.warnings,
+                **({"liquid": [{"rest_density": lq.rho0, "smoothing_length": lq.h,
+                                "neighbour_overflow": int(lq.overflow[None])} for lq in self.liquids]}
+                   if self.liquids else {})}

@@ -214,7 +214,7 @@ def mesh_for_entity(e, scene_dir=None, opts=None) -> PBDMesh:
         from simcli.solvers.pbd.config import PBDOptions
 
         opts = PBDOptions()
-    if mat.type == "PBD.Particle":
+    if mat.type in ("PBD.Particle", "PBD.Liquid"):
         from simcli.geometry.sampling import sample_morph
 
         x, volume, _ = sample_morph(m, opts.particle_size, 3, scene_dir)

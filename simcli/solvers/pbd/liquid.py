@@ -1,0 +1,202 @@
+"""Position-based fluids (Macklin and Mueller 2013, "Position based fluids") for PBD.Liquid particles.
+
+Per substep, after the prediction: neighbour lists from a hashed cell grid (cell = smoothing length h =
+2 x particle_size, 27 cells), then ``density_iterations`` times
+
+    rho_i = sum_j m_j W(x_i - x_j)                        (poly6)
+    C_i = max(rho_i / rho0 - 1, 0)                        (unilateral: a free surface does not pull)
+    lambda_i = -C_i / (sum_k |grad_k C_i|^2 + eps)        (eq. 11)
+    dx_i = sum_j V (lambda_i + lambda_j + s_corr) grad W(x_i - x_j)   (spiky gradient, eq. 14)
+    s_corr = -k (W(r) / W(0.2 h))^4 / S0                  (artificial pressure, eq. 13)
+
+and walls/colliders as position clamps; after the velocity update, XSPH viscosity
+v_i += c sum_j V_j (v_j - v_i) W_ij (eq. 17). rho0 is the lattice sum m sum_j W of an interior particle
+of the initial lattice (so the initial block is at rest density exactly; the particle mass is rho x
+volume / count), S0 the same particle's sum |grad C|^2: eps = density_relaxation x S0 and s_corr's k are
+dimensionless. Liquid particles see only liquid neighbours (no two-way coupling with cloth or solids).
+"""
+
+
+import math
+
+import numpy as np
+
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.pbd.contact import table_size
+
+with stdout_to_stderr():
+    import taichi as ti
+
+CAPACITY = 64  # neighbours kept per particle (26 on the rest lattice at h = 2 x spacing)
+S_CORR_K, S_CORR_DQ, S_CORR_N = 0.1, 0.2, 4
+
+
+def poly6(r: np.ndarray, h: float) -> np.ndarray:
+    return np.where(r < h, 315.0 / (64.0 * math.pi * h**9) * (h * h - r * r) ** 3, 0.0)
+
+
+def spiky_grad_mag(r: np.ndarray, h: float) -> np.ndarray:
+    return np.where((r < h) & (r > 0), -45.0 / (math.pi * h**6) * (h - r) ** 2, 0.0)
+
+
+def lattice_constants(spacing: float, h: float) -> tuple[float, float]:
+    """(sum_j W, S0 / V^2) of an interior particle of a cubic lattice: sum W (self included) and
+    |sum grad W|^2 + sum |grad W|^2 (the first is 0 by symmetry)."""
+    k = int(math.ceil(h / spacing))
+    g = np.arange(-k, k + 1)
+    off = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) * spacing
+    r = np.linalg.norm(off, axis=1)
+    gm = spiky_grad_mag(r, h)
+    return float(poly6(r, h).sum()), float((gm * gm).sum())
+
+
+class PBFLiquid:
+    """Fields and kernels of the position-based fluid pass over the liquid particles [lo, hi)."""
+
+    def __init__(self, solver, lo: int, hi: int, spacing: float, mass: float, opts, materials, k_corr: float):
+        f = solver.f
+        self.lo, self.hi = lo, hi
+        n = hi - lo
+        h = 2.0 * spacing
+        self.h = h
+        wsum, gsum = lattice_constants(spacing, h)
+        rho0 = mass * wsum
+        vol = mass / rho0
+        s0 = vol * vol * gsum  # sum_k |grad_k C|^2 of a rest-lattice particle [1/m^2]
+        self.rho0, self.s0 = rho0, s0
+        relax, visc = materials
+        eps = relax * s0
+        wdq = float(poly6(np.array([S_CORR_DQ * h]), h)[0])
+        self.iterations = opts.density_iterations
+        x, v, w = solver.x, solver.v, solver.w
+        slots = table_size(n)
+        count = ti.field(ti.i32, shape=slots)
+        start = ti.field(ti.i32, shape=slots + 1)
+        cursor = ti.field(ti.i32, shape=slots)
+        srt = ti.field(ti.i32, shape=n)
+        nb = ti.field(ti.i32, shape=(n, CAPACITY))
+        nnb = ti.field(ti.i32, shape=n)
+        lam = ti.field(f, shape=n)
+        rho = ti.field(f, shape=n)
+        dpos = ti.Vector.field(3, f, shape=n)
+        dvel = ti.Vector.field(3, f, shape=n)
+        self.rho = rho
+        self.overflow = ti.field(ti.i32, shape=())
+        overflow = self.overflow
+        inv_cell = 1.0 / h
+        c6 = 315.0 / (64.0 * math.pi * h**9)
+        cs = -45.0 / (math.pi * h**6)
+
+        @ti.func
+        def W(r):
+            out = 0.0
+            if r < h:
+                out = c6 * (h * h - r * r) ** 3
+            return out
+
+        @ti.func
+        def gradW(d, r):
+            out = ti.Vector.zero(float, 3)
+            if r < h and r > 1e-9:
+                out = cs * (h - r) ** 2 * d / r
+            return out
+
+        @ti.func
+        def slot_of(c):
+            hsh = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791)
+            return hsh & (slots - 1)
+
+        @ti.kernel
+        def neighbours():
+            for s in range(slots):
+                count[s] = 0
+            for a in range(n):
+                ti.atomic_add(count[slot_of(ti.floor(x[lo + a] * inv_cell, ti.i32))], 1)
+            ti.loop_config(serialize=True)
+            for s in range(slots):
+                start[s + 1] = start[s] + count[s]
+            for s in range(slots):
+                cursor[s] = start[s]
+            for a in range(n):
+                k = ti.atomic_add(cursor[slot_of(ti.floor(x[lo + a] * inv_cell, ti.i32))], 1)
+                srt[k] = a
+            for a in range(n):
+                ci = ti.floor(x[lo + a] * inv_cell, ti.i32)
+                m = 0
+                seen = ti.Vector([-1] * 27)
+                for t in ti.static(range(27)):
+                    s = slot_of(ci + ti.Vector([t // 9 - 1, (t // 3) % 3 - 1, t % 3 - 1]))
+                    dup = False  # two of the 27 cells hashed to one slot: visit it once
+                    for u in ti.static(range(t)):
+                        if seen[u] == s:
+                            dup = True
+                    seen[t] = s
+                    for q in range(start[s], start[s + 1] if not dup else start[s]):
+                        b = srt[q]
+                        if b != a and (x[lo + a] - x[lo + b]).norm() < h:
+                            if m < CAPACITY:
+                                nb[a, m] = b
+                                m += 1
+                            else:
+                                overflow[None] = 1
+                nnb[a] = m
+
+        @ti.kernel
+        def density_step(k_corr: float):
+            for a in range(n):
+                xi = x[lo + a]
+                r_i = mass * W(0.0)
+                gi = ti.Vector.zero(float, 3)
+                g2 = 0.0
+                for m in range(nnb[a]):
+                    d = xi - x[lo + nb[a, m]]
+                    r = d.norm()
+                    r_i += mass * W(r)
+                    gj = vol * gradW(d, r)
+                    gi += gj
+                    g2 += gj.norm_sqr()
+                rho[a] = r_i
+                C = ti.max(r_i / rho0 - 1.0, 0.0)
+                lam[a] = -C / (gi.norm_sqr() + g2 + eps)
+            for a in range(n):
+                xi = x[lo + a]
+                dp = ti.Vector.zero(float, 3)
+                for m in range(nnb[a]):
+                    b = nb[a, m]
+                    d = xi - x[lo + b]
+                    r = d.norm()
+                    sc = -k_corr * (W(r) / wdq) ** S_CORR_N / s0
+                    dp += (lam[a] + lam[b] + sc) * vol * gradW(d, r)
+                dpos[a] = dp
+            for a in range(n):
+                if w[lo + a] > 0:
+                    x[lo + a] += dpos[a]
+
+        @ti.kernel
+        def viscosity(c: float):
+            for a in range(n):
+                dv = ti.Vector.zero(float, 3)
+                for m in range(nnb[a]):
+                    b = nb[a, m]
+                    d = x[lo + a] - x[lo + b]
+                    dv += mass / ti.max(rho[b], 1e-6) * (v[lo + b] - v[lo + a]) * W(d.norm())
+                dvel[a] = c * dv
+            for a in range(n):
+                if w[lo + a] > 0:
+                    v[lo + a] += dvel[a]
+
+        self._neighbours, self._density_step, self._viscosity = neighbours, density_step, viscosity
+        self.visc = visc
+        self.k_corr = k_corr
+
+    def project(self, clamp) -> None:
+        """The density iterations (after the other constraints); ``clamp()`` keeps particles in the domain
+        and out of colliders between iterations."""
+        self._neighbours()
+        for _ in range(self.iterations):
+            self._density_step(self.k_corr)
+            clamp()
+
+    def after_velocity(self) -> None:
+        if self.visc > 0:
+            self._viscosity(self.visc)
