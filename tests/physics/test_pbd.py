@@ -105,3 +105,31 @@ def test_cloth_sag_does_not_depend_on_iterations_or_substep():
     assert sag["it20"] > 0.02  # the strip does sag (it is exactly as long as the span)
     assert abs(sag["it160"] / sag["it20"] - 1) < 0.03
     assert abs(sag["half_dt"] / sag["it20"] - 1) < 0.03
+
+
+def test_fixed_vertices_on_a_prescribed_path(ti_f32):
+    """`fixed_velocity`: the held edge of a cloth moves on x0 + v t; with no gravity the sheet follows it
+    rigidly (edges keep their length) and the free vertices end with the same velocity."""
+    from simcli.scene.models import Scene
+    from simcli.solvers.pbd.solver import PBDSolver
+
+    dt, n = 1e-3, 300
+    scene = Scene.model_validate({
+        "sim": {"dt": dt, "substeps": 1, "gravity": [0, 0, 0]},
+        "domain": {"lower": [-1, -1, 0], "upper": [1, 1, 2]},
+        "solvers": {"pbd": {"stretch_iterations": 20}},
+        "entities": [{"name": "c", "material": {"type": "PBD.Cloth", "rho": 0.3, "fixed_velocity": [0.5, 0, 0]},
+                      "morph": {"type": "Rectangle", "center": [0, 0, 1.0], "size": [0.4, 0.2], "resolution": 8},
+                      "fixed": {"type": "Box", "lower": [-0.21, -0.2, 0.9], "upper": [-0.19, 0.2, 1.1]}}]})
+    s = PBDSolver(scene, [])
+    s.build()
+    for _ in range(n):
+        s.substep(dt)
+    x = s.x.to_numpy().astype(np.float64)
+    held = s.fixed
+    assert held.sum() == 9
+    assert np.allclose(x[held], s.x0[held] + [0.5 * n * dt, 0, 0], atol=1e-5)
+    e = s.stretch.idx
+    assert np.allclose(np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1), s.stretch.rest, atol=1e-4)
+    v = s.v.to_numpy()
+    assert np.allclose(v[:, 0], 0.5, atol=0.02)

@@ -57,6 +57,9 @@ class _PBDBase(_Material):
 
 
 class _PBDMaterial(_PBDBase):
+    fixed_velocity: Vec | None = Field(
+        None, description="Velocity [m/s] of the vertices held by `fixed`: they move on the path x0 + "
+        "fixed_velocity t instead of staying put (default: pinned).")
     stretch_compliance: float = Field(
         1.0e-7, ge=0, description="XPBD compliance of the stretch (distance) constraints [m/N]: the inverse of "
         "an edge's spring stiffness; 0 = inextensible.")
@@ -159,6 +162,9 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
             out.append((("morph", "points"), f"expected 3 components per point for dim 3 (got {len(m.points[0])})"))
         elif _polyline_length(m.points) <= 0:
             out.append((("morph", "points"), "the polyline has zero length"))
+    fv = getattr(e.material, "fixed_velocity", None)
+    if fv is not None and len(fv) != 3:
+        out.append((("material", "fixed_velocity"), f"expected 3 components (got {len(fv)})"))
     if e.material.type == "PBD.Elastic" and e.material.initial_stretch is not None \
             and len(e.material.initial_stretch) != 3:
         out.append((("material", "initial_stretch"), "expected 3 factors (x, y, z)"))

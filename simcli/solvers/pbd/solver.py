@@ -109,6 +109,7 @@ class PBDSolver(Solver):
         mu_k = np.zeros(n)
         st, st_r, st_c, bd, bd_r, bd_c, dh, dh_r, dh_c, tv, tv_r, tv_c = ([] for _ in range(12))
         meshed = np.zeros(n, np.int32)
+        vfix = np.zeros((n, 3))
         self.warnings = []
         for k, (e, m) in enumerate(zip(self.entities, self.meshes)):
             lo, hi = self.offsets[k], self.offsets[k + 1]
@@ -125,6 +126,8 @@ class PBDSolver(Solver):
             if e.fixed_regions and not held.any():
                 self.warnings.append(f"{e.name}: fixed region holds no vertex")
             fixed[lo:hi] = held
+            if getattr(mat, "fixed_velocity", None) is not None:
+                vfix[lo:hi][held] = np.asarray(mat.fixed_velocity, dtype=np.float64)
             radius[lo:hi] = m.radius if m.radius > 0 else 0.5 * self.opts.particle_size
             drag[lo:hi] = mat.air_resistance
             body[lo:hi] = k
@@ -145,7 +148,8 @@ class PBDSolver(Solver):
             tv.append(m.tets + lo)
             tv_r.append(m.tets_rest)
             tv_c.append(np.full(len(m.tets), getattr(mat, "volume_compliance", 0.0)))
-        v[fixed] = 0.0
+        v[fixed] = vfix[fixed]
+        self.vfix = vfix
         self.x0, self.xstart, self.v0, self.mass, self.fixed = x0, xs, v, mass, fixed
         self.radius, self.drag, self.body, self.mu_s, self.mu_k = radius, drag, body, mu_s, mu_k
         self.meshed = meshed
@@ -174,6 +178,8 @@ class PBDSolver(Solver):
         V3 = lambda k: ti.Vector.field(3, f, shape=k)  # noqa: E731
         self.x, self.v, self.xp, self.x0_f, self.reaction = V3(n), V3(n), V3(n), V3(n), V3(n)
         self.w = ti.field(f, shape=n)
+        self.vfix_f = V3(n)
+        self.vfix_f.from_numpy(self.vfix.astype(npf))
         self.rad = ti.field(f, shape=n)
         self.drag_f = ti.field(f, shape=n)
         self.gravity = ti.Vector.field(3, f, shape=())
@@ -237,6 +243,7 @@ class PBDSolver(Solver):
     def _make_kernels(self) -> None:
         n = self.n
         x, v, xp, w, rad, drag, gravity = self.x, self.v, self.xp, self.w, self.rad, self.drag_f, self.gravity
+        vfix = self.vfix_f
         eps = 1e-12 if self.f == ti.f64 else 1e-9
 
         @ti.kernel
@@ -247,6 +254,8 @@ class PBDSolver(Solver):
                     vi = (v[i] + dt * gravity[None]) * ti.exp(-drag[i] * dt)
                     v[i] = vi
                     x[i] = x[i] + dt * vi
+                else:  # held: pinned, or moving on its prescribed path
+                    x[i] = x[i] + dt * vfix[i]
 
         sets = (self.stretch, self.bend_dist, self.dihedral, self.volume)
 
@@ -450,7 +459,7 @@ class PBDSolver(Solver):
                     x_pred = xp[i] + dt * v[i]
                     v[i] = v[i] + (x[i] - x_pred) / dt
                 else:
-                    v[i] = ti.Vector.zero(float, 3)
+                    v[i] = vfix[i]
 
         reaction = self.reaction
 
