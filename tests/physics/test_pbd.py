@@ -63,7 +63,7 @@ print(json.dumps(out))
 
 def test_hanging_chain_support_force_is_19_m_g():
     r = subprocess.run([sys.executable, "-c", CHAIN, str(ROOT / "configs/validation/pbd_chain.yaml")],
-                       capture_output=True, text=True, timeout=300)
+                       capture_output=True, text=True, timeout=300, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     force = json.loads(r.stdout.strip().splitlines()[-1])
     for it, fz in force.items():
@@ -99,7 +99,7 @@ print(json.dumps(out))
 @pytest.mark.slow
 def test_cloth_sag_does_not_depend_on_iterations_or_substep():
     r = subprocess.run([sys.executable, "-c", SAG, str(ROOT / "configs/validation/pbd_cloth_sag.yaml")],
-                       capture_output=True, text=True, timeout=1200)
+                       capture_output=True, text=True, timeout=1200, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     sag = json.loads(r.stdout.strip().splitlines()[-1])
     assert sag["it20"] > 0.02  # the strip does sag (it is exactly as long as the span)
@@ -133,3 +133,38 @@ def test_fixed_vertices_on_a_prescribed_path(ti_f32):
     assert np.allclose(np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1), s.stretch.rest, atol=1e-4)
     v = s.v.to_numpy()
     assert np.allclose(v[:, 0], 0.5, atol=0.02)
+
+
+def test_liquid_block_keeps_its_density_and_mass(ti_f32):
+    """PBD.Liquid (position-based fluids): a block of liquid released on the floor of a box that fits it.
+    The initial lattice is at the rest density (rho0 is its kernel sum), the mass is rho x volume, and
+    the density constraint holds the compression below 1 % while the block settles (walls are clamps
+    without virtual particles: the block loses about one particle layer of height by rearranging near
+    them, docs/PBD.md)."""
+    from simcli.scene.models import Scene
+    from simcli.solvers.pbd.solver import PBDSolver
+
+    ps = 0.01
+    scene = Scene.model_validate({
+        "sim": {"dt": 2e-3, "substeps": 5},
+        "domain": {"lower": [0, 0, 0], "upper": [0.08, 0.08, 0.3]},
+        "solvers": {"pbd": {"particle_size": ps}},
+        "entities": [{"name": "w", "material": {"type": "PBD.Liquid", "rho": 1000},
+                      "morph": {"type": "Box", "lower": [0, 0, 0], "upper": [0.08, 0.08, 0.08]}}]})
+    s = PBDSolver(scene, [])
+    s.build()
+    assert s.counts()["particles"] == 512
+    assert s.mass.sum() == pytest.approx(1000 * 0.08**3)
+    rho0 = s.liquids[0].rho0
+    s.substep(4e-4)
+    rho = s.entity_arrays("w", ["density"])["density"]
+    assert np.percentile(rho, 50) < rho0 * 1.001  # interior at rho0 (surface and wall particles lower)
+    assert np.sort(rho)[-8:].min() == pytest.approx(rho0, rel=1e-3)  # the 8 interior particles: exactly
+    worst = 0.0
+    for k in range(500):  # 0.2 s
+        s.substep(4e-4)
+        if k % 50 == 49:
+            worst = max(worst, float(s.entity_arrays("w", ["density"])["density"].max()))
+    assert worst < 1.01 * rho0
+    x = s.x.to_numpy()
+    assert x[:, 2].min() >= 0.5 * ps - 1e-6 and x[:, :2].max() <= 0.08 - 0.5 * ps + 1e-6

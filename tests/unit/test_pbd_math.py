@@ -6,8 +6,15 @@ import numpy as np
 import pytest
 
 from simcli.scene.morphs import LineShape, RectangleShape
-from simcli.solvers.pbd.topology import (bending_quads, colour, dihedral_angles, dihedral_gradient, line_vertices,
-                                         rectangle_mesh, unique_edges)
+from simcli.solvers.pbd.topology import (
+    bending_quads,
+    colour,
+    dihedral_angles,
+    dihedral_gradient,
+    line_vertices,
+    rectangle_mesh,
+    unique_edges,
+)
 
 
 def test_dihedral_gradient_matches_finite_differences_and_sums_to_zero():

@@ -179,8 +179,8 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
     if lo is not None:
         bad = [a for a in range(3) if x[:, a].min() < lo[a] - 1e-9 or x[:, a].max() > hi[a] + 1e-9]
         if bad:
-            out.append((("morph",), f"entity '{e.name}' extends outside the domain along "
-                        f"{', '.join('xyz'[a] for a in bad)}; move it or enlarge domain"))
+            out.append((("morph",), (f"entity '{e.name}' extends outside the domain along "
+                                     f"{', '.join('xyz'[a] for a in bad)}; move it or enlarge domain")))
     return out
 
 

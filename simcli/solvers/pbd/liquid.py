@@ -42,7 +42,7 @@ def spiky_grad_mag(r: np.ndarray, h: float) -> np.ndarray:
 def lattice_constants(spacing: float, h: float) -> tuple[float, float]:
     """(sum_j W, S0 / V^2) of an interior particle of a cubic lattice: sum W (self included) and
     |sum grad W|^2 + sum |grad W|^2 (the first is 0 by symmetry)."""
-    k = int(math.ceil(h / spacing))
+    k = math.ceil(h / spacing)
     g = np.arange(-k, k + 1)
     off = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) * spacing
     r = np.linalg.norm(off, axis=1)

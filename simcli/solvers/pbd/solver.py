@@ -175,7 +175,7 @@ class PBDSolver(Solver):
         self.f = f
         npf = self.npf = np.float64 if f == ti.f64 else np.float32
         n = self.n
-        V3 = lambda k: ti.Vector.field(3, f, shape=k)  # noqa: E731
+        V3 = lambda k: ti.Vector.field(3, f, shape=k)
         self.x, self.v, self.xp, self.x0_f, self.reaction = V3(n), V3(n), V3(n), V3(n), V3(n)
         self.w = ti.field(f, shape=n)
         self.vfix_f = V3(n)

@@ -91,8 +91,15 @@ def line_vertices(morph) -> np.ndarray:
 
 def read_open_surface(morph, scene_dir) -> tuple[np.ndarray, np.ndarray]:
     """Triangles of a (possibly open) surface Mesh morph, transformed: a cloth mesh need not be closed."""
-    from simcli.geometry.mesh import (MeshError, MeshFileNotFoundError, _clean, _read_obj, _triangles_from_cells,
-                                      resolve_mesh_path, transform_points)
+    from simcli.geometry.mesh import (
+        MeshError,
+        MeshFileNotFoundError,
+        _clean,
+        _read_obj,
+        _triangles_from_cells,
+        resolve_mesh_path,
+        transform_points,
+    )
 
     path = resolve_mesh_path(morph.file, scene_dir)
     if not Path(path).is_file():
