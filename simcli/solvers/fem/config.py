@@ -65,6 +65,13 @@ class FEMOptions(_Options):
         1.0e-4, gt=0, description="Implicit: PCG stops at this relative residual ||r|| / ||b|| [-].")
     pcg_max_iter: int = Field(
         1000, ge=1, description="Implicit: safety cap on PCG iterations per Newton step (hitting it is reported).")
+    preconditioner: Literal["block_jacobi", "rotated_rest"] = Field(
+        "rotated_rest",
+        description="Implicit: PCG preconditioner. block_jacobi: the exact 3x3 diagonal blocks of the projected "
+        "Hessian (three dP/dF applications per element corner each Newton step). rotated_rest: the rest-shape "
+        "small-strain stiffness's diagonal blocks turned by each element's rotation R (F = R S), plus the mass "
+        "and contact terms: much cheaper to build, a little weaker far from rest.",
+    )
     line_search: bool = Field(True, description="Implicit: Armijo back-tracking line search on the incremental "
                               "potential (c = 1e-4, halving, at most 20 halvings).")
     damping: float = Field(

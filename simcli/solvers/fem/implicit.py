@@ -55,6 +55,11 @@ class ImplicitIntegrator:
         self.hU, self.hV, self.hS = M3(m), M3(m), M3(m)
         self.hls, self.hlt = V3(m), V3(m)
         self.db = M3(4 * m)  # per element corner: diagonal block of the element Hessian
+        self.rotated = s.opts.preconditioner == "rotated_rest"
+        self.k0 = M3(4 * m if self.rotated else 1)  # rest stiffness diagonal blocks (rotated_rest)
+        if self.rotated:
+            self.k0.from_numpy(s.rest_diagonal_blocks().astype(s.npf))
+        self.dmin = ti.field(f, shape=())
         self.cn = V3(n)  # contact normal x kappa-sqrt marker (zero when not in contact)
         self.ck = ti.field(f, shape=n)  # contact stiffness in effect
         self.red = ti.field(ti.f64, shape=5)
@@ -66,6 +71,12 @@ class ImplicitIntegrator:
         self.opts = s.opts
         # a Newton step smaller than this [m] moves positions by their round-off only
         self.round_off = (1e-6 if f == ti.f32 else 1e-13) * max(s.extent, 1e-3)
+        # the residual per vertex mass holds m / h^2 (x - xhat): positions rounded to eps |x| put a floor of
+        # about eps |x|max / h^2 [m/s^2] under it (0.03 m/s^2 in f32 at |x| = 0.3 m, h = 1e-3 s); Newton
+        # stops there too rather than spend a PCG solve on round-off
+        lo, hi = s.scene.domain.bounds(3)
+        xmax = max([abs(c) for c in lo + hi] + [float(np.abs(s.x0).max())])
+        self.acc_floor_h2 = 2.0 * (2.0**-23 if f == ti.f32 else 2.0**-52) * xmax  # / h^2 at each substep
         self._make()
 
     def _make(self) -> None:
@@ -85,6 +96,7 @@ class ImplicitIntegrator:
         ray_a, ray_b = self.alpha, self.beta
         has_muscle, active_dP = s.has_muscle, s.active_dP
         dA, dJ, mid, mu0, lam0 = self.dA, self.dJ, s.mid_f, s.mat_mu0, s.mat_lam0
+        rotated, k0, dmin, tet = self.rotated, self.k0, self.dmin, s.tet_f
 
         @ti.func
         def damp_pk1(e, dF):
@@ -114,68 +126,105 @@ class ImplicitIntegrator:
             for i in range(n):
                 xn[i] = x[i]
                 xhat[i] = x[i] + dt * v[i] + dt * dt * gravity[None]
-                xi = x[i]  # Newton starts from x_n: xhat can be far off (large dt) and invert elements
+                xi = x[i]  # Newton starts from x_n or xhat, whichever has the lower energy (substep())
                 fr = free[i]
                 for c in ti.static(range(3)):
                     if fr[c] == 0:
                         xi[c] = xr[i][c] + vfix[i][c] * (t + dt)
                 x[i] = xi
+                # the step to free flight's backward-Euler solution, mass damping included (held components kept)
+                d[i] = (x[i] + dt * (v[i] + dt * gravity[None]) / (1.0 + ray_a * dt) - xi) * fr
+
+        @ti.kernel
+        def predictor_min_det() -> f:
+            """Smallest det F over the elements at x + d (the free-flight predictor of begin)."""
+            dmin[None] = 1e30
+            for e in range(m):
+                t4 = tet[e]
+                x0 = x[t4[0]] + d[t4[0]]
+                Ds = ti.Matrix.cols([x[t4[1]] + d[t4[1]] - x0, x[t4[2]] + d[t4[2]] - x0, x[t4[3]] + d[t4[3]] - x0])
+                ti.atomic_min(dmin[None], (Ds @ B[e]).determinant())
+            return dmin[None]
 
         @ti.kernel
         def assemble(dt: f):
-            """Gradient g, element Hessian data, preconditioner; red[0] = |g|^2, red[1] = max |g_i| / m_i."""
+            """Gradient g and contact state; red[0] = |g|^2, red[1] = max |g_i| / m_i."""
             for e in range(m):
                 F = deformation(e, x)
                 P = law_call(e, F, "pk1")
                 if ti.static(ray_b > 0):
                     P += damp_pk1(e, F - deformation(e, xn)) / dt
-                U, V, Hs, ls, lt = law_hessian(e, F)
-                hU[e], hV[e], hS[e], hls[e], hlt[e] = U, V, Hs, ls, lt
                 scatter(e, vol[e] * P @ B[e].transpose())
-                Bt = B[e].transpose()
-                for a in range(4):
-                    ga = ti.Vector.zero(float, 3)  # gradient of corner a's shape function
-                    if a == 0:
-                        for j in ti.static(range(3)):
-                            ga[j] = -(Bt[0, j] + Bt[1, j] + Bt[2, j])
-                    else:
-                        for j in ti.static(range(3)):
-                            ga[j] = Bt[a - 1, j]
-                    blk = ti.Matrix.zero(float, 3, 3)
-                    for c in range(3):
-                        E = ti.Matrix.zero(float, 3, 3)
-                        for j in ti.static(range(3)):
-                            E[c, j] = ga[j]
-                        dP = apply_dP(U, V, Hs, ls, lt, E)
-                        if ti.static(ray_b > 0):
-                            dP += damp_pk1(e, E) / dt
-                        if ti.static(has_muscle):
-                            dP += active_dP(e, E)
-                        col = vol[e] * dP @ ga
-                        for rr in ti.static(range(3)):
-                            blk[rr, c] = col[rr]
-                    db[4 * e + a] = blk
             red[0] = 0.0
             red[1] = 0.0
             for i in range(n):
                 mi = mass[i]
                 gi = mi / (dt * dt) * (x[i] - xhat[i]) + gather(i) - fext[i]
-                D = ti.Matrix.identity(float, 3) * (mi / (dt * dt))
                 if ti.static(ray_a > 0):
                     gi += ray_a * mi / dt * (x[i] - xn[i])
-                    D += ti.Matrix.identity(float, 3) * (ray_a * mi / dt)
-                for qq in range(s.adj_start_f[i], s.adj_start_f[i + 1]):
-                    D += db[s.adj_f[qq]]
                 phi, nrm, kind, mu = nearest(x[i])
                 k = 0.0
                 if phi < 0:
                     k = kc * mi / (dt * dt)
                     gi += k * phi * nrm
-                    D += k * nrm.outer_product(nrm)
                 cn[i] = nrm
                 ck[i] = k
+                gi = gi * free[i]
+                g[i] = gi
+                red[0] += ti.cast(gi.dot(gi), ti.f64)
+                ti.atomic_max(red[1], ti.cast(gi.norm() / mi, ti.f64))
+
+        @ti.kernel
+        def hessian(dt: f):
+            """Element Hessian data (singular-value frame) and the block-Jacobi preconditioner, at x (after
+            assemble, whose contact state it uses): only when Newton has to take a step."""
+            for e in range(m):
+                F = deformation(e, x)
+                U, V, Hs, ls, lt = law_hessian(e, F)
+                hU[e], hV[e], hS[e], hls[e], hlt[e] = U, V, Hs, ls, lt
+                Bt = B[e].transpose()
+                if ti.static(rotated):
+                    # the rest stiffness's diagonal blocks turned by the element's rotation R = U V^T: two
+                    # 3x3 products per corner instead of three dP/dF applications (the exact blocks)
+                    R = U @ V.transpose()
+                    scale = 1.0
+                    if ti.static(ray_b > 0):
+                        scale += ray_b / dt
+                    for a in ti.static(range(4)):
+                        db[4 * e + a] = scale * (R @ k0[4 * e + a] @ R.transpose())
+                if ti.static(not rotated):
+                    for a in range(4):
+                        ga = ti.Vector.zero(float, 3)  # gradient of corner a's shape function
+                        if a == 0:
+                            for j in ti.static(range(3)):
+                                ga[j] = -(Bt[0, j] + Bt[1, j] + Bt[2, j])
+                        else:
+                            for j in ti.static(range(3)):
+                                ga[j] = Bt[a - 1, j]
+                        blk = ti.Matrix.zero(float, 3, 3)
+                        for c in range(3):
+                            E = ti.Matrix.zero(float, 3, 3)
+                            for j in ti.static(range(3)):
+                                E[c, j] = ga[j]
+                            dP = apply_dP(U, V, Hs, ls, lt, E)
+                            if ti.static(ray_b > 0):
+                                dP += damp_pk1(e, E) / dt
+                            if ti.static(has_muscle):
+                                dP += active_dP(e, E)
+                            col = vol[e] * dP @ ga
+                            for rr in ti.static(range(3)):
+                                blk[rr, c] = col[rr]
+                        db[4 * e + a] = blk
+            for i in range(n):
+                mi = mass[i]
+                D = ti.Matrix.identity(float, 3) * (mi / (dt * dt))
+                if ti.static(ray_a > 0):
+                    D += ti.Matrix.identity(float, 3) * (ray_a * mi / dt)
+                for qq in range(s.adj_start_f[i], s.adj_start_f[i + 1]):
+                    D += db[s.adj_f[qq]]
+                if ck[i] > 0:
+                    D += ck[i] * cn[i].outer_product(cn[i])
                 fr = free[i]
-                gi = gi * fr
                 for a in ti.static(range(3)):
                     if fr[a] == 0:
                         for b in ti.static(range(3)):
@@ -183,9 +232,6 @@ class ImplicitIntegrator:
                             D[b, a] = 0.0
                         D[a, a] = 1.0
                 Pinv[i] = D.inverse()
-                g[i] = gi
-                red[0] += ti.cast(gi.dot(gi), ti.f64)
-                ti.atomic_max(red[1], ti.cast(gi.norm() / mi, ti.f64))
 
         @ti.kernel
         def pcg_init() -> ti.f64:
@@ -287,12 +333,18 @@ class ImplicitIntegrator:
                         vi[c] = vfix[i][c]
                 v[i] = vi
 
-        self.k = dict(begin=begin, assemble=assemble, pcg_init=pcg_init, matvec=matvec, pcg_update=pcg_update,
+        self.k = dict(begin=begin, predictor_min_det=predictor_min_det, assemble=assemble, hessian=hessian, pcg_init=pcg_init, matvec=matvec, pcg_update=pcg_update,
                       energy=energy, apply=apply, finish=finish)
 
     def substep(self, dt: float, t: float) -> None:
         k, o, st = self.k, self.opts, self.s.stats
         k["begin"](dt, t)
+        # Start Newton from free flight's solution x_n + h (v_n + h g) / (1 + alpha h) unless it inverts an
+        # element (large dt): exact for a body in free flight (no iteration), and a translation is the
+        # slowest error for block-Jacobi PCG to remove. Otherwise from x_n.
+        if k["predictor_min_det"]() > 0:
+            k["apply"](1.0)
+        e_cur = None  # incremental potential at the current iterate, once a line search has computed it
         newton_it, pcg_total = 0, 0
         res0 = None
         while True:
@@ -303,12 +355,13 @@ class ImplicitIntegrator:
                 print("newton", newton_it, res, acc, file=sys.stderr)
             if res0 is None:
                 res0 = res
-            if acc <= o.newton_atol or res <= o.newton_tol * res0 or res == 0.0:
+            if acc <= max(o.newton_atol, self.acc_floor_h2 / (dt * dt)) or res <= o.newton_tol * res0 or res == 0.0:
                 break
             if newton_it >= o.newton_max_iter:
                 st["newton_capped"] += 1
                 break
             newton_it += 1
+            k["hessian"](dt)
             # PCG: H d = -g
             rz = k["pcg_init"]()
             b2 = float(self.red[2])
@@ -330,13 +383,16 @@ class ImplicitIntegrator:
             # Armijo back-tracking on the incremental potential
             alpha = 1.0
             if o.line_search:
-                E0 = k["energy"](0.0, dt)
-                gd = float(self.red[3])
+                E0 = e_cur if e_cur is not None else k["energy"](0.0, dt)
                 tol = 1e-6 * abs(E0) if self.s.f == ti.f32 else 1e-12 * abs(E0)
-                ok = False
+                ok, gd = False, None
                 for _ in range(MAX_HALVINGS):
-                    if k["energy"](alpha, dt) <= E0 + ARMIJO_C * alpha * gd + tol:
+                    Ea = k["energy"](alpha, dt)
+                    if gd is None:
+                        gd = float(self.red[3])  # g . d, the same for every trial
+                    if Ea <= E0 + ARMIJO_C * alpha * gd + tol:
                         ok = True
+                        e_cur = Ea
                         break
                     alpha *= 0.5
                     st["ls_halvings"] += 1

@@ -147,6 +147,17 @@ class FEMSolver(Solver):
         self.edge = float(np.mean(np.linalg.norm(x[T[:, 1]] - x[T[:, 0]], axis=1)))
         self.extent = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
 
+    def rest_diagonal_blocks(self) -> np.ndarray:
+        """Per element corner a, the 3x3 diagonal block V (mu |g_a|^2 I + (mu + lam) g_a g_a^T) of the
+        small-strain stiffness at rest (the materials' own Lame parameters), g_a the shape-function gradient."""
+        G = np.concatenate([-self.B.sum(axis=1, keepdims=True), self.B], axis=1)  # (m, 4, 3): rows of B
+        mu = np.array([self.materials[k].mu for k in self.mid])
+        lam = np.array([self.materials[k].lam for k in self.mid])
+        g2 = np.einsum("eai,eai->ea", G, G)
+        blocks = (mu[:, None, None, None] * g2[:, :, None, None] * np.eye(3)
+                  + (mu + lam)[:, None, None, None] * np.einsum("eai,eaj->eaij", G, G))
+        return (self.vol0[:, None, None, None] * blocks).reshape(-1, 3, 3)
+
     def _prepare_muscles(self) -> None:
         """FEM.Muscle: per element its group (first group whose region holds the rest centroid), fibre
         direction (rest frame, unit) and active stiffness; the groups' signals in global group order."""
