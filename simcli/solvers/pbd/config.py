@@ -37,6 +37,10 @@ class PBDOptions(_Options):
     density_iterations: int = Field(
         4, ge=1, description="PBD.Liquid: density-constraint iterations per substep (Genesis: "
         "max_density_solver_iterations).")
+    liquid_walls: bool = Field(
+        True, description="PBD.Liquid: the domain walls count in the density as the particle lattice mirrored "
+        "behind them (without it a particle next to a wall misses neighbours and the liquid packs against "
+        "the walls).")
     tet_resolution: float = Field(
         20.0, gt=0, description="PBD.Elastic soft bodies: cells per metre of the tetrahedralisation (as FEM's "
         "resolution: Box morphs split each cell into 6 tets; other solids get tets of about that size).")

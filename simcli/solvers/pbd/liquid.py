@@ -39,6 +39,34 @@ def spiky_grad_mag(r: np.ndarray, h: float) -> np.ndarray:
     return np.where((r < h) & (r > 0), -45.0 / (math.pi * h**6) * (h - r) ** 2, 0.0)
 
 
+WALL_SAMPLES = 49  # 4k + 1: the rest lattice's distances ps/2 + k ps fall on samples (h = 2 ps)
+
+
+def wall_tables(spacing: float, h: float, mass: float):
+    """Density [kg/m^3] a particle at distance d (0..h, WALL_SAMPLES samples) from a domain wall gets from
+    virtual particles behind it: the fluid lattice mirrored (layers ps/2 + k ps behind the wall), so a
+    particle of the rest lattice next to a wall sees exactly the neighbours it misses. Where two walls
+    meet, both half-spaces hold the quarter-space behind the edge: its density (a table over the two
+    distances) is subtracted once (inclusion-exclusion; the octants behind the 8 corners are left
+    subtracted, a slight undercount on the safe side). Returns (d, rho_wall(d), d rho_wall/dd,
+    rho_edge(d1, d2), its derivatives along d1 and d2)."""
+    k = math.ceil(h / spacing)
+    g = np.arange(-k, k + 1) * spacing
+    d = np.linspace(0.0, h, WALL_SAMPLES)
+    behind = spacing / 2 + np.arange(k + 1) * spacing
+    # half-space: lateral lattice (2D) x layers behind
+    lat = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    dz = d[:, None, None] + behind[None, :, None]
+    r = np.sqrt((lat**2).sum(axis=1)[None, None, :] + dz**2)
+    half = mass * poly6(r, h).sum(axis=(1, 2))
+    # quarter-space behind an edge: layers behind both walls x the lattice along the edge
+    A = d[:, None] + behind[None, :]  # distance behind a wall of each layer, (d, k)
+    r2 = (A[:, None, :, None, None] ** 2 + A[None, :, None, :, None] ** 2 + g[None, None, None, None, :] ** 2)
+    quarter = mass * poly6(np.sqrt(r2), h).sum(axis=(2, 3, 4))  # (d1, d2)
+    return (d, half, np.gradient(half, d), quarter, np.gradient(quarter, d, axis=0),
+            np.gradient(quarter, d, axis=1))
+
+
 def lattice_constants(spacing: float, h: float) -> tuple[float, float]:
     """(sum_j W, S0 / V^2) of an interior particle of a cubic lattice: sum W (self included) and
     |sum grad W|^2 + sum |grad W|^2 (the first is 0 by symmetry)."""
@@ -68,6 +96,18 @@ class PBFLiquid:
         eps = relax * s0
         wdq = float(poly6(np.array([S_CORR_DQ * h]), h)[0])
         self.iterations = opts.density_iterations
+        _, half, dhalf, quarter, dq1, dq2 = wall_tables(spacing, h, mass)
+        npf = solver.npf
+        w_half = ti.field(f, shape=WALL_SAMPLES)
+        w_dhalf = ti.field(f, shape=WALL_SAMPLES)
+        w_q = ti.field(f, shape=(WALL_SAMPLES, WALL_SAMPLES))
+        w_dq1 = ti.field(f, shape=(WALL_SAMPLES, WALL_SAMPLES))
+        w_dq2 = ti.field(f, shape=(WALL_SAMPLES, WALL_SAMPLES))
+        for fld, arr in ((w_half, half), (w_dhalf, dhalf), (w_q, quarter), (w_dq1, dq1), (w_dq2, dq2)):
+            fld.from_numpy(arr.astype(npf))
+        dom_lo, dom_hi = solver.dom_lo, solver.dom_hi
+        wstep = h / (WALL_SAMPLES - 1)
+        use_walls = opts.liquid_walls
         x, v, w = solver.x, solver.v, solver.w
         slots = table_size(n)
         count = ti.field(ti.i32, shape=slots)
@@ -100,6 +140,44 @@ class PBFLiquid:
             if r < h and r > 1e-9:
                 out = cs * (h - r) ** 2 * d / r
             return out
+
+        @ti.func
+        def coord(dist):
+            u = ti.min(ti.max(dist, 0.0) / wstep, WALL_SAMPLES - 1.0001)
+            i0 = ti.cast(u, ti.i32)
+            return i0, u - i0
+
+        @ti.func
+        def walls(xi):
+            """Density of the walls' virtual particles at xi and its gradient in C units (1/m)."""
+            rw = 0.0
+            gw = ti.Vector.zero(float, 3)
+            dist = ti.Vector.zero(float, 6)
+            sgn = ti.Vector([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # d dist / dx along its axis
+            for ax in ti.static(range(3)):
+                dist[2 * ax] = xi[ax] - dom_lo[None][ax]
+                dist[2 * ax + 1] = dom_hi[None][ax] - xi[ax]
+            for q in ti.static(range(6)):
+                if dist[q] < h:
+                    i0, t = coord(dist[q])
+                    rw += (1 - t) * w_half[i0] + t * w_half[i0 + 1]
+                    gw[q // 2] += sgn[q] * ((1 - t) * w_dhalf[i0] + t * w_dhalf[i0 + 1]) / rho0
+            for q1 in ti.static(range(6)):
+                for q2 in ti.static(range(6)):
+                    if ti.static(q1 // 2 < q2 // 2):  # two walls of different axes: an edge
+                        if dist[q1] < h and dist[q2] < h:
+                            i, t = coord(dist[q1])
+                            j, u = coord(dist[q2])
+                            wq = ((1 - t) * (1 - u) * w_q[i, j] + t * (1 - u) * w_q[i + 1, j]
+                                  + (1 - t) * u * w_q[i, j + 1] + t * u * w_q[i + 1, j + 1])
+                            d1 = ((1 - t) * (1 - u) * w_dq1[i, j] + t * (1 - u) * w_dq1[i + 1, j]
+                                  + (1 - t) * u * w_dq1[i, j + 1] + t * u * w_dq1[i + 1, j + 1])
+                            d2 = ((1 - t) * (1 - u) * w_dq2[i, j] + t * (1 - u) * w_dq2[i + 1, j]
+                                  + (1 - t) * u * w_dq2[i, j + 1] + t * u * w_dq2[i + 1, j + 1])
+                            rw -= wq
+                            gw[q1 // 2] -= sgn[q1] * d1 / rho0
+                            gw[q2 // 2] -= sgn[q2] * d2 / rho0
+            return rw, gw
 
         @ti.func
         def slot_of(c):
@@ -155,6 +233,10 @@ class PBFLiquid:
                     gj = vol * gradW(d, r)
                     gi += gj
                     g2 += gj.norm_sqr()
+                if ti.static(use_walls):
+                    rw, gw = walls(xi)
+                    r_i += rw
+                    gi += gw
                 rho[a] = r_i
                 C = ti.max(r_i / rho0 - 1.0, 0.0)
                 lam[a] = -C / (gi.norm_sqr() + g2 + eps)
@@ -167,6 +249,9 @@ class PBFLiquid:
                     r = d.norm()
                     sc = -k_corr * (W(r) / wdq) ** S_CORR_N / s0
                     dp += (lam[a] + lam[b] + sc) * vol * gradW(d, r)
+                if ti.static(use_walls):
+                    rw, gw = walls(xi)
+                    dp += lam[a] * gw  # the wall moves nothing: i moves along its own constraint's gradient
                 dpos[a] = dp
             for a in range(n):
                 if w[lo + a] > 0:
