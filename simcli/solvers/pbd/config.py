@@ -178,7 +178,7 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
         from simcli.solvers.pbd.topology import mesh_for_entity
 
         x = mesh_for_entity(e, scene_dir, opts).x
-    except Exception as ex:  # unreadable mesh file, no triangles
+    except Exception as ex:  # noqa: BLE001 - unreadable mesh file, no triangles, no tetgen: all reported
         return [(("morph",) + (("file",) if m.type == "Mesh" else ()), str(ex))]
     if lo is not None:
         bad = [a for a in range(3) if x[:, a].min() < lo[a] - 1e-9 or x[:, a].max() > hi[a] + 1e-9]

@@ -164,7 +164,7 @@ class PBFLiquid:
                     gw[q // 2] += sgn[q] * ((1 - t) * w_dhalf[i0] + t * w_dhalf[i0 + 1]) / rho0
             for q1 in ti.static(range(6)):
                 for q2 in ti.static(range(6)):
-                    if ti.static(q1 // 2 < q2 // 2):  # two walls of different axes: an edge
+                    if ti.static(q1 // 2 < q2 // 2):  # noqa: SIM102 - two walls of different axes: an edge
                         if dist[q1] < h and dist[q2] < h:
                             i, t = coord(dist[q1])
                             j, u = coord(dist[q2])
