@@ -78,6 +78,7 @@ class ImplicitIntegrator:
         xmax = max([abs(c) for c in lo + hi] + [float(np.abs(s.x0).max())])
         self.acc_floor_h2 = 2.0 * (2.0**-23 if f == ti.f32 else 2.0**-52) * xmax  # / h^2 at each substep
         self._make()
+        self._compile()
 
     def _make(self) -> None:
         s = self.s
@@ -335,6 +336,19 @@ class ImplicitIntegrator:
 
         self.k = dict(begin=begin, predictor_min_det=predictor_min_det, assemble=assemble, hessian=hessian, pcg_init=pcg_init, matvec=matvec, pcg_update=pcg_update,
                       energy=energy, apply=apply, finish=finish)
+
+    def _compile(self) -> None:
+        """Compile the kernels a Newton step needs now, at build, rather than inside the first substep that
+        takes one (they write only scratch fields here; begin and finish compile in the first substep)."""
+        k = self.k
+        k["assemble"](1.0)
+        k["hessian"](1.0)
+        k["pcg_init"]()
+        k["matvec"](0.0, 1, 1.0)
+        k["pcg_update"](0.0)
+        k["energy"](0.0, 1.0)
+        k["apply"](0.0)
+        k["predictor_min_det"]()
 
     def substep(self, dt: float, t: float) -> None:
         k, o, st = self.k, self.opts, self.s.stats
