@@ -122,6 +122,9 @@ class PBDLiquid(_PBDBase):
         "particle's sum |grad C|^2 [-] (Macklin and Mueller's eps; larger = softer, more stable).")
     viscosity_relaxation: float = Field(
         0.01, ge=0, description="XSPH viscosity coefficient c [-]: v_i += c sum_j V_j (v_j - v_i) W_ij.")
+    vorticity_confinement: float = Field(
+        0.0, ge=0, description="Vorticity confinement epsilon [m/s] (Macklin and Mueller's eq. 16): acceleration "
+        "epsilon (N x omega), N the unit gradient of |omega|; 0 = off.")
     artificial_pressure: float = Field(
         1.0e-4, ge=0, description="k of the artificial pressure s_corr = -k (W(r) / W(0.2 h))^4 / S0 [-] "
         "(Macklin and Mueller's eq. 13, here relative to an interior particle's sum |grad C|^2 S0). It is a "

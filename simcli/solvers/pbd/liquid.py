@@ -9,7 +9,8 @@ Per substep, after the prediction: neighbour lists from a hashed cell grid (cell
     dx_i = sum_j V (lambda_i + lambda_j + s_corr) grad W(x_i - x_j)   (spiky gradient, eq. 14)
     s_corr = -k (W(r) / W(0.2 h))^4 / S0                  (artificial pressure, eq. 13)
 
-and walls/colliders as position clamps; after the velocity update, XSPH viscosity
+and walls/colliders as position clamps; after the velocity update, optional vorticity confinement and XSPH
+viscosity
 v_i += c sum_j V_j (v_j - v_i) W_ij (eq. 17). rho0 is the lattice sum m sum_j W of an interior particle
 of the initial lattice (so the initial block is at rest density exactly; the particle mass is rho x
 volume / count), S0 the same particle's sum |grad C|^2: eps = density_relaxation x S0 and s_corr's k are
@@ -92,7 +93,7 @@ class PBFLiquid:
         vol = mass / rho0
         s0 = vol * vol * gsum  # sum_k |grad_k C|^2 of a rest-lattice particle [1/m^2]
         self.rho0, self.s0 = rho0, s0
-        relax, visc = materials
+        relax, visc, self.vort = materials
         eps = relax * s0
         wdq = float(poly6(np.array([S_CORR_DQ * h]), h)[0])
         self.iterations = opts.density_iterations
@@ -270,7 +271,38 @@ class PBFLiquid:
                 if w[lo + a] > 0:
                     v[lo + a] += dvel[a]
 
+        omega = ti.Vector.field(3, f, shape=n)
+
+        @ti.kernel
+        def vorticity(eps_v: float, dt: float):
+            """Vorticity confinement (Macklin and Mueller 2013 eqs. 15-16; Fedkiw et al. 2001): curl
+            omega_i = sum_j V grad W_ij x (v_j - v_i), eta = grad |omega|, N = eta / |eta|, and the
+            acceleration eps_v (N x omega) puts back the swirl the position projection damps."""
+            for a in range(n):
+                cw = ti.Vector.zero(float, 3)
+                for m in range(nnb[a]):
+                    b = nb[a, m]
+                    d = x[lo + a] - x[lo + b]
+                    cw += vol * gradW(d, d.norm()).cross(v[lo + b] - v[lo + a])
+                omega[a] = cw
+            for a in range(n):
+                eta = ti.Vector.zero(float, 3)
+                wa = omega[a].norm()
+                for m in range(nnb[a]):
+                    b = nb[a, m]
+                    d = x[lo + a] - x[lo + b]
+                    eta += vol * (omega[b].norm() - wa) * gradW(d, d.norm())
+                le = eta.norm()
+                dv = ti.Vector.zero(float, 3)
+                if le > 1e-9:
+                    dv = dt * eps_v * (eta / le).cross(omega[a])
+                dvel[a] = dv
+            for a in range(n):
+                if w[lo + a] > 0:
+                    v[lo + a] += dvel[a]
+
         self._neighbours, self._density_step, self._viscosity = neighbours, density_step, viscosity
+        self._vorticity = vorticity
         self.visc = visc
         self.k_corr = k_corr
 
@@ -282,6 +314,8 @@ class PBFLiquid:
             self._density_step(self.k_corr)
             clamp()
 
-    def after_velocity(self) -> None:
+    def after_velocity(self, dt: float) -> None:
+        if self.vort > 0:
+            self._vorticity(self.vort, dt)
         if self.visc > 0:
             self._viscosity(self.visc)

@@ -234,7 +234,8 @@ class PBDSolver(Solver):
 
                 lo, hi = self.offsets[k], self.offsets[k + 1]
                 self.liquids.append(PBFLiquid(self, lo, hi, self.opts.particle_size, float(self.mass[lo]), self.opts,
-                                              (e.material.density_relaxation, e.material.viscosity_relaxation),
+                                              (e.material.density_relaxation, e.material.viscosity_relaxation,
+                                               e.material.vorticity_confinement),
                                               e.material.artificial_pressure))
         self._make_kernels()
         self._built = True
@@ -535,7 +536,7 @@ class PBDSolver(Solver):
         self._contact(True)
         self._update_velocity(dt)
         for liq in self.liquids:
-            liq.after_velocity()
+            liq.after_velocity(dt)
         self.time += dt
         self.last_dt = dt
 
