@@ -353,12 +353,16 @@ class ImplicitIntegrator:
     def substep(self, dt: float, t: float) -> None:
         k, o, st = self.k, self.opts, self.s.stats
         k["begin"](dt, t)
-        # Start Newton from free flight's solution x_n + h (v_n + h g) / (1 + alpha h) unless it inverts an
-        # element (large dt): exact for a body in free flight (no iteration), and a translation is the
-        # slowest error for block-Jacobi PCG to remove. Otherwise from x_n.
-        if k["predictor_min_det"]() > 0:
+        # Start Newton from free flight's solution x_n + h (v_n + h g) / (1 + alpha h) when it inverts no
+        # element and its incremental potential is below x_n's: exact for a body in free flight (no
+        # iteration), and a translation is the slowest error for block-Jacobi PCG to remove. Otherwise
+        # (large dt, a body held or resting on something) from x_n: the relative Newton stop is measured
+        # from the start, which must not be a far worse point than x_n.
+        e_pred = k["energy"](1.0, dt) if k["predictor_min_det"]() > 0 else math.inf
+        e_cur = k["energy"](0.0, dt)  # incremental potential at the current iterate
+        if e_pred < e_cur:
             k["apply"](1.0)
-        e_cur = None  # incremental potential at the current iterate, once a line search has computed it
+            e_cur = e_pred
         newton_it, pcg_total = 0, 0
         res0 = None
         while True:
