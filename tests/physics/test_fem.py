@@ -222,6 +222,6 @@ def test_implicit_damping_matches_backward_euler(tmp_path):
     """The vibrating cantilever's first mode decays per step as backward Euler predicts, without and with
     Rayleigh damping, within 10 % of the decay rate (simcli verify exits 1 when a case fails)."""
     r = subprocess.run([sys.executable, "-m", "simcli", "verify", "fem_damping", "fem_damping_rayleigh",
-                        "-o", str(tmp_path)], capture_output=True, text=True, timeout=900, cwd=ROOT)
+                        "-o", str(tmp_path)], check=False, capture_output=True, text=True, timeout=900, cwd=ROOT)
     assert r.returncode == 0, (r.stdout[-3000:], r.stderr[-3000:])
     assert (r.stdout + r.stderr).count("| pass |") == 2, r.stderr[-3000:]
