@@ -51,7 +51,15 @@ def run(scene: Path, out: Path | None, sets: tuple[str, ...], backend: str | Non
     from simcli.runner import run_scene
 
     code, info = run_scene(loaded, out_dir=out, backend=backend, resume=resume, quiet=quiet,
-                           sets=list(sets), t_process=_T0)
+                           sets=list(sets), t_process=_T0, restore_signals=False)
+    # the run is over: a SIGTERM/SIGUSR1 from now on (Slurm's, during Taichi's clean-up and the
+    # interpreter's shut-down, which puts Python-level handlers back to the default) must not turn
+    # this exit code into a death by signal. SIG_IGN survives the shut-down.
+    import signal
+
+    for name in ("SIGTERM", "SIGUSR1"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
     if as_json and info is not None:
         click.echo(json.dumps(info, indent=2))
     sys.exit(code)

@@ -96,9 +96,15 @@ class _Signals:
 
 def run_scene(loaded: LoadedScene, out_dir: Path | None = None, backend: str | None = None, resume: bool = False,
               quiet: bool = False, sets: list[str] | None = None, t_process: float | None = None,
-              solver_factory=None) -> tuple[int, dict | None]:
-    """Run a validated scene. Returns (exit code, run.json dict)."""
+              solver_factory=None, restore_signals: bool = True) -> tuple[int, dict | None]:
+    """Run a validated scene. Returns (exit code, run.json dict).
+
+    restore_signals: put the caller's SIGTERM/SIGINT/SIGUSR1 handlers back when the run ends. The
+    command line passes False: a signal that arrives after the run has finished, while the process
+    shuts down (Taichi's clean-up takes a moment), must not kill it with the default action and
+    turn a finished run's exit 0 into 143."""
     runner = Runner(loaded, out_dir, backend, resume, quiet, sets or [], t_process)
+    runner.restore_signals = restore_signals
     return runner.run(solver_factory)
 
 
@@ -121,6 +127,7 @@ class Runner:
         self.timings = {"startup_s": 0.0, "setup_s": 0.0, "taichi_init_s": 0.0, "build_s": 0.0, "compile_s": 0.0,
                         "stepping_s": 0.0, "output_s": 0.0, "checkpoint_s": 0.0}
         self.signals = _Signals()
+        self.restore_signals = True  # see run_scene
 
     # ------------------------------------------------------------------ helpers
     def log(self, msg: str) -> None:
@@ -170,7 +177,8 @@ class Runner:
             self.info["traceback"] = tb
             return EXIT_OTHER, self.write_run_json("failed", EXIT_OTHER)
         finally:
-            self.signals.restore()
+            if self.restore_signals:
+                self.signals.restore()
 
     def _prepare_out(self) -> None:
         try:

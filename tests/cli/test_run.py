@@ -188,3 +188,22 @@ def test_sigterm_checkpoint_then_resume_matches_uninterrupted(tmp_path):
 def test_resume_without_checkpoint_is_a_usage_error(tmp_path):
     r = _run(["run", str(_scene(tmp_path)), "-o", str(tmp_path / "none"), "--resume"])
     assert r.returncode == 2 and "no checkpoint" in r.stderr
+
+
+def test_signal_after_the_run_finished_does_not_kill_the_process(tmp_path):
+    """A SIGTERM during shut-down (after run.json says done) leaves exit 0, not a death by signal."""
+    scene = _scene(tmp_path, SCENE)
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "simcli", "run", str(scene), "-o", str(out), "-q"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and p.poll() is None:
+        try:
+            if json.loads((out / "run.json").read_text()).get("status") == "done":
+                break
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.005)
+    p.send_signal(signal.SIGTERM)  # (if the process is already gone, nothing happens)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 0, err
