@@ -11,7 +11,7 @@ from pathlib import Path
 import click
 
 from simcli import __version__
-from simcli.errors import EXIT_INVALID_SCENE, EXIT_OK, SceneError
+from simcli.errors import EXIT_INVALID_SCENE, EXIT_OK, EXIT_USAGE, SceneError
 
 _T0 = time.perf_counter()
 
