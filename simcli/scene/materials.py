@@ -13,11 +13,11 @@ from typing import Annotated, Union
 from pydantic import Field
 
 from simcli.scene.material_base import _Material, _Solid  # noqa: F401  (re-exported)
-from simcli.solvers.mpm.config import MATERIALS as _MPM
-from simcli.solvers.sph.config import MATERIALS as _SPH
-from simcli.solvers.sf.config import MATERIALS as _SF
 from simcli.solvers.fem.config import MATERIALS as _FEM
+from simcli.solvers.mpm.config import MATERIALS as _MPM
 from simcli.solvers.pbd.config import MATERIALS as _PBD
+from simcli.solvers.sf.config import MATERIALS as _SF
+from simcli.solvers.sph.config import MATERIALS as _SPH
 
 # Registry: every material type a solver family implements, from each family's config module.
 MATERIAL_TYPES: tuple[type[_Material], ...] = (*_MPM, *_SPH, *_FEM, *_SF, *_PBD)

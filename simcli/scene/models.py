@@ -12,11 +12,11 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simcli.scene.materials import Material
 from simcli.scene.morphs import Morph, Region
+from simcli.solvers.fem.config import FEMOptions
 from simcli.solvers.mpm.config import MPMOptions
+from simcli.solvers.pbd.config import PBDOptions
 from simcli.solvers.sf.config import Jet, SFOptions
 from simcli.solvers.sph.config import SPHOptions
-from simcli.solvers.fem.config import FEMOptions
-from simcli.solvers.pbd.config import PBDOptions
 
 FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 

@@ -21,7 +21,7 @@ class ExplicitIntegrator:
     def __init__(self, s) -> None:
         f = s.f
         x, v, xr, free, vfix, fext, mass = s.x, s.v, s.xr, s.free_f, s.vfix_f, s.fext_f, s.mass_f
-        vol, B, tet, mid, mat_mu, mat_lam = s.vol_f, s.B_f, s.tet_f, s.mid_f, s.mat_mu0, s.mat_lam0
+        vol, B, mid, mat_mu, mat_lam = s.vol_f, s.B_f, s.mid_f, s.mat_mu0, s.mat_lam0
         gravity = s.gravity
         deformation, law_call, scatter, gather = s.deformation, s.law_call, s.scatter_columns, s.gather
         nearest = make_nearest(s.scene)

@@ -91,7 +91,6 @@ class ImplicitIntegrator:
         xn, xhat, g, d, r, z, p, q, Pinv = self.xn, self.xhat, self.g, self.d, self.r, self.z, self.p, self.q, self.Pinv
         hU, hV, hS, hls, hlt, db, cn, ck, red = (self.hU, self.hV, self.hS, self.hls, self.hlt, self.db, self.cn,
                                                 self.ck, self.red)
-        fe = s.fe
         nearest = make_nearest(s.scene)
         kc = float(self.opts.contact_stiffness)
         ray_a, ray_b = self.alpha, self.beta
