@@ -370,8 +370,13 @@ class Runner:
         self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
         self.info["loop_wall_s"] = round(time.perf_counter() - t_loop, 4)
         info = self.write_run_json("done", EXIT_OK)
-        self.log(f"done: {step} steps, {frame + 1} frames in {self.out} "
-                 f"({info['throughput']['particle_substeps_per_s']:.3g} particle-substeps/s)")
+        tp = info["throughput"]
+        rates = [f"{tp[k]:.3g} {what}-substeps/s" for k, what in
+                 (("particle_substeps_per_s", "particle"), ("vertex_substeps_per_s", "vertex"),
+                  ("cell_substeps_per_s", "cell")) if tp.get(k)]
+        if not rates:
+            rates = [f"{tp.get('steps_per_s') or 0:.3g} steps/s"]
+        self.log(f"done: {step} steps, {frame + 1} frames in {self.out} ({', '.join(rates)})")
         return EXIT_OK, info
 
     # ------------------------------------------------------------------ pieces
