@@ -20,6 +20,7 @@ import yaml
 from simcli import __version__
 from simcli.errors import (
     EXIT_INTERRUPTED,
+    EXIT_INVALID_SCENE,
     EXIT_OK,
     EXIT_OTHER,
     EXIT_USAGE,
@@ -27,6 +28,7 @@ from simcli.errors import (
     OutputError,
     SimcliError,
 )
+from simcli.geometry.mesh import MeshError
 from simcli.progress import Progress
 from simcli.scene.loader import LoadedScene
 from simcli.scene.models import resolved_scene_dict
@@ -166,6 +168,10 @@ class Runner:
             print(f"simcli: error: {e}", file=sys.stderr, flush=True)
             self.info["error"] = str(e)
             return e.exit_code, self.write_run_json("failed", e.exit_code)
+        except MeshError as e:  # a mesh that cannot be meshed or sampled (found at build): the input's fault
+            print(f"simcli: error: {e}", file=sys.stderr, flush=True)
+            self.info["error"] = str(e)
+            return EXIT_INVALID_SCENE, self.write_run_json("failed", EXIT_INVALID_SCENE)
         except KeyboardInterrupt:
             print("simcli: interrupted twice; stopped without a checkpoint", file=sys.stderr)
             return 130, self.write_run_json("killed", 130)

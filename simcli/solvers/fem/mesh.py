@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simcli.geometry.mesh import MeshError, check_closed, load_mesh_morph, resolve_mesh_path, transform_points
+from simcli.geometry.tetgen_worker import run_tetgen
 from simcli.scene.morphs import BoxShape, CylinderShape, MeshShape, SphereShape
 
 DEGENERATE_REL = 1e-10  # |6 V| below this x (longest edge)^3 is degenerate
@@ -187,14 +188,17 @@ def tetrahedralise(verts: np.ndarray, tris: np.ndarray, max_volume: float, min_d
             "not installed: pip install tetgen. Alternatively mesh the shape yourself (e.g. gmsh) and give the "
             "tetrahedral mesh file (.msh, .vtu, .mesh) as a Mesh morph, or use a Box morph."
         ) from None
+    del tetgen  # only its presence is checked here: it runs in a child process
     check_closed(np.asarray(tris), name)
-    tg = tetgen.TetGen(np.asarray(verts, dtype=np.float64), np.asarray(tris, dtype=np.int32))
-    try:
-        nodes, elems = tg.tetrahedralize(order=1, mindihedral=float(min_dihedral), minratio=1.5,
-                                         maxvolume=float(max_volume), quality=True, nobisect=False,
-                                         verbose=0)[:2]
-    except RuntimeError as e:
-        raise MeshError(f"{name}: TetGen failed ({e}); the surface is probably self-intersecting") from None
+    status, nodes, elems = run_tetgen(verts, tris, order=1, mindihedral=float(min_dihedral), minratio=1.5,
+                                      maxvolume=float(max_volume), quality=True, nobisect=False, verbose=0)
+    if status == "crashed":
+        raise MeshError(f"{name}: TetGen crashed on this surface (exit {nodes}): it is most likely self-intersecting "
+                        "(overlapping parts, duplicate or degenerate triangles). Repair the surface (e.g. MeshLab: "
+                        "remove duplicates and self-intersections; Blender 3D-Print toolbox), or mesh it yourself "
+                        "and give the tetrahedral mesh file")
+    if status == "error":
+        raise MeshError(f"{name}: TetGen failed ({nodes}); the surface is probably self-intersecting")
     if len(elems) == 0:
         raise MeshError(f"{name}: TetGen produced no tetrahedra (self-intersecting or open surface?)")
     return np.asarray(nodes, dtype=np.float64), np.asarray(elems, dtype=np.int64)
