@@ -9,20 +9,26 @@ imports only numpy and tetgen.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
+import tempfile
 
 import numpy as np
 
 
 def _child(conn, verts, tris, kwargs) -> None:
-    try:
-        import tetgen  # noqa: PLC0415 - optional dependency, imported where used
+    # TetGen writes files of its own into the working directory when it meets bad input
+    # (_skipped.face, _skipped.node): give it a private one
+    with tempfile.TemporaryDirectory(prefix="simcli-tetgen-") as tmp:
+        os.chdir(tmp)
+        try:
+            import tetgen  # noqa: PLC0415 - optional dependency, imported where used
 
-        nodes, elems = tetgen.TetGen(verts, tris).tetrahedralize(**kwargs)[:2]
-        conn.send(("ok", np.asarray(nodes, dtype=np.float64), np.asarray(elems, dtype=np.int64)))
-    except Exception as e:  # noqa: BLE001 - every failure goes back to the parent as a message
-        conn.send(("error", f"{type(e).__name__}: {e}", None))
-    finally:
-        conn.close()
+            nodes, elems = tetgen.TetGen(verts, tris).tetrahedralize(**kwargs)[:2]
+            conn.send(("ok", np.asarray(nodes, dtype=np.float64), np.asarray(elems, dtype=np.int64)))
+        except Exception as e:  # noqa: BLE001 - every failure goes back to the parent as a message
+            conn.send(("error", f"{type(e).__name__}: {e}", None))
+        finally:
+            conn.close()
 
 
 def run_tetgen(verts: np.ndarray, tris: np.ndarray, **kwargs) -> tuple[str, object, object]:
