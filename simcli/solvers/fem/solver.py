@@ -18,6 +18,7 @@ from simcli.geometry.regions import points_in_regions, points_in_shape
 from simcli.solvers.base import Body, FrameStats, Solver
 from simcli.solvers.fem.mesh import boundary_faces, mesh_for_entity, signed_volumes
 from simcli.solvers.fem.models import LAWS, lame_for
+from simcli.solvers.taichi_funcs import make_finite
 
 with stdout_to_stderr():
     import taichi as ti
@@ -375,15 +376,7 @@ class FEMSolver(Solver):
         f = self.f
         vol, out_vm, out_J, el_vm, el_J = self.vol_f, self.out_vm, self.out_J, self.el_vm, self.el_J
 
-        @ti.func
-        def finite(a):
-            ok = True
-            for d in ti.static(range(3)):
-                if ti.static(f64):
-                    ok = ok and ((ti.bit_cast(a[d], ti.i64) >> 52) & 0x7FF) != 0x7FF
-                else:
-                    ok = ok and ((ti.bit_cast(a[d], ti.i32) >> 23) & 0xFF) != 0xFF
-            return ok
+        finite = make_finite(f64)
 
         @ti.kernel
         def frame_stats():

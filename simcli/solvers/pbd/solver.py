@@ -33,6 +33,7 @@ import numpy as np
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver
 from simcli.solvers.pbd.topology import colour, fixed_vertices, mesh_for_entity
+from simcli.solvers.taichi_funcs import make_finite
 
 with stdout_to_stderr():
     import taichi as ti
@@ -487,15 +488,7 @@ class PBDSolver(Solver):
         nb = len(self.entities)
         f64 = self.f == ti.f64
 
-        @ti.func
-        def finite(a):
-            ok = True
-            for d in ti.static(range(3)):
-                if ti.static(f64):
-                    ok = ok and ((ti.bit_cast(a[d], ti.i64) >> 52) & 0x7FF) != 0x7FF
-                else:
-                    ok = ok and ((ti.bit_cast(a[d], ti.i32) >> 23) & 0xFF) != 0xFF
-            return ok
+        finite = make_finite(f64)
 
         @ti.kernel
         def frame_stats():

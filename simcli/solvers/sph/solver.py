@@ -31,6 +31,7 @@ from simcli.solvers.sph.dfsph import SolveStats, make_dfsph
 from simcli.solvers.sph.kernels import kernel_constant, lattice_sum, make_kernels
 from simcli.solvers.sph.neighbours import CellGrid, make_neighbour_funcs, neighbour_capacity
 from simcli.solvers.sph.wcsph import make_wcsph
+from simcli.solvers.taichi_funcs import make_body_of, make_finite
 
 with stdout_to_stderr():
     import taichi as ti
@@ -503,28 +504,9 @@ class SPHSolver(Solver):
         body_offsets, stat_speed, stat_bad, pid = self.body_offsets, self.stat_speed, self.stat_bad, self.pid
         f64 = f == ti.f64
 
-        @ti.func
-        def finite(a):
-            ok = True
-            for d in ti.static(range(a.n)):
-                if ti.static(f64):
-                    ok = ok and ((ti.bit_cast(a[d], ti.i64) >> 52) & 0x7FF) != 0x7FF
-                else:
-                    ok = ok and ((ti.bit_cast(a[d], ti.i32) >> 23) & 0xFF) != 0xFF
-            return ok
+        finite = make_finite(f64)
 
-        @ti.func
-        def body_of(q):
-            lo = 0
-            if ti.static(nb > 1):
-                hi = nb
-                while hi - lo > 1:
-                    m = (lo + hi) // 2
-                    if body_offsets[m] <= q:
-                        lo = m
-                    else:
-                        hi = m
-            return lo
+        body_of = make_body_of(nb, body_offsets)
 
         @ti.kernel
         def frame_stats():
