@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simcli.scene.material_base import _Solid
 from simcli.scene.morphs import Region
-from simcli.solvers.mpm.config import MuscleGroup  # the actuation signals are MPM.Muscle's
+from simcli.solvers.mpm.config import MuscleGroup, MuscleGroups  # groups and signals are MPM.Muscle's
 
 Vec = list[float]
 
@@ -149,7 +149,7 @@ class FEMElastic(_FEMSolid):
     type: Literal["FEM.Elastic"]
 
 
-class FEMMuscle(_FEMSolid):
+class FEMMuscle(MuscleGroups, _FEMSolid):
     """Tetrahedral solid with active fibre stress (the groups and actuation signals of MPM.Muscle): per
     element the first Piola-Kirchhoff stress stiffness a_g(t) (F f0) f0^T is added to the passive one, the
     derivative of the energy stiffness a_g(t) |F f0|^2 / 2 (Kirchhoff stress stiffness a (F f0)(F f0)^T,
@@ -171,35 +171,9 @@ class FEMMuscle(_FEMSolid):
     )
 
     @model_validator(mode="after")
-    def _check_groups(self):
-        if self.groups and len(self.groups) != self.n_groups:
-            raise ValueError(f"groups has {len(self.groups)} entries but n_groups is {self.n_groups}")
-        if not self.groups and self.n_groups != 1:
-            raise ValueError("give one entry in groups per muscle group (n_groups > 1)")
-        for d in [self.fiber_direction] + [g.fiber_direction for g in self.groups]:
-            if d is not None and (len(d) != 3 or not any(abs(c) > 0 for c in d)):
-                raise ValueError("fiber_direction needs 3 components, not all zero")
+    def _check(self):
+        self._check_groups(need_dim=3)
         return self
-
-    @property
-    def active_stiffness(self) -> float:
-        return self.stiffness if self.stiffness is not None else self.E
-
-    def group_list(self) -> list[MuscleGroup]:
-        return list(self.groups) if self.groups else [MuscleGroup()]
-
-    def max_activation(self) -> float:
-        """Largest |a(t)| any group's signal reaches (explicit stability bound)."""
-        amax = 0.0
-        for g in self.group_list():
-            sig = g.actuation
-            if sig.type == "constant":
-                amax = max(amax, abs(sig.value))
-            elif sig.type == "sine":
-                amax = max(amax, abs(sig.offset) + abs(sig.amplitude))
-            else:
-                amax = max(amax, max(abs(v) for v in sig.values))
-        return amax
 
 
 # Every FEM material type; the scene's material union is built from these.

@@ -262,7 +262,46 @@ class MuscleGroup(_Signal):
         return list(self.region) if isinstance(self.region, list) else [self.region]
 
 
-class MPMMuscle(_Solid):
+class MuscleGroups:
+    """What MPM.Muscle and FEM.Muscle share (fields n_groups, fiber_direction, groups, stiffness, E):
+    the group checks, the active stiffness, the group list and the bound of the activation signals."""
+
+    def _check_groups(self, need_dim: int | None = None) -> None:
+        if self.groups and len(self.groups) != self.n_groups:
+            raise ValueError(f"groups has {len(self.groups)} entries but n_groups is {self.n_groups}")
+        if not self.groups and self.n_groups != 1:
+            raise ValueError("give one entry in groups per muscle group (n_groups > 1)")
+        for d in [self.fiber_direction] + [g.fiber_direction for g in self.groups]:
+            if d is None:
+                continue
+            zero = not any(abs(c) > 0 for c in d)
+            if need_dim is not None and (len(d) != need_dim or zero):
+                raise ValueError(f"fiber_direction needs {need_dim} components, not all zero")
+            if zero:
+                raise ValueError("fiber_direction must not be zero")
+
+    @property
+    def active_stiffness(self) -> float:
+        return self.stiffness if self.stiffness is not None else self.E
+
+    def group_list(self) -> list[MuscleGroup]:
+        return list(self.groups) if self.groups else [MuscleGroup()]
+
+    def max_activation(self) -> float:
+        """Largest |a(t)| any group's signal reaches (the explicit stability bounds use it)."""
+        amax = 0.0
+        for g in self.group_list():
+            sig = g.actuation
+            if sig.type == "constant":
+                amax = max(amax, abs(sig.value))
+            elif sig.type == "sine":
+                amax = max(amax, abs(sig.offset) + abs(sig.amplitude))
+            else:
+                amax = max(amax, max(abs(v) for v in sig.values))
+        return amax
+
+
+class MPMMuscle(MuscleGroups, _Solid):
     """Elastic solid with active fibre stress: tau_active = stiffness a(t) (F f0)(F f0)^T."""
 
     type: Literal["MPM.Muscle"]
@@ -285,21 +324,8 @@ class MPMMuscle(_Solid):
 
     @model_validator(mode="after")
     def _check(self):
-        if self.groups and len(self.groups) != self.n_groups:
-            raise ValueError(f"groups has {len(self.groups)} entries but n_groups is {self.n_groups}")
-        if not self.groups and self.n_groups != 1:
-            raise ValueError("give one entry in groups per muscle group (n_groups > 1)")
-        for d in [self.fiber_direction] + [g.fiber_direction for g in self.groups]:
-            if d is not None and not any(abs(c) > 0 for c in d):
-                raise ValueError("fiber_direction must not be zero")
+        self._check_groups()
         return self
-
-    @property
-    def active_stiffness(self) -> float:
-        return self.stiffness if self.stiffness is not None else self.E
-
-    def group_list(self) -> list[MuscleGroup]:
-        return list(self.groups) if self.groups else [MuscleGroup()]
 
 
 # Every MPM material type; the scene's material union is built from these.

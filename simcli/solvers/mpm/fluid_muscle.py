@@ -174,16 +174,7 @@ class _MuscleHost:
         for m in materials:
             if law_key(m) != self.key:
                 continue
-            amax = 0.0
-            for g in m.group_list():
-                s = g.actuation
-                if s.type == "constant":
-                    amax = max(amax, abs(s.value))
-                elif s.type == "sine":
-                    amax = max(amax, abs(s.offset) + abs(s.amplitude))
-                else:
-                    amax = max(amax, max(abs(v) for v in s.values))
-            worst = max(worst, 1.0 + m.active_stiffness * amax / (m.lam + 2.0 * m.mu))
+            worst = max(worst, 1.0 + m.active_stiffness * m.max_activation() / (m.lam + 2.0 * m.mu))
         return worst
 
 
