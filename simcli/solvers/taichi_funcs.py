@@ -45,3 +45,23 @@ def make_body_of(nb: int, body_offsets):
         return lo
 
     return body_of
+
+
+def make_body_frame_stats(nb: int, body_off, x, v, stat_speed, stat_bad, f64: bool):
+    """The per-frame check of a solver whose bodies are contiguous ranges [body_off[b], body_off[b + 1])
+    of its position and velocity fields: the largest speed and the count of non-finite entries per body."""
+    finite = make_finite(f64)
+
+    @ti.kernel
+    def frame_stats():
+        for b in range(nb):
+            stat_speed[b] = 0.0
+            stat_bad[b] = 0
+        for b in range(nb):
+            for i in range(body_off[b], body_off[b + 1]):
+                if finite(x[i]) and finite(v[i]):
+                    stat_speed[b] = ti.max(stat_speed[b], v[i].norm())
+                else:
+                    stat_bad[b] += 1
+
+    return frame_stats

@@ -18,7 +18,7 @@ from simcli.geometry.regions import points_in_regions, points_in_shape
 from simcli.solvers.base import Body, FrameStats, Solver
 from simcli.solvers.fem.mesh import boundary_faces, mesh_for_entity, signed_volumes
 from simcli.solvers.fem.models import LAWS, lame_for
-from simcli.solvers.taichi_funcs import make_finite
+from simcli.solvers.taichi_funcs import make_body_frame_stats
 
 with stdout_to_stderr():
     import taichi as ti
@@ -376,19 +376,7 @@ class FEMSolver(Solver):
         f = self.f
         vol, out_vm, out_J, el_vm, el_J = self.vol_f, self.out_vm, self.out_J, self.el_vm, self.el_J
 
-        finite = make_finite(f64)
-
-        @ti.kernel
-        def frame_stats():
-            for b in range(nb):
-                stat_speed[b] = 0.0
-                stat_bad[b] = 0
-            for b in range(nb):
-                for i in range(body_off[b], body_off[b + 1]):
-                    if finite(x[i]) and finite(v[i]):
-                        stat_speed[b] = ti.max(stat_speed[b], v[i].norm())
-                    else:
-                        stat_bad[b] += 1
+        frame_stats = make_body_frame_stats(nb, body_off, x, v, stat_speed, stat_bad, f64)
 
         @ti.kernel
         def outputs():

@@ -33,7 +33,7 @@ import numpy as np
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver
 from simcli.solvers.pbd.topology import colour, fixed_vertices, mesh_for_entity
-from simcli.solvers.taichi_funcs import make_finite
+from simcli.solvers.taichi_funcs import make_body_frame_stats
 
 with stdout_to_stderr():
     import taichi as ti
@@ -488,19 +488,7 @@ class PBDSolver(Solver):
         nb = len(self.entities)
         f64 = self.f == ti.f64
 
-        finite = make_finite(f64)
-
-        @ti.kernel
-        def frame_stats():
-            for b in range(nb):
-                stat_speed[b] = 0.0
-                stat_bad[b] = 0
-            for b in range(nb):
-                for i in range(body_off[b], body_off[b + 1]):
-                    if finite(x[i]) and finite(v[i]):
-                        stat_speed[b] = ti.max(stat_speed[b], v[i].norm())
-                    else:
-                        stat_bad[b] += 1
+        frame_stats = make_body_frame_stats(nb, body_off, x, v, stat_speed, stat_bad, f64)
 
         self._predict, self._reset, self._contact = predict, reset_multipliers, contact
         self._update_velocity, self._reactions, self._frame_stats = update_velocity, reactions, frame_stats
