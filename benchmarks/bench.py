@@ -39,7 +39,12 @@ SCENES = {
     "B2D": ("configs/bench/b2_dfsph.yaml", ["sph", "--plane", "0", "--sph_solver", "DFSPH"], 30),
     "B5": ("configs/bench/b5.yaml", ["sf", "--res", "64"], 100),
     "B3": ("configs/bench/b3.yaml", ["pbd_cloth", "--plane", "0"], 100),
+    # B2 at about a million particles (particle_size 0.0053), substeps: auto: GPU-only, not in the default set
+    "B2W1M": ("configs/bench/b2_wcsph_1m.yaml", None, 0),
+    "B2D1M": ("configs/bench/b2_dfsph_1m.yaml", None, 0),
 }
+# measured only when named on the command line (too large for a CPU run)
+GPU_SCENES = {"B2W1M", "B2D1M"}
 # Grid scenes whose pressure-solve accuracy is compared too (see b5_accuracy)
 GRID_SCENES = {"B5"}
 
@@ -167,8 +172,16 @@ def machine() -> str:
         mem = f", {psutil.virtual_memory().total / 2**30:.0f} GiB RAM"
     except ImportError:
         pass
+    gpu = ""
+    try:  # the GPU a cuda run used, when nvidia-smi is there
+        r = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total,driver_version", "--format=csv,noheader"],
+                           capture_output=True, text=True, timeout=30)
+        if r.returncode == 0 and r.stdout.strip():
+            gpu = f"; GPU {r.stdout.strip().splitlines()[0]}"
+    except (OSError, subprocess.SubprocessError):
+        pass
     return f"{cpu}, {cores} cores available{mem}, {platform.system()} {platform.release()}, Python " \
-           f"{platform.python_version()}"
+           f"{platform.python_version()}{gpu}"
 
 
 def fmt(x, nd=3):
@@ -183,11 +196,14 @@ def fmt(x, nd=3):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("scenes", nargs="*", default=list(SCENES), help="scene ids (default: all)")
+    ap.add_argument("scenes", nargs="*", default=[s for s in SCENES if s not in GPU_SCENES],
+                    help=f"scene ids (default: all but the GPU-sized {', '.join(sorted(GPU_SCENES))})")
     ap.add_argument("--threads", type=int, default=2, help="CPU threads for both simcli and Genesis")
     ap.add_argument("--backend", default="cpu", help="simcli backend (Genesis always runs on the CPU here)")
     ap.add_argument("--no-genesis", action="store_true", help="skip the Genesis runs")
     ap.add_argument("--steps", type=int, default=None, help="override the simcli scene's step count")
+    ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                    help="scene override passed to every simcli run (repeatable), e.g. sim.substeps=auto")
     ap.add_argument("--out", default=str(ROOT / "docs" / "PERFORMANCE.md"), help="Markdown report ('' = none)")
     args = ap.parse_args()
 
@@ -196,22 +212,22 @@ def main() -> None:
     for sid in args.scenes:
         scene, gargs, gsteps = SCENES[sid]
         with tempfile.TemporaryDirectory() as cache:
-            cold = run_simcli(scene, args.threads, args.backend, cache, args.steps)
-            warm = run_simcli(scene, args.threads, args.backend, cache, args.steps)
+            cold = run_simcli(scene, args.threads, args.backend, cache, args.steps, args.sets)
+            warm = run_simcli(scene, args.threads, args.backend, cache, args.steps, args.sets)
         row = {"id": sid, "simcli_cold": cold, "simcli": warm}
         print(f"{sid} simcli: {json.dumps(warm)} (cold first step {cold['time_to_first_step_s']:.2f} s)", flush=True)
-        if py and sid in GRID_SCENES:
+        if py and gargs is not None and sid in GRID_SCENES:
             # equal pressure-solve accuracy: Genesis's residual after its 200 Jacobi sweeps, then simcli's MGPCG
             # stopped on the same relative residual (same scene, dt, threads; warm kernel cache)
             rel = genesis_sf_residual(py, gargs, args.threads)
             sets = ["solvers.sf.pressure_solver=mgpcg", "solvers.sf.tolerance=0",
                     f"solvers.sf.relative_tolerance={rel}"]
             with tempfile.TemporaryDirectory() as cache:
-                mg_cold = run_simcli(scene, args.threads, args.backend, cache, args.steps, sets)
-                mg = run_simcli(scene, args.threads, args.backend, cache, args.steps, sets)
+                mg_cold = run_simcli(scene, args.threads, args.backend, cache, args.steps, args.sets + sets)
+                mg = run_simcli(scene, args.threads, args.backend, cache, args.steps, args.sets + sets)
             row.update(genesis_residual=rel, simcli_mgpcg=mg, simcli_mgpcg_cold=mg_cold)
             print(f"{sid} genesis relative residual {rel:.3g}; simcli mgpcg: {json.dumps(mg)}", flush=True)
-        if py:
+        if py and gargs is not None:
             with tempfile.TemporaryDirectory() as gcache:
                 gcold = run_genesis(py, gargs, args.threads, gcache, 20)
             gwarm = run_genesis(py, gargs, args.threads, None, gsteps)
@@ -267,12 +283,21 @@ def main() -> None:
     print(table)
     if args.out:
         stamp = time.strftime("%Y-%m-%d")
+        if args.backend == "cpu":
+            intro = ("Regenerate with `python benchmarks/bench.py` (needs Genesis in ~/genesis-venv or $GENESIS_PYTHON "
+                     "for the side-by-side rows; see ../shared/bench/README.md).\n\n"
+                     f"Measured {stamp} on: {machine()}. Threads: {args.threads} for both codes; simcli backend "
+                     f"{args.backend}, f32. Same scene, dt, substeps and thread count as Genesis's "
+                     "`genesis_bench.py`.\n\n")
+        else:
+            intro = (f"simcli on the GPU. Regenerate on a machine with one with `python benchmarks/bench.py --backend "
+                     f"{args.backend} --no-genesis --out docs/PERFORMANCE_GPU.md` (add `B2W1M B2D1M` for B2 at a "
+                     "million particles). Genesis was not run here: the CPU rows of PERFORMANCE.md are the "
+                     "side-by-side comparison.\n\n"
+                     f"Measured {stamp} on: {machine()}. simcli backend {args.backend}, f32; the same scene files "
+                     "as the CPU benchmarks.\n\n")
         text = (
-            "# Performance\n\n"
-            "Regenerate with `python benchmarks/bench.py` (needs Genesis in ~/genesis-venv or $GENESIS_PYTHON for "
-            "the side-by-side rows; see ../shared/bench/README.md).\n\n"
-            f"Measured {stamp} on: {machine()}. Threads: {args.threads} for both codes; simcli backend "
-            f"{args.backend}, f32. Same scene, dt, substeps and thread count as Genesis's `genesis_bench.py`.\n\n"
+            "# Performance" + ("" if args.backend == "cpu" else f" on the GPU ({args.backend})") + "\n\n" + intro +
             "*First step*: from the start of the process's Python code (imports included) to the end of the first "
             "step; cold = empty kernel cache. *Compile*: simcli's first substep (kernel compilation); Genesis's "
             "`scene.build()`. *Substeps/s*: steady state, after warm-up. *Peak memory*: peak RSS of the process. "
@@ -289,7 +314,7 @@ def main() -> None:
             kept.append(link)
         text += "\n" + "\n\n".join(kept) + "\n"
         sph = ROOT / "docs" / "PERFORMANCE_SPH.md"
-        if sph.exists():  # the section benchmarks/sph_vs_splishsplash.py writes
+        if sph.exists() and Path(args.out).resolve() == (ROOT / "docs" / "PERFORMANCE.md").resolve():  # the section benchmarks/sph_vs_splishsplash.py writes
             text += "\n" + sph.read_text()
         Path(args.out).write_text(text)
         print(f"wrote {args.out}")
