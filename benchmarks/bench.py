@@ -286,6 +286,8 @@ def main() -> None:
         if args.backend == "cpu":
             intro = ("Regenerate with `python benchmarks/bench.py` (needs Genesis in ~/genesis-venv or $GENESIS_PYTHON "
                      "for the side-by-side rows; see ../shared/bench/README.md).\n\n"
+                     "On a GPU (one H100, CUDA, the same scenes plus B2 at a million particles, and the validation "
+                     "set on CUDA): [PERFORMANCE_GPU.md](PERFORMANCE_GPU.md).\n\n"
                      f"Measured {stamp} on: {machine()}. Threads: {args.threads} for both codes; simcli backend "
                      f"{args.backend}, f32. Same scene, dt, substeps and thread count as Genesis's "
                      "`genesis_bench.py`.\n\n")
@@ -314,8 +316,11 @@ def main() -> None:
             kept.append(link)
         text += "\n" + "\n\n".join(kept) + "\n"
         sph = ROOT / "docs" / "PERFORMANCE_SPH.md"
-        if sph.exists() and Path(args.out).resolve() == (ROOT / "docs" / "PERFORMANCE.md").resolve():  # the section benchmarks/sph_vs_splishsplash.py writes
+        main_report = Path(args.out).resolve() == (ROOT / "docs" / "PERFORMANCE.md").resolve()
+        if sph.exists() and main_report:  # the section benchmarks/sph_vs_splishsplash.py writes
             text += "\n" + sph.read_text()
+        elif Path(args.out).exists():  # hand-written sections (e.g. the GPU report's validation on CUDA)
+            text += _later_sections(Path(args.out))
         Path(args.out).write_text(text)
         print(f"wrote {args.out}")
 
@@ -334,6 +339,15 @@ def _hand_notes(path: Path) -> list[str]:
         i += 1
     paras = [p.strip() for p in "\n".join(block).split("\n\n") if p.strip()]
     return [p for p in paras if " pressure solve, relative residual" not in p.split("\n", 1)[0]]
+
+
+def _later_sections(path: Path) -> str:
+    """The report's "## " sections after the table, as they are (none are generated outside PERFORMANCE.md)."""
+    lines = path.read_text().splitlines()
+    for i, line in enumerate(lines):
+        if line.startswith("## "):
+            return "\n" + "\n".join(lines[i:]) + "\n"
+    return ""
 
 
 if __name__ == "__main__":
