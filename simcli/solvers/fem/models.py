@@ -81,30 +81,42 @@ def _project_sym3(H):
 
 
 @ti.func
+def _jacobi_sweep(A, Q):
+    """One cyclic Jacobi sweep (rotations (0,1), (0,2), (1,2)) on A, accumulated into Q."""
+    for pq in ti.static([(0, 1), (0, 2), (1, 2)]):
+        p, q = ti.static(pq[0], pq[1])
+        apq = A[p, q]
+        if ti.abs(apq) > 1e-30:
+            theta = (A[q, q] - A[p, p]) / (2.0 * apq)
+            t = 1.0 / (ti.abs(theta) + ti.sqrt(theta * theta + 1.0))
+            if theta < 0:
+                t = -t
+            c = 1.0 / ti.sqrt(t * t + 1.0)
+            sn = t * c
+            J = ti.Matrix.identity(float, 3)
+            J[p, p] = c
+            J[q, q] = c
+            J[p, q] = sn
+            J[q, p] = -sn
+            A = J.transpose() @ A @ J
+            Q = Q @ J
+    return A, Q
+
+
+@ti.func
 def _jacobi_eig3(H):
     """Cyclic Jacobi eigen-decomposition of a symmetric 3x3 matrix: H = Q diag(A) Q^T (6 sweeps).
     Used instead of ti.sym_eig, which returned eigenvalues off by orders of magnitude in f32 for the
-    rank-deficient matrices of inverted elements."""
-    A = H
-    Q = ti.Matrix.identity(float, 3)
-    for _sweep in ti.static(range(6)):
-        for pq in ti.static([(0, 1), (0, 2), (1, 2)]):
-            p, q = ti.static(pq[0], pq[1])
-            apq = A[p, q]
-            if ti.abs(apq) > 1e-30:
-                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
-                t = 1.0 / (ti.abs(theta) + ti.sqrt(theta * theta + 1.0))
-                if theta < 0:
-                    t = -t
-                c = 1.0 / ti.sqrt(t * t + 1.0)
-                sn = t * c
-                J = ti.Matrix.identity(float, 3)
-                J[p, p] = c
-                J[q, q] = c
-                J[p, q] = sn
-                J[q, p] = -sn
-                A = J.transpose() @ A @ J
-                Q = Q @ J
+    rank-deficient matrices of inverted elements.
+
+    Sweeps 2-6 are a run-time loop: all six unrolled (ti.static), this function alone took ~25 s of
+    compilation on a cold kernel cache, most of the stable Neo-Hookean implicit ``hessian`` kernel's
+    ~48 s (the 51 s ``build_s`` seen on CUDA, whose machine starts with an empty cache). The first sweep
+    stays inlined: the compiler fuses its arithmetic with the expressions of H (fast math), so rolling
+    it too would change results in the last bits."""
+    A, Q = _jacobi_sweep(H, ti.Matrix.identity(float, 3))
+    for _sweep in range(5):
+        A, Q = _jacobi_sweep(A, Q)
     return A, Q
 
 
