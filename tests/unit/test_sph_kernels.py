@@ -114,3 +114,26 @@ def test_wall_particles_give_rest_density(dim):
     allV = np.concatenate([np.full(len(x), ps**dim), bp.volume])
     rho = np.array([(allV * cubic_W(np.linalg.norm(allx - xi, axis=1), h, dim)).sum() for xi in x])
     assert np.allclose(rho, 1.0, atol=2e-3), (rho.min(), rho.max())
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_wall_particles_are_the_padded_lattice_outside_the_domain(dim):
+    """The shell is built without enumerating the domain's inside: it must be exactly the points of the
+    padded lattice outside the domain, in that lattice's order, each with the kind and velocity of the first
+    face (x-, x+, y-, ...) it lies outside of."""
+    from simcli.solvers.sph.boundary import _axis_coords, wall_particles
+
+    lo, hi, ps = np.array([-0.3, 0.1, 0.0][:dim]), np.array([0.4, 0.37, 0.5][:dim]), 0.033
+    names = ("x-", "x+", "y-", "y+", "z-", "z+")[: 2 * dim]
+    faces = {n: ("sticky" if k % 3 == 0 else "slip") for k, n in enumerate(names)}
+    vel = {n: np.full(dim, 0.1 * k) for k, n in enumerate(names)}
+    bp = wall_particles(lo, hi, ps, dim, faces, vel)
+    axes = [_axis_coords(lo[a], hi[a], ps, 2) for a in range(dim)]
+    mesh = lambda k: np.stack([g.ravel() for g in np.meshgrid(*[ax[k] for ax in axes], indexing="ij")], axis=1)  # noqa: E731
+    x, sp, side = mesh(0), np.prod(mesh(1), axis=1), mesh(2)
+    out = np.any(side != 0, axis=1)
+    assert np.array_equal(bp.x, x[out]) and np.array_equal(bp.volume, sp[out])
+    first = np.argmax(side[out] != 0, axis=1)  # first axis the point is outside on
+    name = [names[2 * a + (s > 0)] for a, s in zip(first, side[out][np.arange(out.sum()), first])]
+    assert np.array_equal(bp.no_slip, np.array([faces[n] == "sticky" for n in name]))
+    assert np.array_equal(bp.velocity, np.array([vel[n] for n in name]))

@@ -63,12 +63,19 @@ def wall_particles(
     """Boundary particles outside the domain box [lo, hi]: every lattice point of the padded box that is
     outside the domain. A point outside several faces (an edge, a corner) takes the first face's kind."""
     axes = [_axis_coords(lo[a], hi[a], h, layers) for a in range(dim)]
-    grids = np.meshgrid(*[a[0] for a in axes], indexing="ij")
-    x = np.stack([g.ravel() for g in grids], axis=1)
-    sp = np.prod(np.stack([g.ravel() for g in np.meshgrid(*[a[1] for a in axes], indexing="ij")], 1), axis=1)
-    side = np.stack([g.ravel() for g in np.meshgrid(*[a[2] for a in axes], indexing="ij")], axis=1)
-    keep = np.any(side != 0, axis=1)
-    x, sp, side = x[keep], sp[keep], side[keep]
+    # Only the shell is enumerated (the padded box's lattice has the whole domain inside it: 7 M points for
+    # a million-particle scene): the shell's points, grouped by the first axis on which they are outside,
+    # then put in the padded lattice's row-major order, so the result is what the full lattice gave.
+    parts = []
+    for a in range(dim):
+        sel = [np.flatnonzero(axes[b][2] == 0) if b < a else
+               np.flatnonzero(axes[b][2] != 0) if b == a else np.arange(len(axes[b][0])) for b in range(dim)]
+        parts.append(np.stack([g.ravel() for g in np.meshgrid(*sel, indexing="ij")], axis=1))
+    idx = np.concatenate(parts)
+    idx = idx[np.argsort(np.ravel_multi_index(tuple(idx.T), [len(ax[0]) for ax in axes]), kind="stable")]
+    x = np.stack([axes[a][0][idx[:, a]] for a in range(dim)], axis=1)
+    sp = np.prod(np.stack([axes[a][1][idx[:, a]] for a in range(dim)], axis=1), axis=1)
+    side = np.stack([axes[a][2][idx[:, a]] for a in range(dim)], axis=1)
     no_slip = np.zeros(len(x), bool)
     vel = np.zeros((len(x), dim))
     assigned = np.zeros(len(x), bool)
