@@ -2,10 +2,8 @@
 Jacobi contact pass with static and kinetic Coulomb friction (Macklin, Mueller, Chentanez and Kim 2014,
 "Unified particle physics for real-time applications", sec. 6.1, eqs. 23-24).
 
-The grid has cells of twice the contact distance (the largest 2 x radius), so the 2 x 2 x 2 cells
-nearest a vertex hold every vertex within reach, hashed into a table of 2^k slots (at least the vertex
-count), so its memory does not depend on the domain size; a slot shared by
-two cells only adds candidates that the distance test rejects. Each vertex computes its own
+The grid (hashgrid.py) has cells of twice the contact distance (the largest 2 x radius), so the 2 x 2 x 2
+cells nearest a vertex hold every vertex within reach. Each vertex computes its own
 correction from all its neighbours (no atomics, order independent) and the corrections are applied
 together: Jacobi, like Genesis's, which is enough for contact (one pair, one push).
 
@@ -16,16 +14,11 @@ together is not a collision. Free particles get a body id of their own each (``b
 
 from __future__ import annotations
 
-import numpy as np
-
 from simcli.backend import stdout_to_stderr
+from simcli.solvers.pbd.hashgrid import HashGrid
 
 with stdout_to_stderr():
     import taichi as ti
-
-
-def table_size(n: int) -> int:
-    return 1 << max(10, int(np.ceil(np.log2(max(n, 2)))))
 
 
 class ParticleContact:
@@ -33,55 +26,25 @@ class ParticleContact:
 
     def __init__(self, n: int, f, cell: float, x, xp, x0, w, rad, body, mu_s, mu_k):
         self.n, self.cell = n, float(cell)
-        self.slots = table_size(n)
-        self.count = ti.field(ti.i32, shape=self.slots)
-        self.start = ti.field(ti.i32, shape=self.slots + 1)
-        self.cursor = ti.field(ti.i32, shape=self.slots)
-        self.sorted = ti.field(ti.i32, shape=n)
-        self.dpos = ti.Vector.field(3, f, shape=n)
-        slots, count, start, cursor, srt, dpos = self.slots, self.count, self.start, self.cursor, self.sorted, \
-            self.dpos
+        self.grid = grid = HashGrid(x, 0, n, self.cell)
+        self.dpos = dpos = ti.Vector.field(3, f, shape=n)
+        start, srt = grid.start, grid.sorted
         inv_cell = 1.0 / self.cell
-
-        @ti.func
-        def slot_of(c):
-            h = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791)
-            return h & (slots - 1)
-
-        @ti.func
-        def cell_of(p):
-            return ti.floor(p * inv_cell, ti.i32)
+        around = grid.slots_around([(t // 4, (t // 2) % 2, t % 2) for t in range(8)])
 
         @ti.kernel
         def build():
-            for s in range(slots):
-                count[s] = 0
-            for i in range(n):
-                ti.atomic_add(count[slot_of(cell_of(x[i]))], 1)
-            ti.loop_config(serialize=True)
-            for s in range(slots):
-                start[s + 1] = start[s] + count[s]
-            for s in range(slots):
-                cursor[s] = start[s]
-            for i in range(n):
-                k = ti.atomic_add(cursor[slot_of(cell_of(x[i]))], 1)
-                srt[k] = i
+            grid.build()
 
         @ti.kernel
         def collide():
             for i in range(n):
                 dp = ti.Vector.zero(float, 3)
                 if w[i] > 0:
-                    ci = ti.floor(x[i] * inv_cell - 0.5, ti.i32)  # the 2 x 2 x 2 cells within reach
-                    seen = ti.Vector([-1] * 8)
+                    sl = around(ti.floor(x[i] * inv_cell - 0.5, ti.i32))  # the 2 x 2 x 2 cells within reach
                     for t in ti.static(range(8)):
-                        s = slot_of(ci + ti.Vector([t // 4, (t // 2) % 2, t % 2]))
-                        dup = False  # two of the 8 cells hashed to one slot: visit it once
-                        for u in ti.static(range(t)):
-                            if seen[u] == s:
-                                dup = True
-                        seen[t] = s
-                        for q in range(start[s], start[s + 1] if not dup else start[s]):
+                        s = sl[t]
+                        for q in range(start[ti.max(s, 0)], start[s + 1]):  # empty for s = -1
                             j = srt[q]
                             if j != i and not (body[i] == body[j] and body[i] >= 1 << 20):  # liquid pairs
                                 d = x[i] - x[j]
@@ -108,7 +71,6 @@ class ParticleContact:
                 x[i] += dpos[i]
 
         self.build, self.collide = build, collide
-        self.start.fill(0)
 
     def step(self) -> None:
         self.build()

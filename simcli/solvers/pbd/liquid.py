@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.pbd.contact import table_size
+from simcli.solvers.pbd.hashgrid import HashGrid
 
 with stdout_to_stderr():
     import taichi as ti
@@ -110,11 +110,9 @@ class PBFLiquid:
         wstep = h / (WALL_SAMPLES - 1)
         use_walls = opts.liquid_walls
         x, v, w = solver.x, solver.v, solver.w
-        slots = table_size(n)
-        count = ti.field(ti.i32, shape=slots)
-        start = ti.field(ti.i32, shape=slots + 1)
-        cursor = ti.field(ti.i32, shape=slots)
-        srt = ti.field(ti.i32, shape=n)
+        grid = HashGrid(x, lo, n, h)
+        start, srt, cell_of = grid.start, grid.sorted, grid.cell_of
+        around = grid.slots_around([(t // 9 - 1, (t // 3) % 3 - 1, t % 3 - 1) for t in range(27)])
         nb = ti.field(ti.i32, shape=(n, CAPACITY))
         nnb = ti.field(ti.i32, shape=n)
         lam = ti.field(f, shape=n)
@@ -124,7 +122,6 @@ class PBFLiquid:
         self.rho = rho
         self.overflow = ti.field(ti.i32, shape=())
         overflow = self.overflow
-        inv_cell = 1.0 / h
         c6 = 315.0 / (64.0 * math.pi * h**9)
         cs = -45.0 / (math.pi * h**6)
 
@@ -180,37 +177,15 @@ class PBFLiquid:
                             gw[q2 // 2] -= sgn[q2] * d2 / rho0
             return rw, gw
 
-        @ti.func
-        def slot_of(c):
-            hsh = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791)
-            return hsh & (slots - 1)
-
         @ti.kernel
         def neighbours():
-            for s in range(slots):
-                count[s] = 0
+            grid.build()
             for a in range(n):
-                ti.atomic_add(count[slot_of(ti.floor(x[lo + a] * inv_cell, ti.i32))], 1)
-            ti.loop_config(serialize=True)
-            for s in range(slots):
-                start[s + 1] = start[s] + count[s]
-            for s in range(slots):
-                cursor[s] = start[s]
-            for a in range(n):
-                k = ti.atomic_add(cursor[slot_of(ti.floor(x[lo + a] * inv_cell, ti.i32))], 1)
-                srt[k] = a
-            for a in range(n):
-                ci = ti.floor(x[lo + a] * inv_cell, ti.i32)
+                sl = around(cell_of(x[lo + a]))  # the 3 x 3 x 3 cells around a's
                 m = 0
-                seen = ti.Vector([-1] * 27)
                 for t in ti.static(range(27)):
-                    s = slot_of(ci + ti.Vector([t // 9 - 1, (t // 3) % 3 - 1, t % 3 - 1]))
-                    dup = False  # two of the 27 cells hashed to one slot: visit it once
-                    for u in ti.static(range(t)):
-                        if seen[u] == s:
-                            dup = True
-                    seen[t] = s
-                    for q in range(start[s], start[s + 1] if not dup else start[s]):
+                    s = sl[t]
+                    for q in range(start[ti.max(s, 0)], start[s + 1]):  # empty for s = -1
                         b = srt[q]
                         if b != a and (x[lo + a] - x[lo + b]).norm() < h:
                             if m < CAPACITY:
