@@ -20,12 +20,13 @@ _BYTES_PER_CELL = {2: 4 * 3, 3: 4 * 4}  # grid momentum/velocity (dim) + mass
 # and of the boundary particles.
 
 
-def _sph_bytes_per_particle(dim: int, support_factor: float, dfsph: bool = True) -> int:
+def _sph_bytes_per_particle(dim: int, support_factor: float, dfsph: bool = True, kgc: bool = False) -> int:
     from simcli.solvers.sph.neighbours import neighbour_capacity  # numpy only, no Taichi
 
     # a neighbour-list entry: the index, and for DFSPH grad W too (WCSPH recomputes it)
     entry = 1 + dim if dfsph else 1
-    return 4 * (4 * dim + 10 + 6 + 2 * dim + 4 + neighbour_capacity(dim, support_factor) * entry)
+    correction = dim * dim if kgc else 0  # DFSPH gradient_correction: a dim x dim matrix
+    return 4 * (4 * dim + 10 + 6 + 2 * dim + 4 + correction + neighbour_capacity(dim, support_factor) * entry)
 
 
 _SPH_BYTES_PER_BOUNDARY = {d: 4 * (2 * d + 2) for d in (2, 3)}
@@ -203,7 +204,9 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         n_bnd = int(2 * layers * faces / sph.particle_size ** (dim - 1))
         cell = 0.5 * sph.support_factor * sph.particle_size
         sph_cells = math.prod(math.ceil(e / cell) + 6 for e in ext)
-        per_particle = _sph_bytes_per_particle(dim, sph.support_factor, sph.pressure_solver == "DFSPH")
+        per_particle = _sph_bytes_per_particle(
+            dim, sph.support_factor, sph.pressure_solver == "DFSPH", sph.gradient_correction
+        )
         need += (n_sph * per_particle + n_bnd * _SPH_BYTES_PER_BOUNDARY[dim] + sph_cells * _SPH_BYTES_PER_CELL) * fp
         n_particles += n_sph
     if fem_t:

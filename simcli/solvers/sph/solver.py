@@ -28,7 +28,13 @@ from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver
 from simcli.solvers.sph.boundary import make_pushout, sample_boundary
 from simcli.solvers.sph.dfsph import SolveStats, make_dfsph
-from simcli.solvers.sph.kernels import kernel_constant, lattice_sum, make_kernels
+from simcli.solvers.sph.kernels import (
+    VISC_EPS,
+    kernel_constant,
+    lattice_sum,
+    make_kernels,
+    morris_laplacian_constant,
+)
 from simcli.solvers.sph.neighbours import CellGrid, make_neighbour_funcs, neighbour_capacity
 from simcli.solvers.sph.wcsph import make_wcsph
 from simcli.solvers.taichi_funcs import make_body_of, make_finite
@@ -141,6 +147,9 @@ class SPHSolver(Solver):
         self.mw = vec() if self.has_noslip else None
         dfsph = self.opts.pressure_solver == "DFSPH"
         self.alpha = scal() if dfsph else None
+        # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves
+        self.kgc = dfsph and self.opts.gradient_correction
+        self.Lm = ti.Matrix.field(dim, dim, f, shape=n) if self.kgc else None
         self.kk = scal() if dfsph else None
         self.kacc = scal() if dfsph else None
         self.kappa = scal() if dfsph else None
@@ -296,7 +305,7 @@ class SPHSolver(Solver):
         dim, f, n, K, R = self.dim, self.f, self.n, self.K, self.grid.R
         h = self.support
         h2 = h * h
-        eps_visc = 0.01 * h2
+        eps_visc = VISC_EPS * h2
         _, gradW, Ckern, W_gradW = make_kernels(h, dim, f)
         store_grad = self.store_grad
         W0 = kernel_constant(h, dim)  # W(0)
@@ -312,12 +321,15 @@ class SPHSolver(Solver):
         overflow = self.overflow
         has_tension, has_noslip, has_visc = self.has_tension, self.has_noslip, self.has_viscosity
         dfsph = alpha is not None
+        kgc, Lm = self.kgc, self.Lm
         has_boundary = self.nbp > 0
         cell_coords, linear, pushout = self.cell_coords, self.linear, self.pushout
         dims = self.grid.dims
         c_lo = ti.Vector([R] * dim)
         c_hi = ti.Vector([d - 1 - R for d in dims])
         visc_c = 2.0 * (dim + 2)
+        morris = self.opts.viscosity_operator == "morris"
+        morris_c = morris_laplacian_constant(h / self.ps, dim)
         dom_lo = ti.Vector(list(self.domain_lo), dt=f)
         dom_hi = ti.Vector(list(self.domain_hi), dt=f)
         row = 2 * R + 1
@@ -360,6 +372,7 @@ class SPHSolver(Solver):
             r_i = mass_of(i) * W0
             G = ti.Vector.zero(f, dim)
             sumsq = ti.cast(0.0, f)
+            Mom = ti.Matrix.zero(f, dim, dim)  # sum_j V_j grad W_ij (x_j - x_i)^T (gradient correction)
             cnt = 0
             for a in range(row ** (dim - 1)):  # a run-time loop: unrolled, it compiles for minutes
                 c = c0
@@ -375,6 +388,8 @@ class SPHSolver(Solver):
                         w, g = W_gradW(d, r)
                         r_i += mass_of(j) * w
                         Vg = volume_of(j) * g
+                        if ti.static(kgc):
+                            Mom -= Vg.outer_product(d)
                         G += Vg
                         sumsq += Vg.dot(Vg)
                         if cnt < K:
@@ -387,6 +402,7 @@ class SPHSolver(Solver):
             nb_cnt[i] = ti.min(cnt, K)
             Bi = ti.Vector.zero(f, dim)
             Si = ti.cast(0.0, f)
+            Qb = ti.Matrix.zero(f, dim, dim)  # sum_b V_b grad W_ib v_b^T: Si with the corrected gradient
             cntb = 0
             M = ti.Matrix.zero(f, dim, dim)
             m_w = ti.Vector.zero(f, dim)
@@ -408,6 +424,9 @@ class SPHSolver(Solver):
                                 r_i += rho0_i * Vb * w
                                 Bi += Vb * g
                                 Si += Vb * bvel[b].dot(g)
+                                if ti.static(kgc):
+                                    Mom -= (Vb * g).outer_product(d)
+                                    Qb += (Vb * g).outer_product(bvel[b])
                                 cntb += 1
                                 if ti.static(has_noslip):  # noqa: SIM102 - compile-time, then run-time test
                                     if bns[b] != 0:
@@ -415,6 +434,12 @@ class SPHSolver(Solver):
                                         M += coef * g.outer_product(d)
                                         m_w += coef * bvel[b].dot(d) * g
             rho[i] = r_i
+            if ti.static(kgc):
+                Li = ti.Matrix.identity(f, dim)
+                if Mom.determinant() >= 0.5:  # a full neighbourhood (a lattice: 1)
+                    Li = Mom.inverse()
+                Lm[i] = Li
+                Si = (Li @ Qb).trace()  # sum_b V_b v_b . L_i grad W_ib
             B[i] = Bi
             Sb[i] = Si
             nbb_cnt[i] = cntb
@@ -458,6 +483,7 @@ class SPHSolver(Solver):
                 if ti.static(with_pressure):
                     dpi = p[i] / (ri * ri)
                 av = ti.Vector.zero(f, dim)
+                avm = ti.Vector.zero(f, dim)  # Morris et al. 1997 sum (viscosity_operator: morris)
                 at = ti.Vector.zero(f, dim)
                 ap = ti.Vector.zero(f, dim)
                 ni = ti.Vector.zero(f, dim)
@@ -481,7 +507,10 @@ class SPHSolver(Solver):
                         ap -= mj * (dpi + p[j] / (rj * rj)) * g
                     if ti.static(has_visc or has_tension):
                         if ti.static(has_visc):
-                            av += (mj / rj) * (vi - v[j]).dot(d) / (r2 + eps_visc) * g
+                            if ti.static(morris):
+                                avm += (mj / rj) * (d.dot(g) / (r2 + eps_visc)) * (vi - v[j])
+                            else:
+                                av += (mj / rj) * (vi - v[j]).dot(d) / (r2 + eps_visc) * g
                         if ti.static(has_tension):  # noqa: SIM102 - compile-time, then run-time test
                             if r2 > 0:
                                 r = ti.sqrt(r2)
@@ -490,6 +519,8 @@ class SPHSolver(Solver):
                 if ti.static(has_noslip):
                     av += Mv[i] @ vi - mw[i]
                 a += visc_c * nu * av + gam * at + ap
+                if ti.static(morris):
+                    a += morris_c * nu * avm
             return a
 
         @ti.func
