@@ -118,11 +118,14 @@ def make_dfsph(S):
     def velocity_update(i, dt):
         ki = kk[i]
         dv = BFAC * ki * corr(i, B[i])
-        for k in range(nb_cnt[i]):
-            j = nb_j[i, k]
-            if ti.static(kgc):
-                dv += S.volume_of(j) * ((ki * Lm[i] + kk[j] * Lm[j]) @ nb_g[i, k])
-            else:
+        if ti.static(kgc):
+            kLi = ki * Lm[i]
+            for k in range(nb_cnt[i]):
+                j = nb_j[i, k]
+                dv += S.volume_of(j) * ((kLi + kk[j] * Lm[j]) @ nb_g[i, k])
+        else:
+            for k in range(nb_cnt[i]):
+                j = nb_j[i, k]
                 dv += (ki + kk[j]) * S.volume_of(j) * nb_g[i, k]
         v[i] -= dt * dv
         kacc[i] += ki
@@ -167,11 +170,14 @@ def make_dfsph(S):
         for i in range(n):  # dvt = -dt G p
             pi = cg_p[i]
             g = BFAC * pi * corr(i, B[i])
-            for k in range(nb_cnt[i]):
-                j = nb_j[i, k]
-                if ti.static(kgc):
-                    g += S.volume_of(j) * ((pi * Lm[i] + cg_p[j] * Lm[j]) @ nb_g[i, k])
-                else:
+            if ti.static(kgc):
+                pLi = pi * Lm[i]
+                for k in range(nb_cnt[i]):
+                    j = nb_j[i, k]
+                    g += S.volume_of(j) * ((pLi + cg_p[j] * Lm[j]) @ nb_g[i, k])
+            else:
+                for k in range(nb_cnt[i]):
+                    j = nb_j[i, k]
                     g += (pi + cg_p[j]) * S.volume_of(j) * nb_g[i, k]
             dvt[i] = -dt * g
         for i in range(n):  # Ap = -dt D(dvt) = dt^2 D G p
