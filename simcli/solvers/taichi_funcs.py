@@ -1,4 +1,5 @@
-"""Small Taichi functions that every solver family's per-frame checks use.
+"""Small Taichi functions shared by solver families: the per-frame checks, and the Jacobi rotation of
+the 3x3 eigen-solvers (FEM hessian projection, MPM plasticity).
 
 Built by factories because they close over compile-time constants (the float type, the body
 offsets of a solver's particle arrays).
@@ -65,3 +66,16 @@ def make_body_frame_stats(nb: int, body_off, x, v, stat_speed, stat_bad, f64: bo
                     stat_bad[b] += 1
 
     return frame_stats
+
+
+@ti.func
+def jacobi_rotation(app, aqq, apq):
+    """(t, c, s) of the Jacobi rotation that zeroes a symmetric matrix's (p, q) entry (Golub & Van Loan,
+    Matrix Computations, sec. 8.5): t = tan of the angle, the smaller root (the stable choice), c = cos,
+    s = sin. apq must not be zero."""
+    theta = (aqq - app) / (2.0 * apq)
+    t = 1.0 / (ti.abs(theta) + ti.sqrt(theta * theta + 1.0))
+    if theta < 0.0:
+        t = -t
+    c = 1.0 / ti.sqrt(t * t + 1.0)
+    return t, c, t * c

@@ -26,6 +26,7 @@ Models (mu, lam are the Lame parameters passed at run time):
 
 
 from simcli.backend import stdout_to_stderr
+from simcli.solvers.taichi_funcs import jacobi_rotation
 
 with stdout_to_stderr():
     import taichi as ti
@@ -87,12 +88,7 @@ def _jacobi_sweep(A, Q):
         p, q = ti.static(pq[0], pq[1])
         apq = A[p, q]
         if ti.abs(apq) > 1e-30:
-            theta = (A[q, q] - A[p, p]) / (2.0 * apq)
-            t = 1.0 / (ti.abs(theta) + ti.sqrt(theta * theta + 1.0))
-            if theta < 0:
-                t = -t
-            c = 1.0 / ti.sqrt(t * t + 1.0)
-            sn = t * c
+            _, c, sn = jacobi_rotation(A[p, p], A[q, q], apq)
             J = ti.Matrix.identity(float, 3)
             J[p, p] = c
             J[q, q] = c

@@ -43,6 +43,7 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.mpm.constitutive import ConstitutiveLaw, _np_dtype
+from simcli.solvers.taichi_funcs import jacobi_rotation
 
 with stdout_to_stderr():
     import taichi as ti
@@ -78,12 +79,7 @@ def jacobi_eig3(A, sweeps):
         for p, q, r in ti.static(((0, 1, 2), (0, 2, 1), (1, 2, 0))):
             apq = A[p, q]
             if ti.abs(apq) > 1.0e-30:
-                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
-                t = 1.0 / (ti.abs(theta) + ti.sqrt(theta * theta + 1.0))
-                if theta < 0.0:
-                    t = -t
-                c = 1.0 / ti.sqrt(t * t + 1.0)
-                s = t * c
+                t, c, s = jacobi_rotation(A[p, p], A[q, q], apq)
                 arp = c * A[r, p] - s * A[r, q]
                 arq = s * A[r, p] + c * A[r, q]
                 A[p, p] = A[p, p] - t * apq
