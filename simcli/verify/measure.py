@@ -454,17 +454,28 @@ def divergence_per_substep(f, entity, **_):
 
 
 @measurement("bottom_pressure")
-def bottom_pressure(f, entity, floor=0.0, axis=None, lo=0.1, hi=0.8, **_):
+def bottom_pressure(f, entity, floor=0.0, axis=None, lo=0.1, hi=0.8, wall_margin=None, **_):
     """Pressure [Pa] at the ``floor`` of a liquid column at rest: a least-squares line p(z) through the
     particles between ``lo`` and ``hi`` of the column's height above the floor (away from the boundary
-    layer and the free surface), evaluated at the floor."""
+    layer and the free surface), evaluated at the floor. ``wall_margin`` [m]: also leave out the particles
+    within that distance of the domain's side walls (their wall layer: with boundary particles the liquid
+    next to a wall carries 1.7x the hydrostatic pressure, docs/SPH.md), so that the line is the interior
+    field's alone."""
+    import yaml
+
     x = _stack(f, entity)
     p = _stack(f, entity, "pressure")
     ax = x.shape[2] - 1 if axis is None else axis
+    side = np.zeros(x.shape[:2], bool)
+    if wall_margin is not None:
+        dom = yaml.safe_load(f.attrs["scene"])["domain"]
+        for a in range(x.shape[2]):
+            if a != ax:
+                side |= (x[:, :, a] < dom["lower"][a] + wall_margin) | (x[:, :, a] > dom["upper"][a] - wall_margin)
     out = []
-    for zf, pf in zip(x[:, :, ax] - floor, p):
+    for zf, pf, sf in zip(x[:, :, ax] - floor, p, side):
         height = np.percentile(zf, 99.5)
-        sel = (zf >= lo * height) & (zf <= hi * height)
+        sel = (zf >= lo * height) & (zf <= hi * height) & ~sf
         if sel.sum() < 3:
             raise ValueError("bottom_pressure: too few particles in the fitting band")
         out.append(np.polyfit(zf[sel], pf[sel], 1)[1])

@@ -100,3 +100,31 @@ def test_verify_fast_set_passes_end_to_end(tmp_path):
     text = (tmp_path / "VALIDATION.md").read_text()
     assert "free_fall" in text and "FAIL" not in text
     assert (tmp_path / "verify.csv").read_text().count("\n") >= 5
+
+
+def test_bottom_pressure_wall_margin_leaves_out_the_side_wall_layers(tmp_path):
+    """A synthetic hydrostatic column whose side-wall layers carry 1.7x the pressure (as Akinci's boundary
+    term gives): the plain fit is pulled up by them, wall_margin recovers rho0 g H exactly."""
+    import h5py
+    import yaml
+
+    from simcli.verify.measure import MEASUREMENTS
+
+    ps, W, H = 0.005, 0.2, 0.1
+    xs, zs = np.meshgrid(ps * (np.arange(40) + 0.5), ps * (np.arange(20) + 0.5), indexing="ij")
+    x = np.stack([xs.ravel(), zs.ravel()], 1)
+    p = 1000 * 9.81 * (H - x[:, 1])
+    wall = (x[:, 0] < 2 * ps) | (x[:, 0] > W - 2 * ps)
+    p[wall] *= 1.7
+    scene = {"domain": {"lower": [0.0, 0.0], "upper": [W, 0.2]}}
+    with h5py.File(tmp_path / "sim.h5", "w") as f:
+        f.attrs["scene"] = yaml.safe_dump(scene)
+        f["time"] = np.array([0.0])
+        g = f.create_group("entities/water")
+        g["position"] = x[None]
+        g["pressure"] = p[None]
+    with h5py.File(tmp_path / "sim.h5") as f:
+        _, plain = MEASUREMENTS["bottom_pressure"](f, "water")
+        _, interior = MEASUREMENTS["bottom_pressure"](f, "water", wall_margin=2 * ps)
+    assert plain[0] > 1.05 * 981.0
+    assert interior[0] == pytest.approx(981.0, rel=1e-9)
