@@ -466,19 +466,54 @@ def bottom_pressure(f, entity, floor=0.0, axis=None, lo=0.1, hi=0.8, wall_margin
     x = _stack(f, entity)
     p = _stack(f, entity, "pressure")
     ax = x.shape[2] - 1 if axis is None else axis
-    side = np.zeros(x.shape[:2], bool)
-    if wall_margin is not None:
-        dom = yaml.safe_load(f.attrs["scene"])["domain"]
-        for a in range(x.shape[2]):
-            if a != ax:
-                side |= (x[:, :, a] < dom["lower"][a] + wall_margin) | (x[:, :, a] > dom["upper"][a] - wall_margin)
+    dom = yaml.safe_load(f.attrs["scene"])["domain"]
     out = []
-    for zf, pf, sf in zip(x[:, :, ax] - floor, p, side):
+    for xf, pf in zip(x, p):
+        zf = xf[:, ax] - floor
         height = np.percentile(zf, 99.5)
-        sel = (zf >= lo * height) & (zf <= hi * height) & ~sf
+        sel = (zf >= lo * height) & (zf <= hi * height)
+        if wall_margin is not None:
+            sel &= ~_near_side_wall(xf, dom, ax, wall_margin)
         if sel.sum() < 3:
             raise ValueError("bottom_pressure: too few particles in the fitting band")
         out.append(np.polyfit(zf[sel], pf[sel], 1)[1])
+    return f["time"][...], np.asarray(out)
+
+
+def _near_side_wall(x, dom, ax, margin):
+    """Particles (rows of x) within ``margin`` of a domain wall across the vertical axis ``ax``."""
+    out = np.zeros(len(x), bool)
+    for a in range(x.shape[1]):
+        if a != ax:
+            out |= (x[:, a] < dom["lower"][a] + margin) | (x[:, a] > dom["upper"][a] - margin)
+    return out
+
+
+@measurement("wall_layer_pressure_ratio")
+def wall_layer_pressure_ratio(f, entity, layer=None, axis=None, lo=0.1, hi=0.8, **_):
+    """Median ratio of the pressure of the liquid's wall layer (the particles within ``layer`` [m] of a domain
+    wall, default one particle size, at 10-80% of the depth, corners included) to the interior field's at
+    their height (the line bottom_pressure fits, side walls' wall layers of two particle sizes left out): 1
+    where the walls take the liquid's pressure without a wall-layer artefact (docs/SPH.md)."""
+    import yaml
+
+    scene = yaml.safe_load(f.attrs["scene"])
+    dom = scene["domain"]
+    ps = float(scene["solvers"]["sph"]["particle_size"])
+    layer = ps if layer is None else layer
+    x = _stack(f, entity)
+    p = _stack(f, entity, "pressure")
+    ax = x.shape[2] - 1 if axis is None else axis
+    out = []
+    for xf, pf in zip(x, p):
+        zf = xf[:, ax] - dom["lower"][ax]
+        height = np.percentile(zf, 99.5)
+        band = (zf >= lo * height) & (zf <= hi * height)
+        interior = band & ~_near_side_wall(xf, dom, ax, 2 * ps)
+        b, a0 = np.polyfit(zf[interior], pf[interior], 1)
+        wall = (_near_side_wall(xf, dom, ax, layer) & (zf <= hi * height)) | (zf < layer)
+        with np.errstate(invalid="ignore", divide="ignore"):  # the first frame: no pressure yet (nan)
+            out.append(np.median(pf[wall] / (a0 + b * zf[wall])))
     return f["time"][...], np.asarray(out)
 
 

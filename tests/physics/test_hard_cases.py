@@ -3,7 +3,8 @@
 Each must either run to the end with finite, bounded results and the invariants that should
 hold (inside the domain, out of the colliders, no energy gained), or stop with exit 70 and
 advice. Never a silent NaN, never a hang. Scenes tagged `# hard: fast` run in the default
-suite; `# hard: slow` ones with `pytest -m slow`.
+suite; `# hard: slow` ones with `pytest -m slow`. A scene that does not pass yet carries a `# known failure:
+why` line (a strict xfail: it turns red once it passes, so the line gets removed).
 """
 
 from __future__ import annotations
@@ -31,6 +32,10 @@ def _tag(p: Path) -> str:
 def _params():
     for p in HARD:
         marks = [pytest.mark.slow] if _tag(p) != "fast" else []
+        # a scene that does not pass yet says so in a "# known failure: why" line: strict, so that a fix shows
+        known = re.search(r"^# known failure: (.+)$", p.read_text(), re.M)
+        if known:
+            marks.append(pytest.mark.xfail(strict=True, reason=known.group(1)))
         yield pytest.param(p, id=p.stem, marks=marks)
 
 

@@ -82,6 +82,17 @@ class SPHOptions(_Options):
         "lattice so that it is exact for quadratic fields: 99.6-100% of the Laplacian on the same packings, "
         "but not angular-momentum conserving. Walls use the monaghan form either way.",
     )
+    wall_pressure: Literal["akinci", "extrapolated"] = Field(
+        "akinci",
+        description="Pressure force between the liquid and walls / colliders (boundary particles). akinci: "
+        "-sum_b rho0 V_b (p_i / rho_i^2) grad W_ib (Akinci et al. 2012; SPlisHSPlasH's and Genesis's), the "
+        "liquid's own pressure alone: at rest the particles next to a wall then carry 1.7x the hydrostatic "
+        "pressure (2.15x in corners). extrapolated: the wall particles get a pressure of their own, the average "
+        "of the liquid's next to them plus the hydrostatic difference (Adami et al. 2012; Band et al. 2018), "
+        "and push with p_i / rho_i^2 + p_b / rho0^2: wall-layer pressure within 1% of the liquid's field, and "
+        "a DFSPH liquid at rest settles at any resolution tested (docs/SPH.md). Needs clamp_pressure: true "
+        "with DFSPH.",
+    )
     clamp_pressure: bool = Field(
         True,
         description="Free-surface treatment: no negative pressure (density below rho0 gives zero pressure; "
@@ -125,6 +136,12 @@ class SPHOptions(_Options):
             raise ValueError(
                 "gradient_correction applies to the DFSPH pressure solves: set pressure_solver: DFSPH or "
                 "gradient_correction: false"
+            )
+        if self.wall_pressure == "extrapolated" and (self.pressure_solver != "DFSPH" or not self.clamp_pressure):
+            raise ValueError(
+                "wall_pressure: extrapolated needs pressure_solver: DFSPH with clamp_pressure: true (with WCSPH's "
+                "explicit pressure it made a tank at rest unstable; DFSPH's conjugate-gradient solve for "
+                "clamp_pressure: false needs a symmetric operator): set wall_pressure: akinci"
             )
         return self
 

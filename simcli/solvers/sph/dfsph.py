@@ -29,6 +29,10 @@ SPH for incompressible and viscous fluids"), as in SPlisHSPlasH's DFSPH.cpp. A s
 * Non-pressure accelerations (gravity, viscosity, surface tension) are computed from this substep's
   divergence-free velocities and applied once, before the density solve. Nothing of a previous substep's
   acceleration is re-applied (Genesis 1.4.5 advects with the acceleration stored by the previous substep).
+* Walls (wall_pressure: extrapolated, wall_pressure.py): the boundary particles' own k, the Shepard average of
+  the liquid's next to them plus the hydrostatic difference, in the velocity update as -dt sum_b V_b (k_i + k_b)
+  grad W_ib; each iteration moves k_b by the average of its increments, the hydrostatic part acts once per
+  substep with gravity. The default (akinci) has k_i alone.
 * Pressure output: p_i = (k_i + k_i^div) rho_i^2 / rho0 with the total stiffness of both solves, the
   pressure whose symmetric SPH force equals their velocity corrections over the substep.
 * The error of an iteration is summed in 40-bit fixed point (an integer add is associative), so the
@@ -69,6 +73,8 @@ def make_dfsph(S):
     DIV, DENS = 0, 1
 
     kgc, Lm = S.kgc, S.Lm
+    wp = S.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
+    ext = wp is not None
 
     @ti.func
     def corr(i, g):
@@ -118,6 +124,8 @@ def make_dfsph(S):
     def velocity_update(i, dt):
         ki = kk[i]
         dv = BFAC * ki * corr(i, B[i])
+        if ti.static(ext):
+            dv += wp.wall_sum(i, wp.bval)  # the walls' k: the average of the liquid's next to them
         if ti.static(kgc):
             kLi = ki * Lm[i]
             for k in range(nb_cnt[i]):
@@ -216,6 +224,8 @@ def make_dfsph(S):
             kacc[i] = 0.0
             density_change(i, dt, mode, True)
         if ti.static(warm):
+            if ti.static(ext):
+                wp.update(kk)
             for i in range(n):
                 velocity_update(i, dt)
             err_acc[None] = 0
@@ -229,17 +239,25 @@ def make_dfsph(S):
         if ti.static(use_cg):
             cg_iteration(dt)
         else:
+            if ti.static(ext):
+                wp.update(kk)
             for i in range(n):
                 velocity_update(i, dt)
             err_acc[None] = 0
             for i in range(n):
                 density_change(i, dt, mode, False)
 
-    @ti.kernel
-    def divergence_begin(dt: f):
+    @ti.func
+    def neighbours():
         S.sort(n)
         for i in range(n):
             S.neighbours_density(i)
+        if ti.static(ext):
+            wp.mark()  # the walls in reach of the liquid, and their hydrostatic k
+
+    @ti.kernel
+    def divergence_begin(dt: f):
+        neighbours()
         solve_begin(dt, DIV)
 
     @ti.kernel
@@ -252,11 +270,12 @@ def make_dfsph(S):
             for i in range(n):
                 kappav[i] = kacc[i] * dt  # total divergence stiffness, dt independent
         else:
-            S.sort(n)
-            for i in range(n):
-                S.neighbours_density(i)
+            neighbours()
         for i in range(n):
-            vnew[i] = v[i] + dt * S.non_pressure(i, False)
+            a = S.non_pressure(i, False)
+            if ti.static(ext):
+                a -= wp.wall_sum(i, wp.bhyd)  # the walls' hydrostatic pressure, once per substep
+            vnew[i] = v[i] + dt * a
         for i in range(n):
             v[i] = vnew[i]
         solve_begin(dt, DENS)

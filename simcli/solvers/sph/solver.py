@@ -36,6 +36,7 @@ from simcli.solvers.sph.kernels import (
     morris_laplacian_constant,
 )
 from simcli.solvers.sph.neighbours import CellGrid, make_neighbour_funcs, neighbour_capacity
+from simcli.solvers.sph.wall_pressure import make_wall_pressure
 from simcli.solvers.sph.wcsph import make_wcsph
 from simcli.solvers.taichi_funcs import make_body_of, make_finite
 
@@ -225,6 +226,9 @@ class SPHSolver(Solver):
         upload_colliders()
         self._upload()
         self._make_kernels()
+        # extrapolated wall pressure (wall_pressure.py): only where there are walls and the option asks for it
+        ext = self.opts.wall_pressure == "extrapolated" and self.nbp > 0
+        self.wall_pressure = make_wall_pressure(self) if ext else None
         self._substep = make_dfsph(self) if dfsph else make_wcsph(self)
         self._built = True
         self._version = 0
@@ -306,7 +310,7 @@ class SPHSolver(Solver):
         h = self.support
         h2 = h * h
         eps_visc = VISC_EPS * h2
-        _, gradW, Ckern, W_gradW = make_kernels(h, dim, f)
+        Wk, gradW, Ckern, W_gradW = make_kernels(h, dim, f)
         store_grad = self.store_grad
         W0 = kernel_constant(h, dim)  # W(0)
         x, v, mass, mid, rho = self.x, self.v, self.mass, self.mid, self.rho
@@ -541,6 +545,7 @@ class SPHSolver(Solver):
             v[i] = vi
 
         self.neighbours_density, self.non_pressure, self.advect = neighbours_density, non_pressure, advect
+        self.rows, self.Wk, self.gradWk, self.h2 = rows, Wk, gradW, h2
         self.mass_of, self.volume_of = mass_of, volume_of
 
         # ---- per-frame kernels

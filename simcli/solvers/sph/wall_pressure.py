@@ -1,0 +1,124 @@
+"""Extrapolated wall pressure for DFSPH (``solvers.sph.wall_pressure: extrapolated``): each boundary particle
+near the liquid gets a pressure of its own, the Shepard average of its liquid neighbours' pressures plus the
+hydrostatic difference between them and it (Adami et al. 2012, "A generalized wall boundary condition for
+smoothed particle hydrodynamics", eq. 27; for DFSPH as Band et al. 2018, "MLS pressure extrapolation for the
+boundary handling in divergence-free SPH", with a Shepard instead of an MLS fit). In DFSPH's stiffness
+k = p / rho0::
+
+    k_b = sum_f k_f W_bf / sum_f W_bf  +  max(0, sum_f g . (x_b - x_f) W_bf / sum_f W_bf)
+
+and the liquid feels it through the symmetric pressure force, dv_i = -dt sum_b V_b (k_i + k_b) grad W_ib,
+instead of Akinci et al.'s (2012) -dt sum_b V_b k_i grad W_ib alone. (The hydrostatic part is clamped so that
+a wall above the liquid never pulls.)
+
+Why: with Akinci's term the layer of liquid next to a wall is pushed off it by its own pressure once, where
+the liquid on the other side pushes with p_i + p_j; at rest that layer squeezes towards the wall until its
+density, and so its pressure, is high enough: the particles next to a wall carry 1.7x the hydrostatic
+pressure (2.15x in corners), and the start-up squeeze disorders a column at rest (docs/SPH.md). With the
+extrapolated pressure a lattice at rest is in balance at the wall (the hydrostatic term supplies the
+support of the missing liquid below).
+
+The Shepard part is linear in the liquid's k, so each Jacobi iteration moves a boundary particle's k by the
+average of that iteration's increments; the hydrostatic part is a fixed term of the substep, applied once
+with gravity. Not for WCSPH: with its explicit pressure the same term made a tank at rest unstable (28 cm/s
+after 3 s), and not for DFSPH's conjugate-gradient solve (clamp_pressure: false), whose operator must stay
+symmetric.
+
+Boundary particles with liquid in reach are listed once per substep (``mark``); only they are visited in
+the iterations. Every value is a gather over a fixed cell order: bitwise reproducible at any thread count.
+"""
+
+
+def make_wall_pressure(S):
+    """Fields and Taichi funcs of the extrapolated wall pressure for DFSPH solver ``S`` (after its kernels are
+    made)."""
+    ti = S.ti
+    f, dim = S.f, S.dim
+    nbp = S.nbp
+    R = S.grid.R
+    row = 2 * R + 1
+    x = S.x
+    bx, bV, start, bstart, bnear = S.bx, S.bV, S.start, S.bstart, S.bnear
+    Wk, gradWk, h2 = S.Wk, S.gradWk, S.h2
+    gravity, rows, linear = S.gravity, S.rows, S.linear
+
+    bval = ti.field(f, shape=nbp)  # the boundary particle's k increment of the current iteration
+    bhyd = ti.field(f, shape=nbp)  # its hydrostatic k of the substep
+    active = ti.field(ti.i32, shape=nbp)  # boundary particles with liquid in reach, this substep
+    n_active = ti.field(ti.i32, shape=())
+
+    HYD, SRC = 0, 1
+
+    @ti.func
+    def gather(b, src: ti.template(), mode: ti.template()):
+        """Shepard sums at boundary particle b: (sum_f w, sum_f w value_f); value_f = src_f (SRC) or the
+        hydrostatic k difference g . (x_b - x_f) (HYD)."""
+        xb = bx[b]
+        c0 = rows(xb)
+        sw = ti.cast(0.0, f)
+        sv = ti.cast(0.0, f)
+        for a in range(row ** (dim - 1)):
+            c = c0
+            c[1] += a % row - R
+            if ti.static(dim == 3):
+                c[2] += a // row - R
+            lin = linear(c)
+            for j in range(start[lin], start[lin + row]):
+                d = xb - x[j]
+                r2 = d.dot(d)
+                if r2 < h2:
+                    w = Wk(ti.sqrt(r2))
+                    sw += w
+                    if ti.static(mode == SRC):
+                        sv += w * src[j]
+                    else:
+                        sv += w * gravity[None].dot(d)
+        return sw, sv
+
+    @ti.func
+    def mark():
+        """After the neighbour search: list the boundary particles with liquid in reach and set their
+        hydrostatic k (into bhyd), clamped at 0 (no pull where a wall is above the liquid)."""
+        n_active[None] = 0
+        for b in range(nbp):
+            sw, sv = gather(b, bval, HYD)
+            if sw > 0:
+                active[ti.atomic_add(n_active[None], 1)] = b
+                bhyd[b] = ti.max(sv / sw, 0.0)
+
+    @ti.func
+    def update(src: ti.template()):
+        """bval = the Shepard average of src over each listed boundary particle's liquid neighbours (DFSPH:
+        the k increment of an iteration; linear, so the sum over the iterations is the average of the sum)."""
+        for t in range(n_active[None]):
+            b = active[t]
+            sw, sv = gather(b, src, SRC)
+            bval[b] = sv / sw
+
+    @ti.func
+    def wall_sum(i, val: ti.template()):
+        """sum_b V_b val_b grad W_ib over the boundary particles in reach of liquid particle i."""
+        out = ti.Vector.zero(f, dim)
+        xi = x[i]
+        c0 = rows(xi)
+        if bnear[linear(c0) + R] != 0:
+            for a in range(row ** (dim - 1)):
+                c = c0
+                c[1] += a % row - R
+                if ti.static(dim == 3):
+                    c[2] += a // row - R
+                lin = linear(c)
+                for b in range(bstart[lin], bstart[lin + row]):
+                    d = xi - bx[b]
+                    r2 = d.dot(d)
+                    if r2 < h2:
+                        out += bV[b] * val[b] * gradWk(d, ti.sqrt(r2))
+        return out
+
+    class WallPressure:
+        pass
+
+    w = WallPressure()
+    w.bval, w.bhyd, w.n_active = bval, bhyd, n_active
+    w.mark, w.update, w.wall_sum = mark, update, wall_sum
+    return w
