@@ -126,8 +126,9 @@ class SPHOptions(_Options):
         5.0e-3,
         gt=0,
         description="Upper bound of the automatic substep [s] (a liquid at rest has no CFL limit). DFSPH "
-        "liquids at rest at fine resolution may need a smaller bound: a tank at particle_size 2.5 mm did not "
-        "settle with 2 ms substeps and did with 1 ms (docs/SPH.md, gaps).",
+        "liquids at rest at fine resolution with wall_pressure: akinci may need a smaller bound: a tank at "
+        "particle_size 2.5 mm did not settle with 2 ms substeps and did with 1 ms; with wall_pressure: "
+        "extrapolated it settled at 2 ms (docs/SPH.md, gaps).",
     )
 
     @model_validator(mode="after")
