@@ -207,7 +207,13 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         per_particle = _sph_bytes_per_particle(
             dim, sph.support_factor, sph.pressure_solver == "DFSPH", sph.gradient_correction
         )
-        need += (n_sph * per_particle + n_bnd * _SPH_BYTES_PER_BOUNDARY[dim] + sph_cells * _SPH_BYTES_PER_CELL) * fp
+        per_boundary = _SPH_BYTES_PER_BOUNDARY[dim]
+        if sph.wall_model == "extrapolated":  # wall_pressure.py: 4 scalars and a list of (index, weight)
+            from simcli.solvers.sph.neighbours import neighbour_capacity
+
+            per_boundary += 4 * (4 + 2 * max(8, neighbour_capacity(dim, sph.support_factor) // 2))
+            per_particle += 4
+        need += (n_sph * per_particle + n_bnd * per_boundary + sph_cells * _SPH_BYTES_PER_CELL) * fp
         n_particles += n_sph
     if fem_t:
         from simcli.solvers.fem.mesh import estimate_bytes as fem_bytes

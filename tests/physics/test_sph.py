@@ -436,6 +436,10 @@ def test_extrapolated_wall_pressure_needs_dfsph_with_free_surface():
     with pytest.raises(ValidationError, match="wall_pressure: extrapolated needs"):
         SPHOptions(pressure_solver="DFSPH", wall_pressure="extrapolated", clamp_pressure=False)
     SPHOptions(pressure_solver="DFSPH", wall_pressure="extrapolated")
+    # auto: extrapolated where it applies
+    assert SPHOptions(pressure_solver="DFSPH").wall_model == "extrapolated"
+    assert SPHOptions(pressure_solver="DFSPH", clamp_pressure=False).wall_model == "akinci"
+    assert SPHOptions(pressure_solver="WCSPH").wall_model == "akinci"
 
 
 def test_extrapolated_wall_pressure_is_reproducible(ti_f32):

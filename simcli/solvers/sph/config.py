@@ -82,16 +82,18 @@ class SPHOptions(_Options):
         "lattice so that it is exact for quadratic fields: 99.6-100% of the Laplacian on the same packings, "
         "but not angular-momentum conserving. Walls use the monaghan form either way.",
     )
-    wall_pressure: Literal["akinci", "extrapolated"] = Field(
-        "akinci",
+    wall_pressure: Literal["auto", "akinci", "extrapolated"] = Field(
+        "auto",
         description="Pressure force between the liquid and walls / colliders (boundary particles). akinci: "
         "-sum_b rho0 V_b (p_i / rho_i^2) grad W_ib (Akinci et al. 2012; SPlisHSPlasH's and Genesis's), the "
         "liquid's own pressure alone: at rest the particles next to a wall then carry 1.7x the hydrostatic "
-        "pressure (2.15x in corners). extrapolated: the wall particles get a pressure of their own, the average "
-        "of the liquid's next to them plus the hydrostatic difference (Adami et al. 2012; Band et al. 2018), "
-        "and push with p_i / rho_i^2 + p_b / rho0^2: wall-layer pressure within 1% of the liquid's field, and "
-        "a DFSPH liquid at rest settles at any resolution tested (docs/SPH.md). Needs clamp_pressure: true "
-        "with DFSPH.",
+        "pressure (2.15x in corners). extrapolated (DFSPH with clamp_pressure: true only): the wall particles "
+        "get a pressure of their own, the average of the liquid's next to them plus the hydrostatic difference "
+        "(Adami et al. 2012; Band et al. 2018), and push with p_i / rho_i^2 + p_b / rho0^2: the wall layer's "
+        "pressure is within 1% of the liquid's field, and a DFSPH liquid at rest settles at fine resolution "
+        "too; about 18% more time per substep on benchmark B2 (docs/SPH.md). With WCSPH it made a tank at rest "
+        "unstable, and DFSPH's conjugate-gradient solve (clamp_pressure: false) needs Akinci's symmetric term. "
+        "auto: extrapolated where it applies, akinci elsewhere.",
     )
     clamp_pressure: bool = Field(
         True,
@@ -145,6 +147,13 @@ class SPHOptions(_Options):
                 "clamp_pressure: false needs a symmetric operator): set wall_pressure: akinci"
             )
         return self
+
+    @property
+    def wall_model(self) -> str:
+        """The wall pressure model a run uses: ``wall_pressure`` with auto resolved."""
+        if self.wall_pressure != "auto":
+            return self.wall_pressure
+        return "extrapolated" if self.pressure_solver == "DFSPH" and self.clamp_pressure else "akinci"
 
     @property
     def support_radius(self) -> float:

@@ -149,6 +149,10 @@ class SPHSolver(Solver):
         dfsph = self.opts.pressure_solver == "DFSPH"
         self.alpha = scal() if dfsph else None
         # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves
+        # extrapolated wall pressure (wall_pressure.py): each liquid particle's boundary neighbours follow its
+        # liquid ones in its neighbour list (up to nbw_end), each boundary particle lists its liquid neighbours
+        self.ext_walls = dfsph and self.opts.wall_model == "extrapolated"
+        self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
         self.kgc = dfsph and self.opts.gradient_correction
         self.Lm = ti.Matrix.field(dim, dim, f, shape=n) if self.kgc else None
         self.kk = scal() if dfsph else None
@@ -227,8 +231,7 @@ class SPHSolver(Solver):
         self._upload()
         self._make_kernels()
         # extrapolated wall pressure (wall_pressure.py): only where there are walls and the option asks for it
-        ext = self.opts.wall_pressure == "extrapolated" and self.nbp > 0
-        self.wall_pressure = make_wall_pressure(self) if ext else None
+        self.wall_pressure = make_wall_pressure(self) if self.ext_walls and self.nbp > 0 else None
         self._substep = make_dfsph(self) if dfsph else make_wcsph(self)
         self._built = True
         self._version = 0
@@ -327,6 +330,7 @@ class SPHSolver(Solver):
         dfsph = alpha is not None
         kgc, Lm = self.kgc, self.Lm
         has_boundary = self.nbp > 0
+        ext_walls, nbw_end = self.ext_walls and has_boundary, self.nbw_end
         cell_coords, linear, pushout = self.cell_coords, self.linear, self.pushout
         dims = self.grid.dims
         c_lo = ti.Vector([R] * dim)
@@ -404,6 +408,7 @@ class SPHSolver(Solver):
             if cnt > K:
                 ti.atomic_add(overflow[None], cnt - K)
             nb_cnt[i] = ti.min(cnt, K)
+            cnt_w = ti.min(cnt, K)  # extrapolated walls: the boundary neighbours' slots follow
             Bi = ti.Vector.zero(f, dim)
             Si = ti.cast(0.0, f)
             Qb = ti.Matrix.zero(f, dim, dim)  # sum_b V_b grad W_ib v_b^T: Si with the corrected gradient
@@ -427,6 +432,11 @@ class SPHSolver(Solver):
                                 w, g = W_gradW(d, r)
                                 r_i += rho0_i * Vb * w
                                 Bi += Vb * g
+                                if ti.static(ext_walls):
+                                    if cnt_w < K:
+                                        nb_j[i, cnt_w] = b
+                                        nb_g[i, cnt_w] = Vb * g
+                                    cnt_w += 1
                                 Si += Vb * bvel[b].dot(g)
                                 if ti.static(kgc):
                                     Mom -= (Vb * g).outer_product(d)
@@ -445,6 +455,10 @@ class SPHSolver(Solver):
                 Lm[i] = Li
                 Si = (Li @ Qb).trace()  # sum_b V_b v_b . L_i grad W_ib
             B[i] = Bi
+            if ti.static(ext_walls):
+                if cnt_w > K:
+                    ti.atomic_add(overflow[None], cnt_w - K)
+                nbw_end[i] = ti.min(cnt_w, K)
             Sb[i] = Si
             nbb_cnt[i] = cntb
             if ti.static(has_noslip):
@@ -737,7 +751,12 @@ class SPHSolver(Solver):
             )
             if self._built
             else None,
-            "boundary": f"{self.nbp} boundary particles (Akinci et al. 2012)" if self._built else None,
+            "boundary": (
+                f"{self.nbp} boundary particles (Akinci et al. 2012), wall pressure: {self.opts.wall_model}"
+                + (" (Adami et al. 2012 / Band et al. 2018)" if self.opts.wall_model == "extrapolated" else "")
+            )
+            if self._built
+            else None,
         }
         if self._built:
             d["neighbour_overflow"] = int(self.overflow[None])

@@ -24,8 +24,10 @@ with gravity. Not for WCSPH: with its explicit pressure the same term made a tan
 after 3 s), and not for DFSPH's conjugate-gradient solve (clamp_pressure: false), whose operator must stay
 symmetric.
 
-Boundary particles with liquid in reach are listed once per substep (``mark``); only they are visited in
-the iterations. Every value is a gather over a fixed cell order: bitwise reproducible at any thread count.
+Lists are built once per substep: each liquid particle's boundary neighbours (with V_b grad W_ib) follow its
+liquid ones in its neighbour list, and each boundary particle in reach of the liquid (``mark``) lists its
+liquid neighbours with their Shepard weights; the iterations only walk these lists. Every value is a gather
+in a fixed order: bitwise reproducible at any thread count.
 """
 
 
@@ -37,82 +39,78 @@ def make_wall_pressure(S):
     nbp = S.nbp
     R = S.grid.R
     row = 2 * R + 1
+    KB = max(8, S.K // 2)  # liquid neighbours listed per boundary particle: a half neighbourhood at rest is K / 4
     x = S.x
-    bx, bV, start, bstart, bnear = S.bx, S.bV, S.start, S.bstart, S.bnear
-    Wk, gradWk, h2 = S.Wk, S.gradWk, S.h2
-    gravity, rows, linear = S.gravity, S.rows, S.linear
+    bx, start = S.bx, S.start
+    nb_cnt, nb_j, nb_g, nbw_end = S.nb_cnt, S.nb_j, S.nb_g, S.nbw_end
+    Wk, h2 = S.Wk, S.h2
+    gravity, rows, linear, overflow = S.gravity, S.rows, S.linear, S.overflow
 
     bval = ti.field(f, shape=nbp)  # the boundary particle's k increment of the current iteration
     bhyd = ti.field(f, shape=nbp)  # its hydrostatic k of the substep
     active = ti.field(ti.i32, shape=nbp)  # boundary particles with liquid in reach, this substep
     n_active = ti.field(ti.i32, shape=())
-
-    HYD, SRC = 0, 1
-
-    @ti.func
-    def gather(b, src: ti.template(), mode: ti.template()):
-        """Shepard sums at boundary particle b: (sum_f w, sum_f w value_f); value_f = src_f (SRC) or the
-        hydrostatic k difference g . (x_b - x_f) (HYD)."""
-        xb = bx[b]
-        c0 = rows(xb)
-        sw = ti.cast(0.0, f)
-        sv = ti.cast(0.0, f)
-        for a in range(row ** (dim - 1)):
-            c = c0
-            c[1] += a % row - R
-            if ti.static(dim == 3):
-                c[2] += a // row - R
-            lin = linear(c)
-            for j in range(start[lin], start[lin + row]):
-                d = xb - x[j]
-                r2 = d.dot(d)
-                if r2 < h2:
-                    w = Wk(ti.sqrt(r2))
-                    sw += w
-                    if ti.static(mode == SRC):
-                        sv += w * src[j]
-                    else:
-                        sv += w * gravity[None].dot(d)
-        return sw, sv
+    bnb_cnt = ti.field(ti.i32, shape=nbp)  # each one's liquid neighbours and Shepard weights W_bf / sum_f W_bf
+    bnb_j = ti.field(ti.i32, shape=(nbp, KB))
+    bnb_w = ti.field(f, shape=(nbp, KB))
 
     @ti.func
     def mark():
-        """After the neighbour search: list the boundary particles with liquid in reach and set their
-        hydrostatic k (into bhyd), clamped at 0 (no pull where a wall is above the liquid)."""
+        """After the neighbour search: list the boundary particles with liquid in reach, each one's liquid
+        neighbours with their Shepard weights, and its hydrostatic k, sum_f g . (x_b - x_f) W_bf / sum_f W_bf,
+        clamped at 0 (no pull where a wall is above the liquid)."""
         n_active[None] = 0
         for b in range(nbp):
-            sw, sv = gather(b, bval, HYD)
-            if sw > 0:
-                active[ti.atomic_add(n_active[None], 1)] = b
-                bhyd[b] = ti.max(sv / sw, 0.0)
-
-    @ti.func
-    def update(src: ti.template()):
-        """bval = the Shepard average of src over each listed boundary particle's liquid neighbours (DFSPH:
-        the k increment of an iteration; linear, so the sum over the iterations is the average of the sum)."""
-        for t in range(n_active[None]):
-            b = active[t]
-            sw, sv = gather(b, src, SRC)
-            bval[b] = sv / sw
-
-    @ti.func
-    def wall_sum(i, val: ti.template()):
-        """sum_b V_b val_b grad W_ib over the boundary particles in reach of liquid particle i."""
-        out = ti.Vector.zero(f, dim)
-        xi = x[i]
-        c0 = rows(xi)
-        if bnear[linear(c0) + R] != 0:
+            xb = bx[b]
+            c0 = rows(xb)
+            sw = ti.cast(0.0, f)
+            sh = ti.cast(0.0, f)
+            cnt = 0
             for a in range(row ** (dim - 1)):
                 c = c0
                 c[1] += a % row - R
                 if ti.static(dim == 3):
                     c[2] += a // row - R
                 lin = linear(c)
-                for b in range(bstart[lin], bstart[lin + row]):
-                    d = xi - bx[b]
+                for j in range(start[lin], start[lin + row]):
+                    d = xb - x[j]
                     r2 = d.dot(d)
                     if r2 < h2:
-                        out += bV[b] * val[b] * gradWk(d, ti.sqrt(r2))
+                        w = Wk(ti.sqrt(r2))
+                        sw += w
+                        sh += w * gravity[None].dot(d)
+                        if cnt < KB:
+                            bnb_j[b, cnt] = j
+                            bnb_w[b, cnt] = w
+                        cnt += 1
+            if cnt > KB:
+                ti.atomic_add(overflow[None], cnt - KB)
+            cnt = ti.min(cnt, KB)
+            bnb_cnt[b] = cnt
+            if sw > 0:
+                active[ti.atomic_add(n_active[None], 1)] = b
+                bhyd[b] = ti.max(sh / sw, 0.0)
+                for k in range(cnt):
+                    bnb_w[b, k] /= sw
+
+    @ti.func
+    def update(src: ti.template()):
+        """bval = the Shepard average of src over each listed boundary particle's liquid neighbours (the k
+        increment of an iteration; linear, so the sum over the iterations is the average of the sum)."""
+        for t in range(n_active[None]):
+            b = active[t]
+            acc = ti.cast(0.0, f)
+            for k in range(bnb_cnt[b]):
+                acc += bnb_w[b, k] * src[bnb_j[b, k]]
+            bval[b] = acc
+
+    @ti.func
+    def wall_sum(i, val: ti.template()):
+        """sum_b V_b val_b grad W_ib over liquid particle i's boundary neighbours (listed after its liquid
+        ones, with V_b grad W_ib)."""
+        out = ti.Vector.zero(f, dim)
+        for k in range(nb_cnt[i], nbw_end[i]):
+            out += val[nb_j[i, k]] * nb_g[i, k]
         return out
 
     class WallPressure:
