@@ -32,7 +32,7 @@ SPH for incompressible and viscous fluids"), as in SPlisHSPlasH's DFSPH.cpp. A s
 * Walls (wall_pressure: extrapolated, wall_pressure.py): the boundary particles' own k, the Shepard average of
   the liquid's next to them plus the hydrostatic difference, in the velocity update as -dt sum_b V_b (k_i + k_b)
   grad W_ib; each iteration moves k_b by the average of its increments, the hydrostatic part acts once per
-  substep with gravity. The default (akinci) has k_i alone.
+  substep with gravity. The default with a free surface (wall_pressure: auto); akinci has k_i alone.
 * Pressure output: p_i = (k_i + k_i^div) rho_i^2 / rho0 with the total stiffness of both solves, the
   pressure whose symmetric SPH force equals their velocity corrections over the substep.
 * The error of an iteration is summed in 40-bit fixed point (an integer add is associative), so the

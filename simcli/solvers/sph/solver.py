@@ -153,6 +153,8 @@ class SPHSolver(Solver):
         # liquid ones in its neighbour list (up to nbw_end), each boundary particle lists its liquid neighbours
         self.ext_walls = dfsph and self.opts.wall_model == "extrapolated"
         self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
+        # ... and flags the boundary particles it reaches, so that only those build their lists
+        self.bflag = ti.field(ti.i32, shape=max(1, self.nbp)) if self.ext_walls else None
         self.kgc = dfsph and self.opts.gradient_correction
         self.Lm = ti.Matrix.field(dim, dim, f, shape=n) if self.kgc else None
         self.kk = scal() if dfsph else None
@@ -330,7 +332,7 @@ class SPHSolver(Solver):
         dfsph = alpha is not None
         kgc, Lm = self.kgc, self.Lm
         has_boundary = self.nbp > 0
-        ext_walls, nbw_end = self.ext_walls and has_boundary, self.nbw_end
+        ext_walls, nbw_end, bflag = self.ext_walls and has_boundary, self.nbw_end, self.bflag
         cell_coords, linear, pushout = self.cell_coords, self.linear, self.pushout
         dims = self.grid.dims
         c_lo = ti.Vector([R] * dim)
@@ -433,6 +435,7 @@ class SPHSolver(Solver):
                                 r_i += rho0_i * Vb * w
                                 Bi += Vb * g
                                 if ti.static(ext_walls):
+                                    bflag[b] = 1  # the same value from every writer
                                     if cnt_w < K:
                                         nb_j[i, cnt_w] = b
                                         nb_g[i, cnt_w] = Vb * g

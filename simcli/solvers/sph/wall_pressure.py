@@ -1,4 +1,5 @@
-"""Extrapolated wall pressure for DFSPH (``solvers.sph.wall_pressure: extrapolated``): each boundary particle
+"""Extrapolated wall pressure for DFSPH (``solvers.sph.wall_pressure: extrapolated``, the default for DFSPH with
+a free surface, ``auto``): each boundary particle
 near the liquid gets a pressure of its own, the Shepard average of its liquid neighbours' pressures plus the
 hydrostatic difference between them and it (Adami et al. 2012, "A generalized wall boundary condition for
 smoothed particle hydrodynamics", eq. 27; for DFSPH as Band et al. 2018, "MLS pressure extrapolation for the
@@ -45,6 +46,7 @@ def make_wall_pressure(S):
     nb_cnt, nb_j, nb_g, nbw_end = S.nb_cnt, S.nb_j, S.nb_g, S.nbw_end
     Wk, h2 = S.Wk, S.h2
     gravity, rows, linear, overflow = S.gravity, S.rows, S.linear, S.overflow
+    bflag = S.bflag
 
     bval = ti.field(f, shape=nbp)  # the boundary particle's k increment of the current iteration
     bhyd = ti.field(f, shape=nbp)  # its hydrostatic k of the substep
@@ -61,6 +63,9 @@ def make_wall_pressure(S):
         clamped at 0 (no pull where a wall is above the liquid)."""
         n_active[None] = 0
         for b in range(nbp):
+            if bflag[b] == 0:  # no liquid particle reached it in this substep's neighbour search
+                continue
+            bflag[b] = 0
             xb = bx[b]
             c0 = rows(xb)
             sw = ti.cast(0.0, f)
