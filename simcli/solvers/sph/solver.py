@@ -374,6 +374,16 @@ class SPHSolver(Solver):
             return c
 
         @ti.func
+        def row_cell(c0, a):
+            """Linear index of the first cell of row a (0 <= a < row^(dim - 1)) of the stencil that starts at
+            c0 (from rows): a row is `row` cells contiguous along x."""
+            c = c0
+            c[1] += a % row - R
+            if ti.static(dim == 3):
+                c[2] += a // row - R
+            return linear(c)
+
+        @ti.func
         def neighbours_density(i):
             """neighbours -> density: neighbour list with grad W, density, and the boundary sums."""
             xi = x[i]
@@ -385,11 +395,7 @@ class SPHSolver(Solver):
             Mom = ti.Matrix.zero(f, dim, dim)  # sum_j V_j grad W_ij (x_j - x_i)^T (gradient correction)
             cnt = 0
             for a in range(row ** (dim - 1)):  # a run-time loop: unrolled, it compiles for minutes
-                c = c0
-                c[1] += a % row - R
-                if ti.static(dim == 3):
-                    c[2] += a // row - R
-                lin = linear(c)
+                lin = row_cell(c0, a)
                 for j in range(start[lin], start[lin + row]):
                     d = xi - x[j]
                     r2 = d.dot(d)
@@ -420,11 +426,7 @@ class SPHSolver(Solver):
             if ti.static(has_boundary):  # noqa: SIM102 - compile-time, then run-time test
                 if bnear[linear(c0) + R] != 0:  # most particles have no boundary particle in reach
                     for a in range(row ** (dim - 1)):
-                        c = c0
-                        c[1] += a % row - R
-                        if ti.static(dim == 3):
-                            c[2] += a // row - R
-                        lin = linear(c)
+                        lin = row_cell(c0, a)
                         for b in range(bstart[lin], bstart[lin + row]):
                             d = xi - bx[b]
                             r2 = d.dot(d)
@@ -562,7 +564,7 @@ class SPHSolver(Solver):
             v[i] = vi
 
         self.neighbours_density, self.non_pressure, self.advect = neighbours_density, non_pressure, advect
-        self.rows, self.Wk, self.gradWk, self.h2 = rows, Wk, gradW, h2
+        self.rows, self.row_cell, self.Wk, self.gradWk, self.h2 = rows, row_cell, Wk, gradW, h2
         self.mass_of, self.volume_of = mass_of, volume_of
 
         # ---- per-frame kernels

@@ -45,7 +45,7 @@ def make_wall_pressure(S):
     bx, start = S.bx, S.start
     nb_cnt, nb_j, nb_g, nbw_end = S.nb_cnt, S.nb_j, S.nb_g, S.nbw_end
     Wk, h2 = S.Wk, S.h2
-    gravity, rows, linear, overflow = S.gravity, S.rows, S.linear, S.overflow
+    gravity, rows, row_cell, overflow = S.gravity, S.rows, S.row_cell, S.overflow
     bflag = S.bflag
 
     bval = ti.field(f, shape=nbp)  # the boundary particle's k increment of the current iteration
@@ -72,11 +72,7 @@ def make_wall_pressure(S):
             sh = ti.cast(0.0, f)
             cnt = 0
             for a in range(row ** (dim - 1)):
-                c = c0
-                c[1] += a % row - R
-                if ti.static(dim == 3):
-                    c[2] += a // row - R
-                lin = linear(c)
+                lin = row_cell(c0, a)
                 for j in range(start[lin], start[lin + row]):
                     d = xb - x[j]
                     r2 = d.dot(d)
