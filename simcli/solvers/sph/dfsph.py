@@ -125,21 +125,29 @@ def make_dfsph(S):
         kk[i] = ki
 
     @ti.func
+    def pressure_gradient(i, k_: ti.template(), g):
+        """g plus the liquid's part of the symmetric pressure gradient of the stiffness field k_ at particle i
+        (before -dt): sum_j V_j (k_i + k_j) grad W_ij (with gradient_correction: (k_i L_i + k_j L_j) grad
+        W_ij). g starts with the walls' part: Akinci's BFAC k_i B_i (plus the extrapolated walls' sum)."""
+        ki = k_[i]
+        if ti.static(kgc):
+            kLi = ki * Lm[i]
+            for k in range(nb_cnt[i]):
+                j = nb_j[i, k]
+                g += S.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ nb_g[i, k])
+        else:
+            for k in range(nb_cnt[i]):
+                j = nb_j[i, k]
+                g += (ki + k_[j]) * S.volume_of(j) * nb_g[i, k]
+        return g
+
+    @ti.func
     def velocity_update(i, dt):
         ki = kk[i]
         dv = BFAC * ki * corr(i, B[i])
         if ti.static(ext):
             dv += wp.wall_sum(i, wp.bval)  # the walls' k: the average of the liquid's next to them
-        if ti.static(kgc):
-            kLi = ki * Lm[i]
-            for k in range(nb_cnt[i]):
-                j = nb_j[i, k]
-                dv += S.volume_of(j) * ((kLi + kk[j] * Lm[j]) @ nb_g[i, k])
-        else:
-            for k in range(nb_cnt[i]):
-                j = nb_j[i, k]
-                dv += (ki + kk[j]) * S.volume_of(j) * nb_g[i, k]
-        v[i] -= dt * dv
+        v[i] -= dt * pressure_gradient(i, kk, dv)
         kacc[i] += ki
 
     # ---- conjugate gradients for a liquid without a free surface (clamp_pressure false): the unprojected
@@ -180,18 +188,7 @@ def make_dfsph(S):
     @ti.func
     def cg_iteration(dt):
         for i in range(n):  # dvt = -dt G p
-            pi = cg_p[i]
-            g = BFAC * pi * corr(i, B[i])
-            if ti.static(kgc):
-                pLi = pi * Lm[i]
-                for k in range(nb_cnt[i]):
-                    j = nb_j[i, k]
-                    g += S.volume_of(j) * ((pLi + cg_p[j] * Lm[j]) @ nb_g[i, k])
-            else:
-                for k in range(nb_cnt[i]):
-                    j = nb_j[i, k]
-                    g += (pi + cg_p[j]) * S.volume_of(j) * nb_g[i, k]
-            dvt[i] = -dt * g
+            dvt[i] = -dt * pressure_gradient(i, cg_p, BFAC * cg_p[i] * corr(i, B[i]))
         for i in range(n):  # Ap = -dt D(dvt) = dt^2 D G p
             dv = dvt[i]
             d = dv.dot(corr(i, B[i]))
