@@ -148,13 +148,13 @@ class SPHSolver(Solver):
         self.mw = vec() if self.has_noslip else None
         dfsph = self.opts.pressure_solver == "DFSPH"
         self.alpha = scal() if dfsph else None
-        # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves
         # extrapolated wall pressure (wall_pressure.py): each liquid particle's boundary neighbours follow its
-        # liquid ones in its neighbour list (up to nbw_end), each boundary particle lists its liquid neighbours
+        # liquid ones in its neighbour list (up to nbw_end), and it flags the boundary particles it reaches, so
+        # that only those list their liquid neighbours
         self.ext_walls = dfsph and self.opts.wall_model == "extrapolated"
         self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
-        # ... and flags the boundary particles it reaches, so that only those build their lists
         self.bflag = ti.field(ti.i32, shape=max(1, self.nbp)) if self.ext_walls else None
+        # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves
         self.kgc = dfsph and self.opts.gradient_correction
         self.Lm = ti.Matrix.field(dim, dim, f, shape=n) if self.kgc else None
         self.kk = scal() if dfsph else None

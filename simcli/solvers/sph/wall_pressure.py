@@ -31,6 +31,8 @@ liquid neighbours with their Shepard weights; the iterations only walk these lis
 in a fixed order: bitwise reproducible at any thread count.
 """
 
+from types import SimpleNamespace
+
 
 def make_wall_pressure(S):
     """Fields and Taichi funcs of the extrapolated wall pressure for DFSPH solver ``S`` (after its kernels are
@@ -114,10 +116,4 @@ def make_wall_pressure(S):
             out += val[nb_j[i, k]] * nb_g[i, k]
         return out
 
-    class WallPressure:
-        pass
-
-    w = WallPressure()
-    w.bval, w.bhyd, w.n_active = bval, bhyd, n_active
-    w.mark, w.update, w.wall_sum = mark, update, wall_sum
-    return w
+    return SimpleNamespace(bval=bval, bhyd=bhyd, mark=mark, update=update, wall_sum=wall_sum)
