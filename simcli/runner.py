@@ -312,21 +312,47 @@ class Runner:
         t_loop = time.perf_counter()
         stepping0 = self.timings["stepping_s"]
         substeps_done = 0
+        dt_range = self._dt_range = [math.inf, 0.0]  # smallest and largest substep taken [s]
         while step < n_steps:
-            if sim.substeps == "auto" and (step % every == 0 or substeps_now is None):
+            adaptive = sim.substeps == "auto" and sim.auto_check == "substep"
+            if sim.substeps == "auto" and not adaptive and (step % every == 0 or substeps_now is None):
                 stable = min(s.stable_dt() for s in solvers)
                 substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))
-            sub_dt = sim.dt / substeps_now
             ts = time.perf_counter()
-            for k in range(substeps_now):
-                for s in solvers:
-                    s.substep(sub_dt)
-                if first:
+            if adaptive:
+                # each substep as large as the limits allow now; the remaining ones of the step made equal
+                # (rem / ceil(rem / stable)) so that the step ends on its boundary without a sliver
+                substeps_now, done_t = 0, 0.0
+                while True:
+                    rem = sim.dt - done_t
+                    stable = max(min(s.stable_dt() for s in solvers), sim.dt / AUTO_MAX_SUBSTEPS)
+                    n_left = max(1, int(math.ceil(rem / stable * (1.0 - 1e-9))))
+                    sub_dt = rem / n_left
                     for s in solvers:
-                        s.sync()
-                    self.timings["compile_s"] = time.perf_counter() - ts
-                    first = False
-                    ts = time.perf_counter()
+                        s.substep(sub_dt)
+                    substeps_now += 1
+                    dt_range[0], dt_range[1] = min(dt_range[0], sub_dt), max(dt_range[1], sub_dt)
+                    done_t += sub_dt
+                    if first:
+                        for s in solvers:
+                            s.sync()
+                        self.timings["compile_s"] = time.perf_counter() - ts
+                        first = False
+                        ts = time.perf_counter()
+                    if n_left == 1:
+                        break
+            else:
+                sub_dt = sim.dt / substeps_now
+                dt_range[0], dt_range[1] = min(dt_range[0], sub_dt), max(dt_range[1], sub_dt)
+                for k in range(substeps_now):
+                    for s in solvers:
+                        s.substep(sub_dt)
+                    if first:
+                        for s in solvers:
+                            s.sync()
+                        self.timings["compile_s"] = time.perf_counter() - ts
+                        first = False
+                        ts = time.perf_counter()
             for s in solvers:
                 s.sync()
             self.timings["stepping_s"] += time.perf_counter() - ts
@@ -396,14 +422,18 @@ class Runner:
         t = self.timings["stepping_s"] - stepping0
         # the first substep carries the kernel compilation: leave it out of throughput
         steady = max(t, 1e-12)
+        dt_lo, dt_hi = getattr(self, "_dt_range", (math.inf, 0.0))
         sps = substeps_done / steady if substeps_done else 0.0
         self.info.update(steps_done=step, sim_time=step * sim.dt,
                          substeps={"fixed": sim.substeps if sim.substeps != "auto" else None,
                                    "auto": sim.substeps == "auto",
+                                   "auto_check": sim.auto_check if sim.substeps == "auto" else None,
                                    "min": min(sub_hist) if sub_hist else None,
                                    "max": max(sub_hist) if sub_hist else None,
                                    "mean": float(np.mean(sub_hist)) if sub_hist else None,
-                                   "total": int(sum(sub_hist))},
+                                   "total": int(sum(sub_hist)),
+                                   "dt_min_s": dt_lo if math.isfinite(dt_lo) else None,
+                                   "dt_max_s": dt_hi if dt_hi > 0 else None},
                          throughput={"steps_per_s": (step / steady) if step else 0.0, "substeps_per_s": sps,
                                      "particle_substeps_per_s": sps * n_particles,
                                      "cell_substeps_per_s": sps * sum(int(s.counts().get("cells", 0))

@@ -40,6 +40,15 @@ class Sim(Strict):
         description="Substeps per step (integer >= 1), or 'auto': the largest stable substep from the "
         "CFL and elastic wave-speed limits, chosen every frame.",
     )
+    auto_check: Literal["frame", "substep"] = Field(
+        "frame",
+        description="With substeps: auto, how often the stable substep is re-evaluated. frame: once per output "
+        "frame, and every step of the frame is split into that many equal substeps (a step's substep count is "
+        "the smallest that keeps each within the limit). substep: before every substep, from the state at that "
+        "moment, as SPlisHSPlasH's adaptive step; each substep is as large as the limits allow, and the last "
+        "ones of a step are made equal so that the step ends on its boundary (use a long sim.dt, e.g. the "
+        "output interval, so that few substeps are shortened). Costs one reduction per substep.",
+    )
     duration: float | None = Field(
         None, gt=0, description="Simulated time [s]. Give duration or steps, not both (default 1 s)."
     )
@@ -62,6 +71,9 @@ class Sim(Strict):
     def _check(self):
         if self.duration is not None and self.steps is not None:
             raise ValueError("give sim.duration or sim.steps, not both")
+        if self.auto_check == "substep" and self.substeps != "auto":
+            raise ValueError(f"sim.auto_check: substep needs sim.substeps: auto (got substeps: {self.substeps}); "
+                             "remove auto_check or set substeps: auto")
         if self.gravity is not None and len(self.gravity) != self.dim:
             raise ValueError(f"sim.gravity must have {self.dim} components for dim {self.dim} (got {len(self.gravity)})")
         return self

@@ -206,3 +206,44 @@ def test_signal_after_the_run_finished_does_not_kill_the_process(tmp_path):
     p.send_signal(signal.SIGTERM)  # (if the process is already gone, nothing happens)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 0, err
+
+
+ADAPTIVE = """\
+version: 1
+name: adaptive
+sim: {dim: 2, dt: 0.05, substeps: auto, auto_check: substep, steps: 3, threads: 1}
+domain: {lower: [0.0, 0.0], upper: [0.4, 0.4]}
+solvers: {sph: {particle_size: 0.01, pressure_solver: WCSPH, max_substep: 0.002}}
+entities:
+  - name: water
+    material: {type: SPH.Liquid, mu: 0.01}
+    morph: {type: Box, lower: [0.0, 0.0], upper: [0.1, 0.2]}
+output: {every: 1, formats: [hdf5], fields: [position, velocity]}
+"""
+
+
+def test_auto_check_substep_adapts_each_substep_and_lands_on_steps(tmp_path):
+    """sim.auto_check: substep re-evaluates the stable substep before every substep (as SPlisHSPlasH's
+    adaptive step): the substep sizes vary within a step, none exceeds the solver's limits, and every step
+    still ends on its boundary (frames at exact multiples of sim.dt)."""
+    out = tmp_path / "out"
+    r = _run(["run", str(_scene(tmp_path, ADAPTIVE)), "-o", str(out), "--quiet"])
+    assert r.returncode == 0, r.stderr
+    info = json.loads((out / "run.json").read_text())
+    sub = info["substeps"]
+    assert sub["auto"] and sub["auto_check"] == "substep"
+    assert sub["dt_max_s"] <= 0.002 * (1 + 1e-9)  # max_substep
+    assert sub["dt_min_s"] < sub["dt_max_s"]  # the collapsing column speeds up: the CFL limit shrinks the substep
+    assert sub["total"] >= 3 * 25  # at most 2 ms each over 3 x 50 ms
+    # one stable_dt check per substep (plus the start-up one)
+    assert info["solvers"]["sph"]["stable_dt"]["checks"] == sub["total"] + 1
+    with h5py.File(out / "sim.h5", "r") as f:
+        t = np.asarray(f["time"])
+    assert np.allclose(t, [0.0, 0.05, 0.1, 0.15], rtol=0, atol=1e-12)
+
+
+def test_auto_check_substep_needs_auto_substeps(tmp_path):
+    r = _run(["run", str(_scene(tmp_path, ADAPTIVE.replace("substeps: auto", "substeps: 10"))), "-o",
+              str(tmp_path / "out"), "--quiet"])
+    assert r.returncode == 65
+    assert "auto_check: substep needs sim.substeps: auto" in r.stderr

@@ -88,6 +88,9 @@ class SPHSolver(Solver):
         self.nu_max = max(m.mu / m.rho for m in self.materials)
         self.has_viscosity = self.nu_max > 0
         self.has_tension = any(m.gamma > 0 for m in self.materials)
+        # how far ahead stable_dt must look for what gravity adds: one output frame when the substep is chosen
+        # once per frame; the last substep when it is chosen before every substep (sim.auto_check: substep)
+        self.per_substep_check = scene.sim.substeps == "auto" and scene.sim.auto_check == "substep"
         self.frame_time = float(scene.sim.dt) * int(scene.output.every)
         self.g_norm = float(np.linalg.norm(scene.sim.gravity_vec))
         # rest volume of a particle [m^dim]: the lattice cell over the kernel's lattice sum, so that a lattice
@@ -227,6 +230,7 @@ class SPHSolver(Solver):
         self.stat_speed = ti.field(f, shape=nb)
         self.stat_bad = ti.field(ti.i32, shape=nb)
         self.stat_rho = ti.field(f, shape=())  # largest rho / rho0 at the last density pass
+        self.stat_vmax = ti.field(f, shape=())  # largest finite particle speed (stable_dt)
 
         self.pushout, upload_colliders, _ = make_pushout(self.scene, dim, f, self.col_fields)
         upload_colliders()
@@ -610,6 +614,19 @@ class SPHSolver(Solver):
                 x[i] = xi
                 v[i] = vi
 
+        stat_vmax = self.stat_vmax
+
+        @ti.kernel
+        def speed_max():
+            """The largest finite particle speed: one global reduction (stable_dt, before every substep with
+            sim.auto_check: substep), cheaper than frame_stats' per-body atomics."""
+            stat_vmax[None] = 0.0
+            for i in range(n):
+                vi = v[i]
+                if finite(vi):
+                    ti.atomic_max(stat_vmax[None], vi.norm())
+
+        self._speed_max = speed_max
         self._density_ratio = density_ratio
         self._push_out_initial = push_out_initial
         self._frame_stats = frame_stats
@@ -619,6 +636,8 @@ class SPHSolver(Solver):
 
     def substep(self, dt: float) -> None:
         self._substep(dt)
+        if self.per_substep_check:
+            self.frame_time = dt
         self._version += 1
 
     def frame_check(self) -> dict[str, FrameStats]:
@@ -636,9 +655,9 @@ class SPHSolver(Solver):
     def stable_dt(self) -> float:
         """min(cfl ps / (v + c), VISCOUS_SAFETY ps^2 / nu, max_substep) [s], c the WCSPH sound speed at the
         largest compression now (0 for DFSPH). v is the largest particle speed now plus what gravity can add
-        before the next check (one frame)."""
-        self._frame_stats()
-        vmax = float(np.max(self.stat_speed.to_numpy()))
+        before the next check (one frame; the last substep's length with sim.auto_check: substep)."""
+        self._speed_max()
+        vmax = float(self.stat_vmax[None])
         if not math.isfinite(vmax):
             return self.opts.max_substep
         # gravity cannot add more than one frame's g t, nor more than a free fall across the domain
