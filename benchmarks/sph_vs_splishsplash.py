@@ -225,6 +225,14 @@ def main() -> None:
             lines += ["", "Average density error: the mean over particles and frames of max(rho / rho0 - 1, 0), from "
                       "the density each code computed at the start of its last substep (Genesis: no boundary "
                       "particles, so its particles at walls are under-dense and count as zero).", ""]
+        if not gpy and args.out and Path(args.out).exists():  # keep the last Genesis section, marked as such
+            old = Path(args.out).read_text()
+            k = old.find("### B2 dam break")
+            if k >= 0:
+                kept = old[k:].rstrip("\n").split("\n")
+                if "(kept from an earlier run" not in kept[0]:
+                    kept[0] += " (kept from an earlier run with Genesis: this run had --no-genesis)"
+                lines += kept + [""]
     text = ("## SPH beside SPlisHSPlasH and Genesis\n\n"
             f"Regenerate with `python benchmarks/sph_vs_splishsplash.py` (measured {time.strftime('%Y-%m-%d')} on "
             f"{machine()}; {args.threads} threads for every code, "
