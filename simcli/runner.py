@@ -261,6 +261,9 @@ class Runner:
         self._solvers = solvers
         for s in solvers:
             s.build()
+        for s in solvers:  # what a solver changed of the scene as given (e.g. SPH particles inside a collider)
+            for w in getattr(s, "warnings", None) or []:
+                self.warn(w)
         self.timings["build_s"] = time.perf_counter() - t0
         self.info["counts"] = {s.family: s.counts() for s in solvers}
         n_particles = sum(int(s.counts().get("particles", 0)) for s in solvers)

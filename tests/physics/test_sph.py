@@ -480,3 +480,53 @@ entities:
     rep = s.info()["dfsph"]["density"]
     assert rep["average_error_percent_mean"] >= 0.0, rep
     assert rep["iterations_per_substep"] >= 2, rep
+
+
+def _overlap_scene(mode=None, solver="DFSPH", collider=((0.05, 0.03), (0.15, 0.06))):
+    d = tank(solver)
+    d["colliders"] = [{"type": "Box", "lower": list(collider[0]), "upper": list(collider[1])}]
+    if mode is not None:
+        d["solvers"]["sph"]["inside_colliders"] = mode
+    return d
+
+
+@pytest.mark.parametrize(("mode", "solver", "removes"), [(None, "DFSPH", True), ("push_out", "DFSPH", False),
+                                                         (None, "WCSPH", False), ("remove", "WCSPH", True)])
+def test_particles_sampled_inside_a_collider(ti_f32, mode, solver, removes):
+    """inside_colliders: DFSPH's default removes the particles whose centre lies inside a collider (a warning
+    and run.json say how many, and their mass); push_out (WCSPH's default) keeps them all, moved onto the
+    collider's surface."""
+    from simcli.geometry.sampling import sample_scene
+    from simcli.scene.models import Scene
+    from simcli.solvers.sph.solver import SPHSolver
+
+    scene = Scene.model_validate(_overlap_scene(mode, solver))
+    bodies = sample_scene(scene)
+    x = bodies[0].x
+    box = (x[:, 0] > 0.05) & (x[:, 0] < 0.15) & (x[:, 1] > 0.03) & (x[:, 1] < 0.06)  # the collider
+    inside = int(box.sum())
+    assert inside > 0
+    s = SPHSolver(scene, bodies)
+    if removes:
+        assert s.n == len(x) - inside
+        rm = s.info()["removed_inside_colliders"]["water"]
+        assert rm["particles"] == inside and rm["of"] == len(x)
+        assert rm["mass_kg"] == pytest.approx(inside * 1000.0 * s.V_rest)
+        assert len(s.warnings) == 1 and f"{inside} of {len(x)} particles" in s.warnings[0]
+    else:
+        assert s.n == len(x) and not s.removed and not s.warnings
+        s.build()
+        xs = s.x.to_numpy()
+        e = 1e-6
+        assert not ((xs[:, 0] > 0.05 + e) & (xs[:, 0] < 0.15 - e) & (xs[:, 1] > 0.03 + e) & (xs[:, 1] < 0.06 - e)).any()
+
+
+def test_every_particle_inside_a_collider_is_a_scene_error():
+    from simcli.errors import SceneError
+    from simcli.geometry.sampling import sample_scene
+    from simcli.scene.models import Scene
+    from simcli.solvers.sph.solver import SPHSolver
+
+    scene = Scene.model_validate(_overlap_scene(collider=((-0.1, -0.1), (0.3, 0.3))))
+    with pytest.raises(SceneError, match="every particle lies inside a collider"):
+        SPHSolver(scene, sample_scene(scene))

@@ -95,6 +95,16 @@ class SPHOptions(_Options):
         "unstable, and DFSPH's conjugate-gradient solve (clamp_pressure: false) needs Akinci's symmetric term. "
         "auto: extrapolated where it applies, akinci elsewhere.",
     )
+    inside_colliders: Literal["auto", "push_out", "remove"] = Field(
+        "auto",
+        description="Liquid particles sampled inside a collider (an entity's morph overlapping a collider). "
+        "push_out: each is moved onto the collider's surface at the start (the liquid's mass is kept; where the "
+        "overlap is deeper than a particle several land on one spot, and the liquid there starts compressed and "
+        "expands violently). remove: they are not simulated (a warning gives how many and their mass per "
+        "entity; run.json solvers.sph.removed_inside_colliders). auto: remove with DFSPH, whose density solve "
+        "diverges on particles pushed onto one spot (docs/SPH.md, gaps), push_out with WCSPH (its substep "
+        "follows the sound speed of the compression).",
+    )
     clamp_pressure: bool = Field(
         True,
         description="Free-surface treatment: no negative pressure (density below rho0 gives zero pressure; "
@@ -154,6 +164,13 @@ class SPHOptions(_Options):
         if self.wall_pressure != "auto":
             return self.wall_pressure
         return "extrapolated" if self.pressure_solver == "DFSPH" and self.clamp_pressure else "akinci"
+
+    @property
+    def inside_collider_mode(self) -> str:
+        """What happens to particles sampled inside a collider: ``inside_colliders`` with auto resolved."""
+        if self.inside_colliders != "auto":
+            return self.inside_colliders
+        return "remove" if self.pressure_solver == "DFSPH" else "push_out"
 
     @property
     def support_radius(self) -> float:

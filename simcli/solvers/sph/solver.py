@@ -56,9 +56,13 @@ class SPHSolver(Solver):
     family = "sph"
 
     def __init__(self, scene: Any, bodies: list[Body]) -> None:
-        super().__init__(scene, bodies)
         if not bodies:
             raise ValueError("SPHSolver needs at least one body")
+        self.warnings: list[str] = []
+        self.removed: dict[str, dict[str, float]] = {}
+        if scene.solvers.sph.inside_collider_mode == "remove" and scene.colliders:
+            bodies = self._remove_inside_colliders(scene, bodies)
+        super().__init__(scene, bodies)
         self.ti = ti
         self.dim = int(scene.sim.dim)
         self.precision = scene.sim.precision
@@ -108,6 +112,47 @@ class SPHSolver(Solver):
             "sum_compression_factor": 0.0,
         }
         self._built = False
+
+    def _remove_inside_colliders(self, scene: Any, bodies: list[Body]) -> list[Body]:
+        """solvers.sph.inside_colliders: remove. Drops the particles whose centre lies inside a collider
+        (signed distance < 0), per body, and records how many and their mass for the warning and run.json."""
+        from simcli.colliders import collider_specs
+        from simcli.solvers.sph.boundary import sdf_numpy
+
+        dim = int(scene.sim.dim)
+        specs = collider_specs(scene, dim)
+        out = []
+        for b in bodies:
+            inside = np.zeros(b.n, bool)
+            for spec in specs:
+                inside |= sdf_numpy(spec, b.x) < 0.0
+            k = int(inside.sum())
+            if k == 0:
+                out.append(b)
+                continue
+            if k == b.n:
+                from simcli.errors import SceneError
+
+                raise SceneError([(f"entity '{b.name}': every particle lies inside a collider; move the entity "
+                                   "out of the collider or set solvers.sph.inside_colliders: push_out")])
+            keep = ~inside
+            mass = float(k) * b.entity.material.rho * self._rest_volume(scene)
+            unit = "kg" if dim == 3 else "kg per metre of depth"
+            self.removed[b.name] = {"particles": k, "of": b.n, "mass_kg": mass}
+            self.warnings.append(
+                f"{b.name}: {k} of {b.n} particles were sampled inside a collider and removed ({mass:.4g} {unit}, "
+                f"{100.0 * k / b.n:.3g}%; solvers.sph.inside_colliders: remove, the default with DFSPH). Move the "
+                "entity out of the collider to keep them, or set inside_colliders: push_out")
+            out.append(Body(name=b.name, entity=b.entity, x=b.x[keep], v=b.v[keep], volume=b.volume[keep],
+                            mass=b.mass[keep], fixed=b.fixed[keep]))
+        return out
+
+    @staticmethod
+    def _rest_volume(scene: Any) -> float:
+        opts = scene.solvers.sph
+        dim = int(scene.sim.dim)
+        return float(opts.particle_size) ** dim / lattice_sum(float(opts.support_radius) / float(opts.particle_size),
+                                                              dim)
 
     # ------------------------------------------------------------------ build
 
@@ -775,6 +820,8 @@ class SPHSolver(Solver):
             )
             if self._built
             else None,
+            "inside_colliders": self.opts.inside_collider_mode,
+            "removed_inside_colliders": self.removed,
             "boundary": (
                 f"{self.nbp} boundary particles (Akinci et al. 2012), wall pressure: {self.opts.wall_model}"
                 + (" (Adami et al. 2012 / Band et al. 2018)" if self.opts.wall_model == "extrapolated" else "")
