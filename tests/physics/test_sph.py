@@ -467,7 +467,7 @@ sim: {dim: 2, dt: 1.0e-3, substeps: 1}
 domain: {lower: [0.0, 0.0], upper: [0.5, 0.4]}
 colliders:
   - {type: Box, lower: [0.0, 0.0], upper: [0.15, 0.08]}
-solvers: {sph: {particle_size: 0.005, pressure_solver: DFSPH}}
+solvers: {sph: {particle_size: 0.005, pressure_solver: DFSPH, inside_colliders: push_out}}
 entities:
   - name: water
     material: {type: SPH.Liquid, mu: 0.001}
@@ -530,3 +530,29 @@ def test_every_particle_inside_a_collider_is_a_scene_error():
     scene = Scene.model_validate(_overlap_scene(collider=((-0.1, -0.1), (0.3, 0.3))))
     with pytest.raises(SceneError, match="every particle lies inside a collider"):
         SPHSolver(scene, sample_scene(scene))
+
+
+def test_push_out_removes_what_it_cannot_push_into_the_domain(ti_f32):
+    """A collider flush with a domain wall: particles whose nearest collider face is that wall cannot be pushed
+    out (they would land on the wall, still inside the collider), so push_out removes them, with a warning;
+    the others are pushed onto the collider's faces inside the domain, and none stays inside."""
+    from simcli.geometry.sampling import sample_scene
+    from simcli.scene.models import Scene
+    from simcli.solvers.sph.solver import SPHSolver
+
+    scene = Scene.model_validate(_overlap_scene(solver="WCSPH", collider=((0.0, 0.0), (0.1, 0.05))))
+    bodies = sample_scene(scene)
+    x = bodies[0].x
+    inside = (x[:, 0] < 0.1) & (x[:, 1] < 0.05)
+    # nearest face: the floor (y = 0) or the left wall (x = 0) for these; the top or right face for the rest
+    # (ties go to the x faces, as the box's signed distance picks them)
+    qx, qy = np.abs(x[:, 0] - 0.05) - 0.05, np.abs(x[:, 1] - 0.025) - 0.025
+    stuck = inside & np.where(qx >= qy, x[:, 0] < 0.05, x[:, 1] < 0.025)
+    assert stuck.sum() > 0 and (inside & ~stuck).sum() > 0
+    s = SPHSolver(scene, bodies)
+    assert s.n == len(x) - int(stuck.sum())
+    assert s.removed["water"]["particles"] == int(stuck.sum())
+    assert "outside the domain" in s.warnings[0]
+    s.build()
+    xs = s.x.to_numpy()
+    assert not ((xs[:, 0] < 0.1 - 1e-6) & (xs[:, 1] < 0.05 - 1e-6)).any()

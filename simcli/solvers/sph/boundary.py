@@ -110,6 +110,44 @@ def sdf_numpy(spec, x: np.ndarray) -> np.ndarray:
     raise ValueError(spec.kind)
 
 
+def inside_normal_numpy(spec, x: np.ndarray) -> np.ndarray:
+    """The push-out direction of points inside a collider, as simcli.colliders' Taichi sdf_* functions
+    choose it (ties included), so that the host can tell where the initial push-out sends a particle."""
+    a = np.asarray(spec.a, dtype=np.float64)
+    n = np.zeros_like(x)
+    if spec.kind == "Plane":
+        n[:] = np.asarray(spec.b, dtype=np.float64)
+    elif spec.kind == "Sphere":
+        d = x - a
+        r = np.linalg.norm(d, axis=1)
+        n[:, -1] = 1.0
+        ok = r > 0
+        n[ok] = d[ok] / r[ok, None]
+    elif spec.kind == "Box":
+        b = np.asarray(spec.b, dtype=np.float64)
+        d = x - 0.5 * (a + b)
+        sgn = np.where(d < 0, -1.0, 1.0)
+        k = np.argmax(np.abs(d) - 0.5 * (b - a), axis=1)  # the first largest q: Taichi's strict >
+        n[np.arange(len(x)), k] = sgn[np.arange(len(x)), k]
+    elif spec.kind == "Cylinder":
+        d = x - a
+        ax = spec.axis
+        r = d.copy()
+        r[:, ax] = 0.0
+        rho = np.linalg.norm(r, axis=1)
+        rhat = np.zeros_like(x)
+        rhat[:, (ax + 1) % x.shape[1]] = 1.0
+        ok = rho > 0
+        rhat[ok] = r[ok] / rho[ok, None]
+        e = np.zeros_like(x)
+        e[:, ax] = np.where(d[:, ax] < 0, -1.0, 1.0)
+        cap = np.abs(d[:, ax]) - spec.half_height > rho - spec.radius
+        n = np.where(cap[:, None], e, rhat)
+    else:
+        raise ValueError(spec.kind)
+    return n
+
+
 def collider_particles(spec, lo, hi, h: float, dim: int, layers: int = LAYERS) -> BoundaryParticles:
     """Lattice points of the collider's solid within ``layers x h`` of its surface, inside the domain box
     padded by the same depth (the liquid never sees further)."""

@@ -100,7 +100,8 @@ class SPHOptions(_Options):
         description="Liquid particles sampled inside a collider (an entity's morph overlapping a collider). "
         "push_out: each is moved onto the collider's surface at the start (the liquid's mass is kept; where the "
         "overlap is deeper than a particle several land on one spot, and the liquid there starts compressed and "
-        "expands violently). remove: they are not simulated (a warning gives how many and their mass per "
+        "expands violently); one whose nearest collider face lies on or beyond a domain wall cannot be pushed "
+        "into the domain and is removed, with a warning. remove: they are not simulated (a warning gives how many and their mass per "
         "entity; run.json solvers.sph.removed_inside_colliders). auto: remove with DFSPH, whose density solve "
         "diverges on particles pushed onto one spot (docs/SPH.md, gaps), push_out with WCSPH (its substep "
         "follows the sound speed of the compression).",

@@ -60,8 +60,8 @@ class SPHSolver(Solver):
             raise ValueError("SPHSolver needs at least one body")
         self.warnings: list[str] = []
         self.removed: dict[str, dict[str, float]] = {}
-        if scene.solvers.sph.inside_collider_mode == "remove" and scene.colliders:
-            bodies = self._remove_inside_colliders(scene, bodies)
+        if scene.colliders:
+            bodies = self._place_inside_colliders(scene, bodies)
         super().__init__(scene, bodies)
         self.ti = ti
         self.dim = int(scene.sim.dim)
@@ -113,37 +113,58 @@ class SPHSolver(Solver):
         }
         self._built = False
 
-    def _remove_inside_colliders(self, scene: Any, bodies: list[Body]) -> list[Body]:
-        """solvers.sph.inside_colliders: remove. Drops the particles whose centre lies inside a collider
-        (signed distance < 0), per body, and records how many and their mass for the warning and run.json."""
+    def _place_inside_colliders(self, scene: Any, bodies: list[Body]) -> list[Body]:
+        """Particles sampled inside a collider (centre at signed distance < 0), per body, on the host before
+        anything is allocated. solvers.sph.inside_colliders: remove drops them. push_out moves each onto the
+        surface along the direction the collider's own signed distance gives (the run-time guard's,
+        simcli.colliders) and drops its inward normal velocity; a particle that this would put outside the
+        domain (a collider flush with a domain wall: it would land on the wall, still inside the collider) is
+        dropped instead. Records how many were dropped and their mass for the warning and run.json."""
         from simcli.colliders import collider_specs
-        from simcli.solvers.sph.boundary import sdf_numpy
+        from simcli.solvers.sph.boundary import inside_normal_numpy, sdf_numpy
 
         dim = int(scene.sim.dim)
         specs = collider_specs(scene, dim)
+        lo, hi = (np.asarray(v, dtype=np.float64) for v in scene.domain.bounds(dim))
+        push = scene.solvers.sph.inside_collider_mode == "push_out"
+        margin = 0.25 * float(scene.solvers.sph.particle_size)
         out = []
         for b in bodies:
-            inside = np.zeros(b.n, bool)
+            x, v = b.x.copy(), b.v.copy()
+            drop = np.zeros(b.n, bool)
             for spec in specs:
-                inside |= sdf_numpy(spec, b.x) < 0.0
-            k = int(inside.sum())
-            if k == 0:
-                out.append(b)
-                continue
+                phi = sdf_numpy(spec, x)
+                hit = np.flatnonzero((phi < 0.0) & ~drop)
+                if not push:
+                    drop[hit] = True
+                    continue
+                nrm = inside_normal_numpy(spec, x[hit])
+                target = x[hit] - phi[hit, None] * nrm
+                ok = np.all((target >= lo + margin) & (target <= hi - margin), axis=1)
+                drop[hit[~ok]] = True
+                x[hit[ok]] = target[ok]
+                vn = np.einsum("ij,ij->i", v[hit[ok]], nrm[ok])
+                v[hit[ok]] -= np.minimum(vn, 0.0)[:, None] * nrm[ok]
+            k = int(drop.sum())
             if k == b.n:
                 from simcli.errors import SceneError
 
-                raise SceneError([(f"entity '{b.name}': every particle lies inside a collider; move the entity "
-                                   "out of the collider or set solvers.sph.inside_colliders: push_out")])
-            keep = ~inside
-            mass = float(k) * b.entity.material.rho * self._rest_volume(scene)
-            unit = "kg" if dim == 3 else "kg per metre of depth"
-            self.removed[b.name] = {"particles": k, "of": b.n, "mass_kg": mass}
-            self.warnings.append(
-                f"{b.name}: {k} of {b.n} particles were sampled inside a collider and removed ({mass:.4g} {unit}, "
-                f"{100.0 * k / b.n:.3g}%; solvers.sph.inside_colliders: remove, the default with DFSPH). Move the "
-                "entity out of the collider to keep them, or set inside_colliders: push_out")
-            out.append(Body(name=b.name, entity=b.entity, x=b.x[keep], v=b.v[keep], volume=b.volume[keep],
+                hint = "" if push else " or set solvers.sph.inside_colliders: push_out"
+                msg = f"entity '{b.name}': every particle lies inside a collider; move the entity out of the collider"
+                raise SceneError([msg + hint])
+            if k:
+                mass = float(k) * b.entity.material.rho * self._rest_volume(scene)
+                unit = "kg" if dim == 3 else "kg per metre of depth"
+                self.removed[b.name] = {"particles": k, "of": b.n, "mass_kg": mass}
+                why = ("pushing them onto the collider's surface would put them outside the domain (a collider "
+                       "against a domain wall)" if push else
+                       "solvers.sph.inside_colliders: remove, the default with DFSPH")
+                self.warnings.append(
+                    f"{b.name}: {k} of {b.n} particles were sampled inside a collider and removed ({mass:.4g} "
+                    f"{unit}, {100.0 * k / b.n:.3g}%; {why}). Move the entity out of the collider to keep them"
+                    + ("" if push else ", or set inside_colliders: push_out"))
+            keep = ~drop
+            out.append(Body(name=b.name, entity=b.entity, x=x[keep], v=v[keep], volume=b.volume[keep],
                             mass=b.mass[keep], fixed=b.fixed[keep]))
         return out
 
@@ -287,7 +308,6 @@ class SPHSolver(Solver):
         self._built = True
         self._version = 0
         self._cache: dict = {}
-        self._push_out_initial()  # particles sampled inside a collider start on its surface
         self._density_only()  # the density stable_dt reads before the first substep
         self.frame_check()
 
@@ -652,13 +672,6 @@ class SPHSolver(Solver):
             for i in range(n):
                 ti.atomic_max(stat_rho[None], rho[i] / mat_rho0[mid[i]])
 
-        @ti.kernel
-        def push_out_initial():
-            for i in range(n):
-                xi, vi = pushout(x[i], v[i])
-                x[i] = xi
-                v[i] = vi
-
         stat_vmax = self.stat_vmax
 
         @ti.kernel
@@ -673,7 +686,6 @@ class SPHSolver(Solver):
 
         self._speed_max = speed_max
         self._density_ratio = density_ratio
-        self._push_out_initial = push_out_initial
         self._frame_stats = frame_stats
         self._density_only = density_only
 
