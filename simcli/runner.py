@@ -322,40 +322,31 @@ class Runner:
                 stable = min(s.stable_dt() for s in solvers)
                 substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))
             ts = time.perf_counter()
-            if adaptive:
-                # each substep as large as the limits allow now; the remaining ones of the step made equal
-                # (rem / ceil(rem / stable)) so that the step ends on its boundary without a sliver
-                substeps_now, done_t = 0, 0.0
-                while True:
+            k, done_t = 0, 0.0
+            while True:
+                if adaptive:
+                    # each substep as large as the limits allow now; the remaining ones of the step made equal
+                    # (rem / ceil(rem / stable)) so that the step ends on its boundary without a sliver
                     rem = sim.dt - done_t
                     stable = max(min(s.stable_dt() for s in solvers), sim.dt / AUTO_MAX_SUBSTEPS)
                     n_left = max(1, int(math.ceil(rem / stable * (1.0 - 1e-9))))
                     sub_dt = rem / n_left
-                    for s in solvers:
-                        s.substep(sub_dt)
-                    substeps_now += 1
-                    dt_range[0], dt_range[1] = min(dt_range[0], sub_dt), max(dt_range[1], sub_dt)
-                    done_t += sub_dt
-                    if first:
-                        for s in solvers:
-                            s.sync()
-                        self.timings["compile_s"] = time.perf_counter() - ts
-                        first = False
-                        ts = time.perf_counter()
-                    if n_left == 1:
-                        break
-            else:
-                sub_dt = sim.dt / substeps_now
+                else:
+                    n_left, sub_dt = substeps_now - k, sim.dt / substeps_now
+                for s in solvers:
+                    s.substep(sub_dt)
+                k += 1
+                done_t += sub_dt
                 dt_range[0], dt_range[1] = min(dt_range[0], sub_dt), max(dt_range[1], sub_dt)
-                for k in range(substeps_now):
+                if first:
                     for s in solvers:
-                        s.substep(sub_dt)
-                    if first:
-                        for s in solvers:
-                            s.sync()
-                        self.timings["compile_s"] = time.perf_counter() - ts
-                        first = False
-                        ts = time.perf_counter()
+                        s.sync()
+                    self.timings["compile_s"] = time.perf_counter() - ts
+                    first = False
+                    ts = time.perf_counter()
+                if n_left == 1:
+                    break
+            substeps_now = k
             for s in solvers:
                 s.sync()
             self.timings["stepping_s"] += time.perf_counter() - ts
