@@ -294,15 +294,17 @@ class Runner:
         t0 = time.perf_counter()
         attrs = {"name": self.name, "dt": sim.dt, "dim": sim.dim}
         sink.open(entity_meta, scene_text, attrs, resume_frame=(frame + 1) if ckpt is not None else None)
+        stable = self._stable_dt(solvers, sim.dt)
         if ckpt is None:
-            self._check_frame(solvers, 0, sim.dt / (substeps_now or 1))
+            # the first substep: the fixed one, or with substeps: auto the stable one (not sim.dt: a long step
+            # with auto_check: substep would make any initial speed look like a runaway)
+            self._check_frame(solvers, 0, sim.dt / substeps_now if substeps_now else min(sim.dt, stable))
             sink.write_frame(0, 0, 0.0, self._frame_data())
         self.timings["output_s"] += time.perf_counter() - t0
         self.timings["startup_s"] = time.perf_counter() - self.t_process
 
         # ---- stability warnings for a fixed substep
-        stable = min(s.stable_dt() for s in solvers)
-        if substeps_now is not None and sim.dt / substeps_now > stable:
+        if sim.substeps != "auto" and sim.dt / substeps_now > stable:
             need = int(math.ceil(sim.dt / stable))
             self.warn(f"substep {sim.dt / substeps_now:.3g} s exceeds the stability limit {stable:.3g} s "
                       f"(CFL / elastic wave speed); suggest sim.substeps >= {need} or sim.substeps: auto")
@@ -315,11 +317,13 @@ class Runner:
         t_loop = time.perf_counter()
         stepping0 = self.timings["stepping_s"]
         substeps_done = 0
-        dt_range = self._dt_range = [math.inf, 0.0]  # smallest and largest substep taken [s]
+        # smallest and largest substep taken [s] (over the whole run: a resumed run continues the checkpoint's)
+        saved = ckpt[1].get("dt_range") if ckpt is not None else None
+        dt_range = self._dt_range = [float(x) for x in saved] if saved else [math.inf, 0.0]
         while step < n_steps:
             adaptive = sim.substeps == "auto" and sim.auto_check == "substep"
             if sim.substeps == "auto" and not adaptive and (step % every == 0 or substeps_now is None):
-                stable = min(s.stable_dt() for s in solvers)
+                stable = max(self._stable_dt(solvers, sim.dt / (substeps_now or 1)), sim.dt / AUTO_MAX_SUBSTEPS)
                 substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))
             ts = time.perf_counter()
             k, done_t = 0, 0.0
@@ -328,7 +332,7 @@ class Runner:
                     # each substep as large as the limits allow now; the remaining ones of the step made equal
                     # (rem / ceil(rem / stable)) so that the step ends on its boundary without a sliver
                     rem = sim.dt - done_t
-                    stable = max(min(s.stable_dt() for s in solvers), sim.dt / AUTO_MAX_SUBSTEPS)
+                    stable = max(self._stable_dt(solvers, sub_dt if k else sim.dt), sim.dt / AUTO_MAX_SUBSTEPS)
                     n_left = max(1, int(math.ceil(rem / stable * (1.0 - 1e-9))))
                     sub_dt = rem / n_left
                 else:
@@ -371,6 +375,7 @@ class Runner:
             if interrupted or (ckpt_every and step % ckpt_every == 0 and step < n_steps):
                 t0 = time.perf_counter()
                 meta = {"step": step, "frame": frame, "time": step * sim.dt, "substeps_now": substeps_now,
+                        "dt_range": list(dt_range),
                         "substeps_hist": sub_hist[-10000:], "scene_name": self.name,
                         "timings": {"stepping_s": self.timings["stepping_s"]},
                         "particles": n_particles}
@@ -434,6 +439,14 @@ class Runner:
                                                                       for s in getattr(self, "_solvers", [])),
                                      "vertex_substeps_per_s": sps * sum(int(s.counts().get("vertices", 0))
                                                                         for s in getattr(self, "_solvers", []))})
+
+    @staticmethod
+    def _stable_dt(solvers, fallback: float) -> float:
+        """The smallest stable substep the solvers report [s]. A NaN (a solver whose state is no longer finite:
+        the frame check at the end of the frame reports it, with advice) gives ``fallback`` instead of an
+        unreadable error here."""
+        vals = [float(s.stable_dt()) for s in solvers]
+        return fallback if any(math.isnan(v) for v in vals) else min(vals)
 
     def _check_resume_meta(self, meta: dict) -> None:
         if meta.get("scene_name") not in (None, self.name):

@@ -556,3 +556,22 @@ def test_push_out_removes_what_it_cannot_push_into_the_domain(ti_f32):
     s.build()
     xs = s.x.to_numpy()
     assert not ((xs[:, 0] < 0.1 - 1e-6) & (xs[:, 1] < 0.05 - 1e-6)).any()
+
+
+def test_push_out_leaves_nothing_inside_overlapping_colliders(ti_f32):
+    """Two overlapping colliders: a particle pushed out of one into the other is removed, not left inside."""
+    from simcli.colliders import collider_specs
+    from simcli.geometry.sampling import sample_scene
+    from simcli.scene.models import Scene
+    from simcli.solvers.sph.boundary import sdf_numpy
+    from simcli.solvers.sph.solver import SPHSolver
+
+    d = _overlap_scene(solver="WCSPH", collider=((0.05, 0.03), (0.15, 0.06)))
+    d["colliders"].append({"type": "Box", "lower": [0.05, 0.05], "upper": [0.15, 0.08]})  # overlaps the first
+    scene = Scene.model_validate(d)
+    s = SPHSolver(scene, sample_scene(scene))
+    assert s.removed["water"]["particles"] > 0
+    s.build()
+    xs = s.x.to_numpy().astype(np.float64)
+    for spec in collider_specs(scene, 2):
+        assert sdf_numpy(spec, xs).min() > -1e-6

@@ -145,8 +145,10 @@ class SPHSolver(Solver):
                 x[hit[ok]] = target[ok]
                 vn = np.einsum("ij,ij->i", v[hit[ok]], nrm[ok])
                 v[hit[ok]] -= np.minimum(vn, 0.0)[:, None] * nrm[ok]
+            for spec in specs:  # pushed out of one collider into another: nothing is left inside any
+                drop |= sdf_numpy(spec, x) < -1e-6 * margin  # (the pushed ones lie on a surface, to round-off)
             k = int(drop.sum())
-            if k == b.n:
+            if k == b.n > 0:
                 from simcli.errors import SceneError
 
                 hint = "" if push else " or set solvers.sph.inside_colliders: push_out"
@@ -786,20 +788,33 @@ class SPHSolver(Solver):
     # ------------------------------------------------------------------- state
 
     def _state_fields(self) -> dict:
-        d = {"x": self.x, "v": self.v, "mass": self.mass, "mid": self.mid, "pid": self.pid}
+        # rho: the last density pass, which stable_dt reads (WCSPH's sound speed at the largest compression),
+        # so that a resumed run chooses the same substeps as an uninterrupted one
+        d = {"x": self.x, "v": self.v, "mass": self.mass, "mid": self.mid, "pid": self.pid, "rho": self.rho}
         if self.kappa is not None:
             d.update(kappa=self.kappa, kappav=self.kappav)
         return d
 
     def get_state(self) -> dict[str, np.ndarray]:
-        return {k: fld.to_numpy() for k, fld in self._state_fields().items()}
+        d = {k: fld.to_numpy() for k, fld in self._state_fields().items()}
+        d["frame_time"] = np.array([self.frame_time])  # stable_dt's look-ahead (the last substep with auto_check)
+        return d
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for k, fld in self._state_fields().items():
+            if k == "rho" and k not in state:  # checkpoints written before session 6: computed below
+                continue
             arr = np.asarray(state[k])
             if arr.shape != fld.shape + ((self.dim,) if k in ("x", "v") else ()):
-                raise ValueError(f"SPH state {k!r}: shape {arr.shape} does not fit {fld.shape}")
+                hint = ("; the scene's particle count changed (since session 6, DFSPH removes particles sampled "
+                        "inside a collider: solvers.sph.inside_colliders: push_out restores the old count)"
+                        if k == "x" else "")
+                raise ValueError(f"SPH state {k!r}: shape {arr.shape} does not fit {fld.shape}{hint}")
             fld.from_numpy(arr.astype(np.int32 if k in ("mid", "pid") else self.npf))
+        if "rho" not in state:
+            self._density_only()  # sorts every per-particle field along: after all of them are loaded
+        if "frame_time" in state and self.per_substep_check:  # checkpoints before session 6 lack it
+            self.frame_time = float(np.asarray(state["frame_time"]).reshape(-1)[0])
         self._version += 1
 
     def length_scale(self) -> float:
