@@ -326,13 +326,13 @@ class Runner:
                 stable = max(self._stable_dt(solvers, sim.dt / (substeps_now or 1)), sim.dt / AUTO_MAX_SUBSTEPS)
                 substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))
             ts = time.perf_counter()
-            k, done_t = 0, 0.0
+            k, done_t, sub_dt = 0, 0.0, sim.dt
             while True:
                 if adaptive:
                     # each substep as large as the limits allow now; the remaining ones of the step made equal
                     # (rem / ceil(rem / stable)) so that the step ends on its boundary without a sliver
                     rem = sim.dt - done_t
-                    stable = max(self._stable_dt(solvers, sub_dt if k else sim.dt), sim.dt / AUTO_MAX_SUBSTEPS)
+                    stable = max(self._stable_dt(solvers, sub_dt), sim.dt / AUTO_MAX_SUBSTEPS)
                     n_left = max(1, int(math.ceil(rem / stable * (1.0 - 1e-9))))
                     sub_dt = rem / n_left
                 else:
