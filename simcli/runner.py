@@ -320,8 +320,8 @@ class Runner:
         # smallest and largest substep taken [s] (over the whole run: a resumed run continues the checkpoint's)
         saved = ckpt[1].get("dt_range") if ckpt is not None else None
         dt_range = self._dt_range = [float(x) for x in saved] if saved else [math.inf, 0.0]
+        adaptive = sim.substeps == "auto" and sim.auto_check == "substep"
         while step < n_steps:
-            adaptive = sim.substeps == "auto" and sim.auto_check == "substep"
             if sim.substeps == "auto" and not adaptive and (step % every == 0 or substeps_now is None):
                 stable = max(self._stable_dt(solvers, sim.dt / (substeps_now or 1)), sim.dt / AUTO_MAX_SUBSTEPS)
                 substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))

@@ -99,7 +99,7 @@ class SPHSolver(Solver):
         self.g_norm = float(np.linalg.norm(scene.sim.gravity_vec))
         # rest volume of a particle [m^dim]: the lattice cell over the kernel's lattice sum, so that a lattice
         # of liquid (and of wall particles) sits at rho0 exactly
-        self.V_rest = self.ps**self.dim / lattice_sum(self.support / self.ps, self.dim)
+        self.V_rest = self._rest_volume(scene)
         self.fall_height = float(
             np.linalg.norm(self.domain_hi - self.domain_lo)
         )  # longest drop in the domain
@@ -172,6 +172,7 @@ class SPHSolver(Solver):
 
     @staticmethod
     def _rest_volume(scene: Any) -> float:
+        """Rest volume of a particle [m^dim]: the lattice cell over the kernel's lattice sum."""
         opts = scene.solvers.sph
         dim = int(scene.sim.dim)
         return float(opts.particle_size) ** dim / lattice_sum(float(opts.support_radius) / float(opts.particle_size),
@@ -297,8 +298,9 @@ class SPHSolver(Solver):
         self.body_offsets = ti.field(ti.i32, shape=nb + 1)
         self.stat_speed = ti.field(f, shape=nb)
         self.stat_bad = ti.field(ti.i32, shape=nb)
-        self.stat_rho = ti.field(f, shape=())  # largest rho / rho0 at the last density pass
-        self.stat_vmax = ti.field(f, shape=())  # largest finite particle speed (stable_dt)
+        # stable_dt's inputs, read in one transfer: the largest finite particle speed and (WCSPH) the largest
+        # rho / rho0 of the last density pass
+        self.stat_dt = ti.field(f, shape=2)
 
         self.pushout, upload_colliders, _ = make_pushout(self.scene, dim, f, self.col_fields)
         upload_colliders()
@@ -666,28 +668,24 @@ class SPHSolver(Solver):
             for i in range(n):
                 neighbours_density(i)
 
-        stat_rho = self.stat_rho
+        stat_dt = self.stat_dt
+        wcsph = self.opts.pressure_solver == "WCSPH"
 
         @ti.kernel
-        def density_ratio():
-            stat_rho[None] = 0.0
-            for i in range(n):
-                ti.atomic_max(stat_rho[None], rho[i] / mat_rho0[mid[i]])
-
-        stat_vmax = self.stat_vmax
-
-        @ti.kernel
-        def speed_max():
-            """The largest finite particle speed: one global reduction (stable_dt, before every substep with
-            sim.auto_check: substep), cheaper than frame_stats' per-body atomics."""
-            stat_vmax[None] = 0.0
+        def dt_stats():
+            """stable_dt's inputs in one launch (before every substep with sim.auto_check: substep): the largest
+            finite particle speed, and for WCSPH the largest rho / rho0 (global reductions, cheaper than
+            frame_stats' per-body atomics)."""
+            stat_dt[0] = 0.0
+            stat_dt[1] = 0.0
             for i in range(n):
                 vi = v[i]
                 if finite(vi):
-                    ti.atomic_max(stat_vmax[None], vi.norm())
+                    ti.atomic_max(stat_dt[0], vi.norm())
+                if ti.static(wcsph):
+                    ti.atomic_max(stat_dt[1], rho[i] / mat_rho0[mid[i]])
 
-        self._speed_max = speed_max
-        self._density_ratio = density_ratio
+        self._dt_stats = dt_stats
         self._frame_stats = frame_stats
         self._density_only = density_only
 
@@ -715,8 +713,8 @@ class SPHSolver(Solver):
         """min(cfl ps / (v + c), VISCOUS_SAFETY ps^2 / nu, max_substep) [s], c the WCSPH sound speed at the
         largest compression now (0 for DFSPH). v is the largest particle speed now plus what gravity can add
         before the next check (one frame; the last substep's length with sim.auto_check: substep)."""
-        self._speed_max()
-        vmax = float(self.stat_vmax[None])
+        self._dt_stats()
+        vmax, rho_ratio = (float(s) for s in self.stat_dt.to_numpy())
         if not math.isfinite(vmax):
             return self.opts.max_substep
         # gravity cannot add more than one frame's g t, nor more than a free fall across the domain
@@ -727,8 +725,7 @@ class SPHSolver(Solver):
         if self.opts.pressure_solver == "WCSPH":
             # Tait's sound speed at the largest compression: c0 (rho / rho0)^((n - 1) / 2) (overlapping
             # particles, an impact)
-            self._density_ratio()
-            ratio = max(1.0, float(self.stat_rho[None]))
+            ratio = max(1.0, rho_ratio)
             n_max = max(m.exponent for m in self.materials)
             c = self.c_max * ratio ** (0.5 * (n_max - 1.0)) if math.isfinite(ratio) else self.c_max
         limits = {"max_substep": self.opts.max_substep}
