@@ -56,6 +56,17 @@ def scene(bhm, gap, dtmax=0.0005, sy=1.0, init_dt=0.0001, stop=3.0, fps=10):
         "translation": [0, 0, 0], "scale": [1, 1, 1]
       }]
     }
+def wcsph(bhm, gap, dt):
+    """The tuned tank with SPlisHSPlasH's WCSPH (simulationMethod 0) at simcli's WCSPH defaults (Tait k = 50 kPa,
+    n = 7) and a fixed step dt (simcli's automatic step on this tank: about 0.1 ms). SPlisHSPlasH's WCSPH walls
+    push with the particle's pressure mirrored, (p_i / rho_i^2 + p_i / rho0^2) (TimeStepWCSPH.cpp)."""
+    sc = scene(bhm, gap, sy=SY, dtmax=dt, init_dt=dt)
+    c = sc["Configuration"]
+    c["simulationMethod"] = 0
+    del c["DFSPH"]
+    c["stiffness"], c["exponent"] = 50000, 7
+    c["particleAttributes"] = "velocity;density;pressure"
+    return sc
 GAP_AKINCI = 0.00557
 GAP_VOLMAP = float(sys.argv[1]) if len(sys.argv) > 1 else 0.00548   # calibrated with calib.py
 def write(name, sc): json.dump(sc, open(name, "w"), indent=2)
@@ -73,3 +84,7 @@ if __name__ == "__main__":
     for dt in (0.001, 0.002, 0.005):
         write(f"tank2d_akinci_tuned_dt{dt:g}.json", scene(0, GAP_AKINCI, sy=SY, dtmax=dt, init_dt=dt))
     write("tank2d_volmap_tuned_dt0.005.json", scene(2, GAP_VOLMAP, sy=SY, dtmax=0.005, init_dt=0.005))
+    # WCSPH (measured with wcsph_measure.py -> results_wcsph.txt)
+    write("tank2d_wcsph_akinci_tuned.json", wcsph(0, GAP_AKINCI, 0.0001))
+    write("tank2d_wcsph_akinci_tuned_dt5e-5.json", wcsph(0, GAP_AKINCI, 0.00005))
+    write("tank2d_wcsph_volmap_tuned.json", wcsph(2, GAP_VOLMAP, 0.0001))

@@ -44,7 +44,8 @@ def cb():
     t = tm.getTime(); h = tm.getTimeStepSize()
     if settle and t >= t_s and visc.getValueFloat(visc.VISCOSITY_COEFFICIENT) != nu_scene:
         visc.setValueFloat(visc.VISCOSITY_COEFFICIENT, nu_scene); print(f"[driver] t = {t:.4f}: viscosity back to {nu_scene}", flush=True)
-    steps.append((t, h, ts.getValueInt(ts.SOLVER_ITERATIONS), ts.getValueInt(ts.SOLVER_ITERATIONS_V)))
+    its = [ts.getValueInt(getattr(ts, a)) if hasattr(ts, a) else 0 for a in ("SOLVER_ITERATIONS", "SOLVER_ITERATIONS_V")]
+    steps.append((t, h, *its))  # WCSPH has no solver iterations (0)
     # SPlisHSPlasH has just exported VTK frame k+1 in this step (its own frame timing): record the state and dt
     k = len(frames)
     if os.path.exists(os.path.join(out, "vtk", f"ParticleData_Fluid_{k+1}.vtk")):
