@@ -77,6 +77,7 @@ def make_dfsph(S):
     DIV, DENS = 0, 1
 
     kgc, Lm = S.kgc, S.Lm
+    uniform = S.uniform  # one material: the pair terms in their single-material form (bitwise as before)
     wp = S.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
 
@@ -128,17 +129,26 @@ def make_dfsph(S):
     def pressure_gradient(i, k_: ti.template(), g):
         """g plus the liquid's part of the symmetric pressure gradient of the stiffness field k_ at particle i
         (before -dt): sum_j V_j (k_i + k_j) grad W_ij (with gradient_correction: (k_i L_i + k_j L_j) grad
-        W_ij). g starts with the walls' part: Akinci's BFAC k_i B_i (plus the extrapolated walls' sum)."""
+        W_ij). g starts with the walls' part: Akinci's BFAC k_i B_i (plus the extrapolated walls' sum).
+        Several materials: sum_j (V_j k_i + (m_j / rho0_i) k_j) grad W_ij, the gradient of the density
+        constraints C_i = sum_j V_j W_ij - 1 with multipliers m_i k_i, whose pair forces are opposite
+        (SPlisHSPlasH's TimeStepDFSPH: k_i + (rho0_j / rho0_i) k_j); with one material the same."""
         ki = k_[i]
         if ti.static(kgc):
             kLi = ki * Lm[i]
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
-                g += S.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ nb_g[i, k])
+                if ti.static(uniform):
+                    g += S.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ nb_g[i, k])
+                else:
+                    g += (S.volume_of(j) * kLi + (S.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * Lm[j]) @ nb_g[i, k]
         else:
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
-                g += (ki + k_[j]) * S.volume_of(j) * nb_g[i, k]
+                if ti.static(uniform):
+                    g += (ki + k_[j]) * S.volume_of(j) * nb_g[i, k]
+                else:
+                    g += (S.volume_of(j) * ki + S.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * nb_g[i, k]
         return g
 
     @ti.func

@@ -88,6 +88,16 @@ class SPHSolver(Solver):
             if b.entity.material not in self.materials:
                 self.materials.append(b.entity.material)
             self.body_mid.append(self.materials.index(b.entity.material))
+        if self.opts.pressure_solver == "DFSPH" and not self.opts.clamp_pressure and len({m.rho for m in self.materials}) > 1:
+            from simcli.errors import SceneError
+
+            msg = (
+                "solvers.sph: DFSPH with clamp_pressure: false (its conjugate-gradient solve) does not support "
+                f"liquids of different rest densities (rho: {sorted({m.rho for m in self.materials})}): its pressure "
+                "operator is symmetric only for one rest density. Use clamp_pressure: true (a free surface), "
+                "pressure_solver: WCSPH, or one rho for every SPH.Liquid"
+            )
+            raise SceneError([msg])
         self.c_max = max(math.sqrt(m.stiffness * m.exponent / m.rho) for m in self.materials)
         self.nu_max = max(m.mu / m.rho for m in self.materials)
         self.has_viscosity = self.nu_max > 0
@@ -418,7 +428,7 @@ class SPHSolver(Solver):
         row = 2 * R + 1
         from simcli.solvers.sph.dfsph import BFAC as bfac
 
-        uniform = len(self.materials) == 1
+        uniform = self.uniform = len(self.materials) == 1
         m_c = float(self.materials[0].rho * self.V_rest)
         V_c = float(self.V_rest)
 
@@ -475,12 +485,20 @@ class SPHSolver(Solver):
                     if r2 < h2 and j != i:
                         r = ti.sqrt(r2)
                         w, g = W_gradW(d, r)
-                        r_i += mass_of(j) * w
                         Vg = volume_of(j) * g
+                        if ti.static(uniform):
+                            r_i += mass_of(j) * w
+                            sumsq += Vg.dot(Vg)
+                        else:
+                            # number density rho0_i sum_j V_j W_ij (SPlisHSPlasH): continuous across an interface
+                            # of two rest densities, where the mass sum gives the lighter liquid a false excess
+                            r_i += rho0_i * volume_of(j) * w
+                            # the pressure operator's diagonal with the momentum-conserving pair force (dfsph.py):
+                            # V_j (m_i / rho0_j) |grad W_ij|^2
+                            sumsq += (mass_of(i) / mat_rho0[mid[j]]) * Vg.dot(g)
                         if ti.static(kgc):
                             Mom -= Vg.outer_product(d)
                         G += Vg
-                        sumsq += Vg.dot(Vg)
                         if cnt < K:
                             nb_j[i, cnt] = j
                             if ti.static(store_grad):
@@ -603,20 +621,41 @@ class SPHSolver(Solver):
                         ap -= mj * (dpi + p[j] / (rj * rj)) * g
                     if ti.static(has_visc or has_tension):
                         if ti.static(has_visc):
+                            vis = mj / rj  # one material: times nu_i below
+                            if ti.static(not uniform):
+                                # several materials: the pair's mean dynamic viscosity over rho_i rho_j, symmetric
+                                # in i and j so that momentum is conserved (Morris et al. 1997)
+                                vis *= 0.5 * (nu * rho0 + mat_nu[mid[j]] * mat_rho0[mid[j]]) / ri
                             if ti.static(morris):
-                                avm += (mj / rj) * (d.dot(g) / (r2 + eps_visc)) * (vi - v[j])
+                                avm += vis * (d.dot(g) / (r2 + eps_visc)) * (vi - v[j])
                             else:
-                                av += (mj / rj) * (vi - v[j]).dot(d) / (r2 + eps_visc) * g
+                                av += vis * (vi - v[j]).dot(d) / (r2 + eps_visc) * g
                         if ti.static(has_tension):  # noqa: SIM102 - compile-time, then run-time test
                             if r2 > 0:
                                 r = ti.sqrt(r2)
-                                kij = 2.0 * rho0 / (ri + rj)
-                                at -= kij * (mj * Ckern(r) / r * d + (ni - nrm[j]))
-                if ti.static(has_noslip):
-                    av += Mv[i] @ vi - mw[i]
-                a += visc_c * nu * av + gam * at + ap
-                if ti.static(morris):
-                    a += morris_c * nu * avm
+                                if ti.static(uniform):
+                                    kij = 2.0 * rho0 / (ri + rj)
+                                    at -= kij * (mj * Ckern(r) / r * d + (ni - nrm[j]))
+                                else:
+                                    # several materials: Akinci's pair term with symmetric coefficients (the
+                                    # pair's mean gamma, (rho0_i + rho0_j) / (rho_i + rho_j), the curvature term
+                                    # weighted 2 m_j / (m_i + m_j)), so that momentum is conserved; equal to
+                                    # Akinci's for equal materials
+                                    mi = mass_of(i)
+                                    kij = (0.5 * (gam + mat_gamma[mid[j]])) * (rho0 + mat_rho0[mid[j]]) / (ri + rj)
+                                    at -= kij * (mj * Ckern(r) / r * d + (2.0 * mj / (mi + mj)) * (ni - nrm[j]))
+                if ti.static(uniform):
+                    if ti.static(has_noslip):
+                        av += Mv[i] @ vi - mw[i]
+                    a += visc_c * nu * av + gam * at + ap
+                    if ti.static(morris):
+                        a += morris_c * nu * avm
+                else:  # the pair coefficients are inside av, avm and at; the walls' viscosity is the liquid's own
+                    if ti.static(has_noslip):
+                        a += visc_c * nu * (Mv[i] @ vi - mw[i])
+                    a += visc_c * av + at + ap
+                    if ti.static(morris):
+                        a += morris_c * avm
             return a
 
         @ti.func

@@ -49,6 +49,9 @@ def make_wall_pressure(S):
     Wk, h2 = S.Wk, S.h2
     gravity, rows, row_cell, overflow = S.gravity, S.rows, S.row_cell, S.overflow
     bflag = S.bflag
+    # several materials: the walls carry a pressure, the Shepard average of rho0_f k_f (plus rho0_f g . (x_b - x_f)),
+    # which liquid particle i feels as the stiffness p_b / rho0_i; with one material simply the average of k_f
+    uniform, mat_rho0, mid = S.uniform, S.mat_rho0, S.mid
 
     bval = ti.field(f, shape=nbp)  # the boundary particle's k increment of the current iteration
     bhyd = ti.field(f, shape=nbp)  # its hydrostatic k of the substep
@@ -81,7 +84,10 @@ def make_wall_pressure(S):
                     if r2 < h2:
                         w = Wk(ti.sqrt(r2))
                         sw += w
-                        sh += w * gravity[None].dot(d)
+                        if ti.static(uniform):
+                            sh += w * gravity[None].dot(d)
+                        else:
+                            sh += w * mat_rho0[mid[j]] * gravity[None].dot(d)
                         if cnt < KB:
                             bnb_j[b, cnt] = j
                             bnb_w[b, cnt] = w
@@ -104,7 +110,11 @@ def make_wall_pressure(S):
             b = active[t]
             acc = ti.cast(0.0, f)
             for k in range(bnb_cnt[b]):
-                acc += bnb_w[b, k] * src[bnb_j[b, k]]
+                j = bnb_j[b, k]
+                if ti.static(uniform):
+                    acc += bnb_w[b, k] * src[j]
+                else:
+                    acc += bnb_w[b, k] * mat_rho0[mid[j]] * src[j]
             bval[b] = acc
 
     @ti.func
@@ -114,6 +124,8 @@ def make_wall_pressure(S):
         out = ti.Vector.zero(f, dim)
         for k in range(nb_cnt[i], nbw_end[i]):
             out += val[nb_j[i, k]] * nb_g[i, k]
+        if ti.static(not uniform):
+            out /= mat_rho0[mid[i]]
         return out
 
     return SimpleNamespace(bval=bval, bhyd=bhyd, mark=mark, update=update, wall_sum=wall_sum)
