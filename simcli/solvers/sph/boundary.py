@@ -7,7 +7,8 @@ Walls are ``LAYERS`` lattice layers of spacing ``particle_size`` outside each fa
 (with edges and corners), aligned with the face, so that liquid on a lattice next to a wall sees one
 continuous lattice: its density is rho0 to the accuracy of the kernel's lattice sum (1e-4), the
 condition Akinci's volume correction approximates for a single layer. Colliders are filled with the
-lattice points of their solid that lie within ``LAYERS x particle_size`` of the surface. Two layers
+lattice points of their solid that lie within ``LAYERS x particle_size`` of the surface (a Box's lattice
+fitted to its size, as the walls', so that each face has its first layer half a spacing inside). Two layers
 cover the support radius (2 x particle_size) of a liquid particle at the surface; a larger
 ``support_factor`` gets as many layers as it needs.
 
@@ -150,37 +151,42 @@ def inside_normal_numpy(spec, x: np.ndarray) -> np.ndarray:
 
 def collider_particles(spec, lo, hi, h: float, dim: int, layers: int = LAYERS) -> BoundaryParticles:
     """Lattice points of the collider's solid within ``layers x h`` of its surface, inside the domain box
-    padded by the same depth (the liquid never sees further)."""
+    padded by the same depth (the liquid never sees further). A Box gets a lattice fitted to its size, as the
+    domain walls do: per axis a whole number of cells of spacing close to h (the box's extent over round(extent
+    / h)), points at the cells' centres, volume the product of the spacings, so that every face has its first
+    layer half a spacing inside it (a lattice of spacing h anchored at one face left the far face's first layer
+    anywhere between 0 and h inside: a liquid there saw up to 2.4x the wall density of the near face)."""
     pad = layers * h
     blo = np.asarray(lo, dtype=np.float64) - pad
     bhi = np.asarray(hi, dtype=np.float64) + pad
-    if spec.kind == "Box":  # align the lattice with the box faces
-        a, b = np.asarray(spec.a), np.asarray(spec.b)
-        blo, bhi = np.maximum(blo, a), np.minimum(bhi, b)
-        anchor = a
-    elif spec.kind == "Plane":  # align layers with the plane: a lattice point at half a spacing inside
-        anchor = np.asarray(spec.a) - 0.5 * h * np.asarray(spec.b)
-    else:
-        anchor = np.asarray(spec.a) + 0.5 * h
-    if np.any(bhi <= blo):
-        return BoundaryParticles(np.zeros((0, dim)), np.zeros(0), np.zeros((0, dim)), np.zeros(0, bool))
-    i0 = np.floor((blo - anchor) / h).astype(np.int64)
-    i1 = np.ceil((bhi - anchor) / h).astype(np.int64)
+    empty = BoundaryParticles(np.zeros((0, dim)), np.zeros(0), np.zeros((0, dim)), np.zeros(0, bool))
     if spec.kind == "Box":
-        i0 = np.floor((blo - anchor) / h - 1e-9).astype(np.int64)
-    axes = [
-        anchor[d] + h * (np.arange(i0[d], i1[d] + 1) + (0.5 if spec.kind == "Box" else 0.0))
-        for d in range(dim)
-    ]
-    axes = [ax[(ax >= blo[d] - 1e-12) & (ax <= bhi[d] + 1e-12)] for d, ax in enumerate(axes)]
+        a, b = np.asarray(spec.a, dtype=np.float64), np.asarray(spec.b, dtype=np.float64)
+        axes, vol = [], 1.0
+        for d in range(dim):
+            n = max(1, int(np.floor((b[d] - a[d]) / h + 0.5)))
+            sp = (b[d] - a[d]) / n
+            ax = a[d] + sp * (np.arange(n) + 0.5)
+            axes.append(ax[(ax >= blo[d] - 1e-12) & (ax <= bhi[d] + 1e-12)])
+            vol *= sp
+    else:
+        if spec.kind == "Plane":  # align layers with the plane: a lattice point at half a spacing inside
+            anchor = np.asarray(spec.a) - 0.5 * h * np.asarray(spec.b)
+        else:
+            anchor = np.asarray(spec.a) + 0.5 * h
+        i0 = np.floor((blo - anchor) / h).astype(np.int64)
+        i1 = np.ceil((bhi - anchor) / h).astype(np.int64)
+        axes = [anchor[d] + h * np.arange(i0[d], i1[d] + 1) for d in range(dim)]
+        axes = [ax[(ax >= blo[d] - 1e-12) & (ax <= bhi[d] + 1e-12)] for d, ax in enumerate(axes)]
+        vol = h**dim
     if any(len(ax) == 0 for ax in axes):
-        return BoundaryParticles(np.zeros((0, dim)), np.zeros(0), np.zeros((0, dim)), np.zeros(0, bool))
+        return empty
     grids = np.meshgrid(*axes, indexing="ij")
     x = np.stack([g.ravel() for g in grids], axis=1)
     d = sdf_numpy(spec, x)
     x = x[(d < 0) & (d >= -pad)]
     n = len(x)
-    return BoundaryParticles(x, np.full(n, h**dim), np.zeros((n, dim)), np.full(n, spec.contact == "sticky"))
+    return BoundaryParticles(x, np.full(n, vol), np.zeros((n, dim)), np.full(n, spec.contact == "sticky"))
 
 
 def sample_boundary(scene, dim: int, h: float, support: float | None = None) -> BoundaryParticles:
