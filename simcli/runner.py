@@ -26,6 +26,7 @@ from simcli.errors import (
     EXIT_USAGE,
     NumericalError,
     OutputError,
+    SceneError,
     SimcliError,
 )
 from simcli.geometry.mesh import MeshError
@@ -283,7 +284,14 @@ class Runner:
             state, meta = ckpt
             self._check_resume_meta(meta)
             for s in solvers:
-                s.set_state({k.split("/", 1)[1]: v for k, v in state.items() if k.startswith(s.family + "/")})
+                try:
+                    s.set_state({k.split("/", 1)[1]: v for k, v in state.items() if k.startswith(s.family + "/")})
+                except (KeyError, ValueError) as e:  # a checkpoint of another scene: say so, not a traceback
+                    what = f"missing {e}" if isinstance(e, KeyError) else str(e)
+                    msg = (f"--resume: the checkpoint in {self.out / 'checkpoints'} does not fit this scene "
+                           f"({s.family}: {what}). Resume with the scene that wrote it, or start afresh "
+                           "(another -o, or without --resume after removing the folder)")
+                    raise SceneError([msg]) from None
             step = int(meta["step"])
             frame = int(meta["frame"])
             substeps_now = meta.get("substeps_now", substeps_now)
@@ -294,7 +302,9 @@ class Runner:
         t0 = time.perf_counter()
         attrs = {"name": self.name, "dt": sim.dt, "dim": sim.dim}
         sink.open(entity_meta, scene_text, attrs, resume_frame=(frame + 1) if ckpt is not None else None)
-        stable = self._stable_dt(solvers, sim.dt)
+        # the stable substep for the frame-0 check and the fixed-substep warning (not asked again on a resumed
+        # auto run, whose check counts then match an uninterrupted run's)
+        stable = self._stable_dt(solvers, sim.dt) if ckpt is None or sim.substeps != "auto" else sim.dt
         if ckpt is None:
             # the first substep: the fixed one, or with substeps: auto the stable one (not sim.dt: a long step
             # with auto_check: substep would make any initial speed look like a runaway)

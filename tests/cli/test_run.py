@@ -274,6 +274,21 @@ def test_auto_check_substep_resume_matches_uninterrupted(tmp_path):
     a_info, b_info = (json.loads((d / "run.json").read_text()) for d in (ref, out))
     assert b_info["substeps"]["total"] == a_info["substeps"]["total"]
     assert b_info["substeps"]["dt_min_s"] == a_info["substeps"]["dt_min_s"]
+    # the solver's statistics cover the whole run, not only what came after the resume (session 7)
+    assert b_info["solvers"]["sph"]["stable_dt"] == a_info["solvers"]["sph"]["stable_dt"]
     with h5py.File(ref / "sim.h5", "r") as a, h5py.File(out / "sim.h5", "r") as b:
         assert list(a["step"][...]) == list(b["step"][...]) == [0, 1, 2, 3, 4]
         np.testing.assert_array_equal(b["entities/water/position"][...], a["entities/water/position"][...])
+
+
+def test_resume_with_a_changed_scene_is_a_clear_error(tmp_path):
+    """--resume with a scene whose particle count no longer fits the checkpoint: exit 65 and a message that
+    says what to do, not an internal error with a traceback."""
+    text = ADAPTIVE.replace("output: {every: 1,", "checkpoint: {every: 1, keep: 10}\noutput: {every: 1,")
+    out = tmp_path / "out"
+    r = _run(["run", str(_scene(tmp_path, text)), "-o", str(out), "-q"])
+    assert r.returncode == 0, r.stderr
+    changed = _scene(tmp_path, text.replace("particle_size: 0.01", "particle_size: 0.02"))
+    r = _run(["run", str(changed), "-o", str(out), "-q", "--resume"])
+    assert r.returncode == 65, r.stderr
+    assert "does not fit this scene" in r.stderr and "Traceback" not in r.stderr

@@ -189,6 +189,19 @@ def test_two_liquids_layered_start_at_rest_density(ti_f32):
     assert np.abs(oil["density"][near(oil)] / 800.0 - 1.0).max() < 2e-3
 
 
+def test_wcsph_frame0_pressure_is_tait_of_the_initial_density(ti_f32):
+    """WCSPH computes its pressure inside the substep; frame 0 (before any substep) reports Tait's equation of
+    state on the initial density, so a compressed start shows its pressure (it reported zeros before
+    session 7). Two overlapping blocks: about twice the rest density where they overlap."""
+    d = two_liquids("WCSPH", {"mu": 0.01}, {"mu": 0.01})
+    d["entities"][1]["morph"] = {"type": "Box", "lower": [0.45, 0.4], "upper": [0.6, 0.6]}
+    s, _ = make(d)
+    e = s.entity_arrays("b", ["density", "pressure"])
+    want = np.maximum(50000.0 * ((e["density"].astype(np.float64) / 1000.0) ** 7 - 1.0), 0.0)
+    assert e["pressure"].max() > 1e5  # the overlap is compressed
+    np.testing.assert_allclose(e["pressure"], want, rtol=1e-4, atol=1e-2)
+
+
 def test_dfsph_cg_rejects_two_rest_densities(ti_f32):
     """DFSPH's conjugate-gradient solve (clamp_pressure: false) needs one rest density: a scene error that
     says what to change, not a wrong answer."""

@@ -19,6 +19,7 @@ normals, with the symmetric correction factor 2 rho0 / (rho_i + rho_j)).
 Particles are stored in cell order (``pid`` maps back to the entity order the writers get).
 """
 
+import json
 import math
 from typing import Any
 
@@ -791,17 +792,27 @@ class SPHSolver(Solver):
             return self.x.to_numpy()
         if key == "velocity":
             return self.v.to_numpy()
-        if key == "density":
-            if self._version == 0:
-                self._density_only()  # before the first substep: the initial density
+        if key == "density":  # before the first substep: the density build() computed
             return self.rho.to_numpy()
         if key == "pressure":
             if self._version == 0 and self.opts.pressure_solver == "WCSPH":
-                return np.zeros(self.n, self.npf)
+                return self._initial_tait_pressure()
             return self.p.to_numpy()
         if key == "material_id":
             return self.mid.to_numpy()
         raise KeyError(f"unknown SPH output field {key!r}; known: {', '.join(OUTPUT_FIELDS)}")
+
+    def _initial_tait_pressure(self) -> np.ndarray:
+        """WCSPH's pressure before the first substep: Tait's equation of state on build()'s density (the substep
+        computes it on the fly), so that frame 0 shows the pressure of a start that is not at rest density."""
+        mid = self.mid.to_numpy()
+        rho0 = np.array([m.rho for m in self.materials])[mid]
+        k = np.array([m.stiffness for m in self.materials])[mid]
+        ex = np.array([m.exponent for m in self.materials])[mid]
+        p = k * ((self.rho.to_numpy().astype(np.float64) / rho0) ** ex - 1.0)
+        if self.opts.clamp_pressure:
+            p = np.maximum(p, 0.0)
+        return (p + float(self.opts.background_pressure)).astype(self.npf)
 
     def _full(self, key: str) -> np.ndarray:
         hit = self._cache.get(key)
@@ -834,6 +845,10 @@ class SPHSolver(Solver):
     def get_state(self) -> dict[str, np.ndarray]:
         d = {k: fld.to_numpy() for k, fld in self._state_fields().items()}
         d["frame_time"] = np.array([self.frame_time])  # stable_dt's look-ahead (the last substep with auto_check)
+        # run.json's solver statistics (DFSPH iterations and errors, what set the substeps, neighbour-list
+        # overflow), so that a resumed run reports the whole run, not what came after the resume (JSON bytes)
+        stats = {"dfsph": self.dfsph_stats.d, "dt_limits": self.dt_limits, "overflow": int(self.overflow[None])}
+        d["run_stats"] = np.frombuffer(json.dumps(stats).encode("utf-8"), dtype=np.uint8)
         return d
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
@@ -851,6 +866,11 @@ class SPHSolver(Solver):
             self._density_only()  # sorts every per-particle field along: after all of them are loaded
         if "frame_time" in state and self.per_substep_check:  # checkpoints before session 6 lack it
             self.frame_time = float(np.asarray(state["frame_time"]).reshape(-1)[0])
+        if "run_stats" in state:  # checkpoints before session 7 lack it: statistics restart at the resume
+            stats = json.loads(np.asarray(state["run_stats"], dtype=np.uint8).tobytes().decode("utf-8"))
+            self.dfsph_stats.d = stats["dfsph"]
+            self.dt_limits = stats["dt_limits"]
+            self.overflow[None] = int(stats["overflow"])
         self._version += 1
 
     def length_scale(self) -> float:
