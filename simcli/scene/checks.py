@@ -196,6 +196,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         sf_cells = math.prod(n_sf)
         sf_mat = next(e.material for e in s.entities if e.family == "SF")
         need += estimate_bytes(s.solvers.sf, sf_mat, n_sf, s.sim.precision)
+    n_bnd = sph_cells = 0
     if "SPH" in s.families:
         # boundary particles: layers covering the kernel support outside every face (colliders add less)
         ext = [hi[a] - lo[a] for a in range(dim)]
@@ -230,9 +231,13 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             f"scene too large: needs about {need / 2**30:.1f} GiB ({sf_cells:,} SF grid cells"
             f"{f', {n_particles:,} particles' if n_particles else ''}) but only {avail / 2**30:.1f} GiB is "
             f"available; lower solvers.sf.resolution")
+    elif need > MEMORY_FRACTION * avail and "SPH" in s.families and "MPM" not in s.families:
+        err(("solvers", "sph", "particle_size"),
+            f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {n_bnd:,} boundary "
+            f"particles, {sph_cells:,} neighbour-grid cells) but only {avail / 2**30:.1f} GiB is available; raise "
+            f"solvers.sph.particle_size or shrink the domain")
     elif need > MEMORY_FRACTION * avail:
-        err(("solvers", "mpm", "grid_density") if "MPM" in s.families
-            else ("solvers", "sph", "particle_size") if "SPH" in s.families else ("entities",),
+        err(("solvers", "mpm", "grid_density") if "MPM" in s.families else ("entities",),
             f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {cells:,} grid "
             f"nodes) but only {avail / 2**30:.1f} GiB is available; lower solvers.mpm.grid_density, raise "
             f"particle_size or shrink the domain")

@@ -131,3 +131,21 @@ def test_example_configs_validate():
         r = CliRunner().invoke(cli, ["validate", "-q", str(f)])
         assert r.exit_code == 0, (f, r.output)
         assert f.read_text().startswith("# yaml-language-server: $schema="), f
+
+
+def test_sph_scene_too_large_names_the_sph_setting(tmp_path):
+    """An SPH scene too large for memory: the error names solvers.sph.particle_size and counts boundary particles
+    and neighbour-grid cells, not MPM's grid."""
+    text = """version: 1
+sim: {dim: 3, dt: 1.0e-3, substeps: 1, duration: 0.01}
+domain: {lower: [0, 0, 0], upper: [1, 1, 1]}
+solvers: {sph: {particle_size: 0.0005}}
+entities:
+  - name: water
+    material: {type: SPH.Liquid}
+    morph: {type: Box, lower: [0, 0, 0], upper: [1, 1, 0.5]}
+"""
+    code, out, _ = _validate(tmp_path, text)
+    assert code == 65, out
+    assert "solvers.sph.particle_size: scene too large" in out and "boundary particles" in out, out
+    assert "mpm" not in out

@@ -511,6 +511,17 @@ def test_extrapolated_wall_pressure_balances_the_wall_layer(ti_f32, wall):
         assert speed < 0.005, speed
 
 
+def test_background_pressure_needs_a_confined_liquid():
+    """A background pressure with a free surface pushes the surface particles off: a configuration error."""
+    from pydantic import ValidationError
+
+    from simcli.solvers.sph.config import SPHOptions
+
+    with pytest.raises(ValidationError, match="background_pressure is for a liquid that fills a closed box"):
+        SPHOptions(pressure_solver="WCSPH", background_pressure=100.0)
+    SPHOptions(pressure_solver="WCSPH", background_pressure=100.0, clamp_pressure=False)
+
+
 def test_extrapolated_wall_pressure_needs_dfsph_with_free_surface():
     from pydantic import ValidationError
 

@@ -157,6 +157,12 @@ class SPHOptions(_Options):
                 "explicit pressure it made a tank at rest unstable; DFSPH's conjugate-gradient solve for "
                 "clamp_pressure: false needs a symmetric operator): set wall_pressure: akinci"
             )
+        if self.background_pressure > 0 and self.clamp_pressure:
+            raise ValueError(
+                "background_pressure is for a liquid that fills a closed box (clamp_pressure: false): with a free "
+                "surface (clamp_pressure: true) it pushes the surface particles off the liquid. Set "
+                "clamp_pressure: false or background_pressure: 0"
+            )
         return self
 
     @property
@@ -199,8 +205,10 @@ class SPHLiquid(_Material):
     gamma: float = Field(
         0.0,
         ge=0,
-        description="Surface tension / cohesion coefficient [N/m] of Akinci et al. (2013) (cohesion kernel "
-        "plus curvature term); 0 disables it.",
+        description="Surface tension / cohesion coefficient gamma of Akinci et al. (2013) (cohesion kernel plus "
+        "curvature term; 0 disables it). An empirical coefficient of their force model, not a physical "
+        "surface tension in N/m: its effect depends on the particle size (and in 2D on the kernel's "
+        "normalisation), so calibrate it against a measured quantity (a drop's oscillation, a contact angle).",
     )
 
 
