@@ -619,7 +619,15 @@ class SPHSolver(Solver):
                     rj = rho[j]
                     mj = mass_of(j)
                     if ti.static(with_pressure):
-                        ap -= mj * (dpi + p[j] / (rj * rj)) * g
+                        if ti.static(uniform):
+                            ap -= mj * (dpi + p[j] / (rj * rj)) * g
+                        else:
+                            # several materials: Solenthaler & Pajarola's (2008) density-contrast form,
+                            # -(1 / m_i) sum_j (p_i / delta_i^2 + p_j / delta_j^2) grad W with delta = rho / m, a
+                            # consistent -grad p / rho_i across an interface (m_j p_j / rho_j^2 weighted the
+                            # lighter liquid's pressure by rho_i / rho_j there); the same for one material
+                            mi = mass_of(i)
+                            ap -= (mi * dpi + (mj * mj / mi) * p[j] / (rj * rj)) * g
                     if ti.static(has_visc or has_tension):
                         if ti.static(has_visc):
                             vis = mj / rj  # one material: times nu_i below
