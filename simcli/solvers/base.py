@@ -33,6 +33,17 @@ class FrameStats:
     n_bad: int  # number of particles with a non-finite position or velocity
 
 
+def frame_stats_per_body(names, speed, bad) -> dict[str, FrameStats]:
+    """FrameStats of each named body from its largest speed ``speed[k]`` and its count of non-finite
+    particles ``bad[k]`` (k: the name's position); a body with any bad particle reports speed inf."""
+    out = {}
+    for k, name in enumerate(names):
+        nbad = int(bad[k])
+        out[name] = FrameStats(finite=nbad == 0, max_speed=float(speed[k]) if nbad == 0 else float("inf"),
+                               n_bad=nbad)
+    return out
+
+
 @dataclass
 class Body:
     """One entity's sampled initial state (numpy, float64).

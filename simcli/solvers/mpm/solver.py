@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body
 from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, elastic_moduli, law_key
 from simcli.solvers.taichi_funcs import make_body_of, make_finite
@@ -713,14 +713,8 @@ class MPMSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        speed = self.stat_speed.to_numpy()
-        bad = self.stat_bad.to_numpy()
-        out = {}
-        for k, b in enumerate(self.bodies):
-            nbad = int(bad[k])
-            out[b.name] = FrameStats(finite=nbad == 0, max_speed=float(speed[k]) if nbad == 0 else float("inf"),
-                                     n_bad=nbad)
-        return out
+        return frame_stats_per_body([b.name for b in self.bodies], self.stat_speed.to_numpy(),
+                                    self.stat_bad.to_numpy())
 
     def stable_dt(self) -> float:
         """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p, viscosity limit) [s]; one reduction

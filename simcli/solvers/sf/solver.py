@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body
 from simcli.solvers.sf.advection import Advector
 from simcli.solvers.sf.boundary import Boundary
 from simcli.solvers.sf.diffusion import Diffusion
@@ -265,10 +265,8 @@ class SFSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        st = self.stats.to_numpy()
-        nbad = int(st[1])
-        return {self.name: FrameStats(finite=nbad == 0, max_speed=float(st[0]) if nbad == 0 else float("inf"),
-                                      n_bad=nbad)}
+        st = self.stats.to_numpy()  # [max speed, non-finite cells]
+        return frame_stats_per_body([self.name], st[0:1], st[1:2])
 
     def max_speed(self) -> float:
         self._frame_stats()

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body
 from simcli.solvers.sph.boundary import make_pushout, sample_boundary
 from simcli.solvers.sph.dfsph import SolveStats, make_dfsph
 from simcli.solvers.sph.kernels import (
@@ -699,15 +699,8 @@ class SPHSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        speed = self.stat_speed.to_numpy()
-        bad = self.stat_bad.to_numpy()
-        out = {}
-        for k, b in enumerate(self.bodies):
-            nbad = int(bad[k])
-            out[b.name] = FrameStats(
-                finite=nbad == 0, max_speed=float(speed[k]) if nbad == 0 else float("inf"), n_bad=nbad
-            )
-        return out
+        return frame_stats_per_body([b.name for b in self.bodies], self.stat_speed.to_numpy(),
+                                    self.stat_bad.to_numpy())
 
     def stable_dt(self) -> float:
         """min(cfl ps / (v + c), VISCOUS_SAFETY ps^2 / nu, max_substep) [s], c the WCSPH sound speed at the
