@@ -44,6 +44,14 @@ def frame_stats_per_body(names, speed, bad) -> dict[str, FrameStats]:
     return out
 
 
+def upload_state_array(fld, state: dict, key: str, shape: tuple, dtype, family: str) -> None:
+    """``fld.from_numpy(state[key])`` as ``dtype``, after checking that its shape is ``shape`` (set_state)."""
+    arr = np.ascontiguousarray(state[key], dtype=dtype)
+    if arr.shape != shape:
+        raise ValueError(f"{family} state {key!r}: shape {arr.shape}, expected {shape}")
+    fld.from_numpy(arr)
+
+
 @dataclass
 class Body:
     """One entity's sampled initial state (numpy, float64).

@@ -15,7 +15,7 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.geometry.regions import points_in_regions, points_in_shape
-from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
 from simcli.solvers.fem.mesh import boundary_faces, mesh_for_entity, signed_volumes
 from simcli.solvers.fem.models import LAWS, lame_for
 from simcli.solvers.taichi_funcs import make_body_frame_stats
@@ -504,10 +504,7 @@ class FEMSolver(Solver):
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("x", self.x), ("v", self.v)):
-            arr = np.ascontiguousarray(state[key], dtype=self.npf)
-            if arr.shape != (self.n, 3):
-                raise ValueError(f"FEM state {key!r}: shape {arr.shape}, expected {(self.n, 3)}")
-            fld.from_numpy(arr)
+            upload_state_array(fld, state, key, (self.n, 3), self.npf, "FEM")
         if "time" in state:
             self.time = float(np.asarray(state["time"]).reshape(-1)[0])
         self._version += 1

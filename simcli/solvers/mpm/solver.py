@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
 from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, elastic_moduli, law_key
 from simcli.solvers.taichi_funcs import make_body_of, make_finite
@@ -783,10 +783,7 @@ class MPMSolver(Solver):
         if H is None or not np.array_equal(F, np.eye(self.dim) + np.asarray(H, dtype=np.float64)):
             state = dict(state, H=F - np.eye(self.dim))
         for key, fld in (("x", self.x), ("v", self.v), ("C", self.C), ("H", self.F)):
-            arr = np.ascontiguousarray(state[key], dtype=npf)
-            if arr.shape != shapes[key]:
-                raise ValueError(f"MPM state {key!r}: shape {arr.shape}, expected {shapes[key]}")
-            fld.from_numpy(arr)
+            upload_state_array(fld, state, key, shapes[key], npf, "MPM")
         for law in self.laws:
             law.set_state(state)
         if "time" in state:

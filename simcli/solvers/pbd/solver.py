@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
 from simcli.solvers.pbd.topology import colour, fixed_vertices, mesh_for_entity
 from simcli.solvers.taichi_funcs import make_body_frame_stats
 
@@ -596,10 +596,7 @@ class PBDSolver(Solver):
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("x", self.x), ("v", self.v)):
-            arr = np.ascontiguousarray(state[key], dtype=self.npf)
-            if arr.shape != (self.n, 3):
-                raise ValueError(f"PBD state {key!r}: shape {arr.shape}, expected {(self.n, 3)}")
-            fld.from_numpy(arr)
+            upload_state_array(fld, state, key, (self.n, 3), self.npf, "PBD")
         self.time = float(np.asarray(state.get("time", [0.0])).reshape(-1)[0])
         self.last_dt = float(np.asarray(state.get("last_dt", [0.0])).reshape(-1)[0])
 

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
 from simcli.solvers.sf.advection import Advector
 from simcli.solvers.sf.boundary import Boundary
 from simcli.solvers.sf.diffusion import Diffusion
@@ -416,10 +416,7 @@ class SFSolver(Solver):
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("velocity", self.vel), ("scalars", self.scalars), ("pressure", self.pressure)):
-            arr = np.ascontiguousarray(state[key], dtype=self.npf)
-            if arr.shape != fld.shape:
-                raise ValueError(f"SF state {key!r}: shape {arr.shape}, expected {fld.shape}")
-            fld.from_numpy(arr)
+            upload_state_array(fld, state, key, fld.shape, self.npf, "SF")
         if "time" in state:
             self.time = float(np.asarray(state["time"]).reshape(-1)[0])
         self._version += 1
