@@ -304,16 +304,21 @@ class SFSolver(Solver):
     def _cell(self, fld) -> np.ndarray:
         return fld.to_numpy().astype(np.float64)[(slice(1, -1),) * self.dim]
 
+    def _cell_faces(self, d: int) -> tuple[tuple, tuple]:
+        """Index tuples picking, from an array of the faces normal to axis d, each cell's low and high face."""
+        lo = [slice(None)] * self.dim
+        hi = [slice(None)] * self.dim
+        lo[d] = slice(0, -1)
+        hi[d] = slice(1, None)
+        return tuple(lo), tuple(hi)
+
     def cell_velocity(self) -> np.ndarray:
         """Velocity at the cell centres (mean of the two faces), shape n + (dim,), x y z index order."""
         comps = []
         for d in range(self.dim):
             F = self._faces(d)
-            lo = [slice(None)] * self.dim
-            hi = [slice(None)] * self.dim
-            lo[d] = slice(0, -1)
-            hi[d] = slice(1, None)
-            comps.append(0.5 * (F[tuple(lo)] + F[tuple(hi)]))
+            lo, hi = self._cell_faces(d)
+            comps.append(0.5 * (F[lo] + F[hi]))
         return np.stack(comps, axis=-1)
 
     def divergence(self) -> np.ndarray:
@@ -321,11 +326,8 @@ class SFSolver(Solver):
         div = np.zeros(self.layout.n)
         for d in range(self.dim):
             F = self._faces(d)
-            lo = [slice(None)] * self.dim
-            hi = [slice(None)] * self.dim
-            lo[d] = slice(0, -1)
-            hi[d] = slice(1, None)
-            div += (F[tuple(hi)] - F[tuple(lo)]) / self.layout.dx[d]
+            lo, hi = self._cell_faces(d)
+            div += (F[hi] - F[lo]) / self.layout.dx[d]
         div[self.layout.flags[(slice(1, -1),) * self.dim] == SOLID] = 0.0
         return div
 
