@@ -513,7 +513,9 @@ class MPMSolver(Solver):
                     node_update(ti.Vector([i, j]), dt)
 
         @ti.func
-        def g2p(dt):
+        def particle_pass(dt, move: ti.template()):
+            """The node box [lo, hi) of each chunk's particles (of all of them without chunks), after
+            moving each particle by g2p first when ``move``."""
             if ti.static(chunked):
                 for j in range(T * CHUNK_STRIDE):
                     t = chunk_of(j)
@@ -521,7 +523,8 @@ class MPMSolver(Solver):
                         lo = ti.Vector([big] * dim)
                         hi = ti.Vector([-big] * dim)
                         for p in range(chunk_start[t], chunk_start[t + 1]):
-                            g2p_particle(p, dt)
+                            if ti.static(move):
+                                g2p_particle(p, dt)
                             bp = particle_base(p)
                             lo = ti.min(lo, bp)
                             hi = ti.max(hi, bp)
@@ -531,11 +534,16 @@ class MPMSolver(Solver):
                 bbox[0, 0] = ti.Vector([big] * dim)
                 bbox[0, 1] = ti.Vector([-big] * dim)
                 for p in range(n):
-                    g2p_particle(p, dt)
+                    if ti.static(move):
+                        g2p_particle(p, dt)
                     bp = particle_base(p)
                     for d in ti.static(range(dim)):
                         ti.atomic_min(bbox[0, 0][d], bp[d])
                         ti.atomic_max(bbox[0, 1][d], bp[d] + 3)
+
+        @ti.func
+        def g2p(dt):
+            particle_pass(dt, True)
 
         @ti.kernel
         def substep(dt: f):
@@ -562,26 +570,7 @@ class MPMSolver(Solver):
 
         @ti.kernel
         def compute_bbox():
-            if ti.static(chunked):
-                for j in range(T * CHUNK_STRIDE):
-                    t = chunk_of(j)
-                    if t >= 0:
-                        lo = ti.Vector([big] * dim)
-                        hi = ti.Vector([-big] * dim)
-                        for p in range(chunk_start[t], chunk_start[t + 1]):
-                            bp = particle_base(p)
-                            lo = ti.min(lo, bp)
-                            hi = ti.max(hi, bp)
-                        bbox[t, 0] = lo
-                        bbox[t, 1] = hi + 3
-            else:
-                bbox[0, 0] = ti.Vector([big] * dim)
-                bbox[0, 1] = ti.Vector([-big] * dim)
-                for p in range(n):
-                    bp = particle_base(p)
-                    for d in ti.static(range(dim)):
-                        ti.atomic_min(bbox[0, 0][d], bp[d])
-                        ti.atomic_max(bbox[0, 1][d], bp[d] + 3)
+            particle_pass(0.0, False)
 
         # ---- per-frame kernels
         nb = len(self.bodies)
