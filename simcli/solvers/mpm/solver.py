@@ -44,7 +44,14 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
+from simcli.solvers.base import (
+    Body,
+    FrameStats,
+    Solver,
+    frame_stats_per_body,
+    initial_positions,
+    upload_state_array,
+)
 from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, elastic_moduli, law_key
 from simcli.solvers.taichi_funcs import make_body_of, make_finite
@@ -224,16 +231,8 @@ class MPMSolver(Solver):
 
     def _upload(self) -> None:
         npf = self.npf
-        xs = np.concatenate([b.x for b in self.bodies])
-        if not np.all(np.isfinite(xs)):
-            raise ValueError("MPMSolver: initial particle positions are not finite")
-        eps = 1e-9 * self.dx
-        for b in self.bodies:
-            if b.n and (np.any(b.x < self.domain_lo - eps) or np.any(b.x > self.domain_hi + eps)):
-                raise ValueError(f"entity {b.name!r}: particles outside the domain "
-                                 f"{self.domain_lo.tolist()} - {self.domain_hi.tolist()}")
-        xs = np.clip(xs, self.domain_lo, self.domain_hi)
-        self.x.from_numpy(xs.astype(npf))
+        xs = initial_positions(self.bodies, self.domain_lo, self.domain_hi, 1e-9 * self.dx, "MPMSolver")
+        self.x.from_numpy(np.clip(xs, self.domain_lo, self.domain_hi).astype(npf))
         self.v.from_numpy(np.concatenate([b.v for b in self.bodies]).astype(npf))
         # self.F stores the displacement gradient H = F - I, not F: near the rest state F's entries
         # are ~1, whose f32 spacing (1.2e-7) is the size of a stiff body's per-substep strain
