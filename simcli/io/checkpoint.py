@@ -15,14 +15,13 @@ import json
 import logging
 import os
 import re
-import tempfile
 import warnings
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from .frames import guard
+from .frames import atomic_file, guard
 
 log = logging.getLogger(__name__)
 
@@ -92,19 +91,8 @@ def write_checkpoint(dir: Path | str, step: int, state: dict[str, np.ndarray], m
     arrays[META_KEY] = np.frombuffer(meta_bytes, dtype=np.uint8)
     with guard(final, "write checkpoint"):
         d.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=d)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **arrays)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, final)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise
+        with atomic_file(final, fsync=True) as fh:
+            np.savez(fh, **arrays)
         _fsync_dir(d)
     _prune(d, int(step), max(int(keep), 1))
     return final

@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from time import perf_counter
-from typing import Iterator
+from typing import BinaryIO, Iterator
 
 import numpy as np
 
@@ -189,6 +189,29 @@ def ensure_dir(path: Path) -> Path:
     return path
 
 
+@contextmanager
+def atomic_file(path: Path, fsync: bool = False, mode: int | None = None) -> Iterator[BinaryIO]:
+    """A binary file at a temporary name in ``path``'s folder, renamed over ``path`` when the block ends
+    without an error (fsynced first if asked, then given the permissions ``mode`` if set; mkstemp's
+    are 0600); deleted when it raises."""
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            yield fh
+            if fsync:
+                fh.flush()
+                os.fsync(fh.fileno())
+        if mode is not None:
+            os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
 def atomic_write_bytes(path: Path, data: bytes | list[bytes], fsync: bool = False) -> None:
     """Write to a temporary name in the same folder, then ``os.replace`` it over ``path``.
 
@@ -197,23 +220,9 @@ def atomic_write_bytes(path: Path, data: bytes | list[bytes], fsync: bool = Fals
     """
     path = Path(path)
     chunks = [data] if isinstance(data, (bytes, bytearray, memoryview)) else data
-    with guard(path):
-        fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                for c in chunks:
-                    fh.write(c)
-                if fsync:
-                    fh.flush()
-                    os.fsync(fh.fileno())
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise
+    with guard(path), atomic_file(path, fsync=fsync, mode=0o644) as fh:
+        for c in chunks:
+            fh.write(c)
 
 
 def atomic_write_text(path: Path, text: str, fsync: bool = False) -> None:

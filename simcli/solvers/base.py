@@ -33,6 +33,37 @@ class FrameStats:
     n_bad: int  # number of particles with a non-finite position or velocity
 
 
+def frame_stats_per_body(names, speed, bad) -> dict[str, FrameStats]:
+    """FrameStats of each named body from its largest speed ``speed[k]`` and its count of non-finite
+    particles ``bad[k]`` (k: the name's position); a body with any bad particle reports speed inf."""
+    out = {}
+    for k, name in enumerate(names):
+        nbad = int(bad[k])
+        out[name] = FrameStats(finite=nbad == 0, max_speed=float(speed[k]) if nbad == 0 else float("inf"),
+                               n_bad=nbad)
+    return out
+
+
+def initial_positions(bodies, lo: np.ndarray, hi: np.ndarray, tol: float, solver: str) -> np.ndarray:
+    """Every body's initial positions stacked, (n, dim), after checking that they are finite and inside
+    the domain [lo, hi] up to ``tol`` (ValueError naming ``solver`` or the entity if not); not clipped."""
+    xs = np.concatenate([b.x for b in bodies])
+    if not np.all(np.isfinite(xs)):
+        raise ValueError(f"{solver}: initial particle positions are not finite")
+    for b in bodies:
+        if b.n and (np.any(b.x < lo - tol) or np.any(b.x > hi + tol)):
+            raise ValueError(f"entity {b.name!r}: particles outside the domain {lo.tolist()} - {hi.tolist()}")
+    return xs
+
+
+def upload_state_array(fld, state: dict, key: str, shape: tuple, dtype, family: str) -> None:
+    """``fld.from_numpy(state[key])`` as ``dtype``, after checking that its shape is ``shape`` (set_state)."""
+    arr = np.ascontiguousarray(state[key], dtype=dtype)
+    if arr.shape != shape:
+        raise ValueError(f"{family} state {key!r}: shape {arr.shape}, expected {shape}")
+    fld.from_numpy(arr)
+
+
 @dataclass
 class Body:
     """One entity's sampled initial state (numpy, float64).

@@ -31,6 +31,19 @@ def _load(path: Path):
         sys.exit(EXIT_INVALID_SCENE)
 
 
+def _load_valid(path: Path):
+    """The sweep, after checking every expanded scene: on any problem, print them all and exit."""
+    from simcli.sweep.model import validate_runs
+
+    ls = _load(path)
+    lines = validate_runs(ls)
+    for line in lines:
+        _err(line)
+    if lines:
+        sys.exit(EXIT_INVALID_SCENE)
+    return ls
+
+
 def _indices(ls, tasks: str | None) -> list[int]:
     from simcli.sweep.model import parse_indices
 
@@ -81,14 +94,7 @@ def expand(sweep_file: Path, as_json: bool) -> None:
 @click.option("--quiet", "-q", is_flag=True, help="Print errors only.")
 def validate(sweep_file: Path, quiet: bool) -> None:
     """Check the sweep file and every expanded scene, without starting any solver."""
-    from simcli.sweep.model import validate_runs
-
-    ls = _load(sweep_file)
-    lines = validate_runs(ls)
-    for line in lines:
-        _err(line)
-    if lines:
-        sys.exit(EXIT_INVALID_SCENE)
+    ls = _load_valid(sweep_file)
     if not quiet:
         _err(f"{sweep_file}: ok ({len(ls.runs)} runs of {ls.base_path})")
 
@@ -133,15 +139,9 @@ def run_local(sweep_file: Path, jobs: int, tasks: str | None, threads: int | Non
     """Run the sweep's tasks as local processes, J at a time (each one as `sweep run --task N`).
 
     Ctrl-C interrupts every running task after a checkpoint; running the command again resumes."""
-    from simcli.sweep.model import validate_runs
     from simcli.sweep.tasks import run_local as _run_local
 
-    ls = _load(sweep_file)
-    lines = validate_runs(ls)
-    if lines:
-        for line in lines:
-            _err(line)
-        sys.exit(EXIT_INVALID_SCENE)
+    ls = _load_valid(sweep_file)
     sys.exit(_run_local(ls, _indices(ls, tasks), jobs, threads=threads, quiet=quiet))
 
 
@@ -168,16 +168,10 @@ def submit(sweep_file: Path, partition, time_limit, cpus_per_task, gpus_per_task
     Writes OUTPUT/_sweep/<sweep>.sbatch, submits it with sbatch and records the job id in
     OUTPUT/_sweep/submissions.json. A task stopped by its time limit or by preemption
     checkpoints, exits 75 and is requeued; it resumes from its checkpoint."""
-    from simcli.sweep.model import validate_runs
     from simcli.sweep.slurm import SbatchOptions, SubmitError, array_spec, record_submission, sbatch_script
     from simcli.sweep.slurm import submit as _submit
 
-    ls = _load(sweep_file)
-    lines = validate_runs(ls)
-    if lines:
-        for line in lines:
-            _err(line)
-        sys.exit(EXIT_INVALID_SCENE)
+    ls = _load_valid(sweep_file)
     indices = _indices(ls, tasks)
     opts = SbatchOptions(partition=partition, time=time_limit, cpus_per_task=cpus_per_task,
                          gpus_per_task=gpus_per_task, max_parallel=max_parallel, mem=mem, account=account,

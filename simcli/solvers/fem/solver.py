@@ -15,7 +15,7 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.geometry.regions import points_in_regions, points_in_shape
-from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
 from simcli.solvers.fem.mesh import boundary_faces, mesh_for_entity, signed_volumes
 from simcli.solvers.fem.models import LAWS, lame_for
 from simcli.solvers.taichi_funcs import make_body_frame_stats
@@ -428,10 +428,8 @@ class FEMSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        speed, bad = self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
-        return {e.name: FrameStats(finite=int(bad[k]) == 0,
-                                   max_speed=float(speed[k]) if bad[k] == 0 else float("inf"), n_bad=int(bad[k]))
-                for k, e in enumerate(self.entities)}
+        return frame_stats_per_body([e.name for e in self.entities], self.stat_speed.to_numpy(),
+                                    self.stat_bad.to_numpy())
 
     def stable_dt(self) -> float:
         """Explicit: cfl x (smallest current element height, at least a quarter of the rest one) / (P-wave
@@ -506,10 +504,7 @@ class FEMSolver(Solver):
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("x", self.x), ("v", self.v)):
-            arr = np.ascontiguousarray(state[key], dtype=self.npf)
-            if arr.shape != (self.n, 3):
-                raise ValueError(f"FEM state {key!r}: shape {arr.shape}, expected {(self.n, 3)}")
-            fld.from_numpy(arr)
+            upload_state_array(fld, state, key, (self.n, 3), self.npf, "FEM")
         if "time" in state:
             self.time = float(np.asarray(state["time"]).reshape(-1)[0])
         self._version += 1

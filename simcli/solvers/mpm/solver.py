@@ -44,7 +44,14 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.base import (
+    Body,
+    FrameStats,
+    Solver,
+    frame_stats_per_body,
+    initial_positions,
+    upload_state_array,
+)
 from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, elastic_moduli, law_key
 from simcli.solvers.taichi_funcs import make_body_of, make_finite
@@ -224,16 +231,8 @@ class MPMSolver(Solver):
 
     def _upload(self) -> None:
         npf = self.npf
-        xs = np.concatenate([b.x for b in self.bodies])
-        if not np.all(np.isfinite(xs)):
-            raise ValueError("MPMSolver: initial particle positions are not finite")
-        eps = 1e-9 * self.dx
-        for b in self.bodies:
-            if b.n and (np.any(b.x < self.domain_lo - eps) or np.any(b.x > self.domain_hi + eps)):
-                raise ValueError(f"entity {b.name!r}: particles outside the domain "
-                                 f"{self.domain_lo.tolist()} - {self.domain_hi.tolist()}")
-        xs = np.clip(xs, self.domain_lo, self.domain_hi)
-        self.x.from_numpy(xs.astype(npf))
+        xs = initial_positions(self.bodies, self.domain_lo, self.domain_hi, 1e-9 * self.dx, "MPMSolver")
+        self.x.from_numpy(np.clip(xs, self.domain_lo, self.domain_hi).astype(npf))
         self.v.from_numpy(np.concatenate([b.v for b in self.bodies]).astype(npf))
         # self.F stores the displacement gradient H = F - I, not F: near the rest state F's entries
         # are ~1, whose f32 spacing (1.2e-7) is the size of a stiff body's per-substep strain
@@ -513,7 +512,9 @@ class MPMSolver(Solver):
                     node_update(ti.Vector([i, j]), dt)
 
         @ti.func
-        def g2p(dt):
+        def particle_pass(dt, move: ti.template()):
+            """The node box [lo, hi) of each chunk's particles (of all of them without chunks), after
+            moving each particle by g2p first when ``move``."""
             if ti.static(chunked):
                 for j in range(T * CHUNK_STRIDE):
                     t = chunk_of(j)
@@ -521,7 +522,8 @@ class MPMSolver(Solver):
                         lo = ti.Vector([big] * dim)
                         hi = ti.Vector([-big] * dim)
                         for p in range(chunk_start[t], chunk_start[t + 1]):
-                            g2p_particle(p, dt)
+                            if ti.static(move):
+                                g2p_particle(p, dt)
                             bp = particle_base(p)
                             lo = ti.min(lo, bp)
                             hi = ti.max(hi, bp)
@@ -531,11 +533,16 @@ class MPMSolver(Solver):
                 bbox[0, 0] = ti.Vector([big] * dim)
                 bbox[0, 1] = ti.Vector([-big] * dim)
                 for p in range(n):
-                    g2p_particle(p, dt)
+                    if ti.static(move):
+                        g2p_particle(p, dt)
                     bp = particle_base(p)
                     for d in ti.static(range(dim)):
                         ti.atomic_min(bbox[0, 0][d], bp[d])
                         ti.atomic_max(bbox[0, 1][d], bp[d] + 3)
+
+        @ti.func
+        def g2p(dt):
+            particle_pass(dt, True)
 
         @ti.kernel
         def substep(dt: f):
@@ -562,26 +569,7 @@ class MPMSolver(Solver):
 
         @ti.kernel
         def compute_bbox():
-            if ti.static(chunked):
-                for j in range(T * CHUNK_STRIDE):
-                    t = chunk_of(j)
-                    if t >= 0:
-                        lo = ti.Vector([big] * dim)
-                        hi = ti.Vector([-big] * dim)
-                        for p in range(chunk_start[t], chunk_start[t + 1]):
-                            bp = particle_base(p)
-                            lo = ti.min(lo, bp)
-                            hi = ti.max(hi, bp)
-                        bbox[t, 0] = lo
-                        bbox[t, 1] = hi + 3
-            else:
-                bbox[0, 0] = ti.Vector([big] * dim)
-                bbox[0, 1] = ti.Vector([-big] * dim)
-                for p in range(n):
-                    bp = particle_base(p)
-                    for d in ti.static(range(dim)):
-                        ti.atomic_min(bbox[0, 0][d], bp[d])
-                        ti.atomic_max(bbox[0, 1][d], bp[d] + 3)
+            particle_pass(0.0, False)
 
         # ---- per-frame kernels
         nb = len(self.bodies)
@@ -713,14 +701,8 @@ class MPMSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        speed = self.stat_speed.to_numpy()
-        bad = self.stat_bad.to_numpy()
-        out = {}
-        for k, b in enumerate(self.bodies):
-            nbad = int(bad[k])
-            out[b.name] = FrameStats(finite=nbad == 0, max_speed=float(speed[k]) if nbad == 0 else float("inf"),
-                                     n_bad=nbad)
-        return out
+        return frame_stats_per_body([b.name for b in self.bodies], self.stat_speed.to_numpy(),
+                                    self.stat_bad.to_numpy())
 
     def stable_dt(self) -> float:
         """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p, viscosity limit) [s]; one reduction
@@ -789,10 +771,7 @@ class MPMSolver(Solver):
         if H is None or not np.array_equal(F, np.eye(self.dim) + np.asarray(H, dtype=np.float64)):
             state = dict(state, H=F - np.eye(self.dim))
         for key, fld in (("x", self.x), ("v", self.v), ("C", self.C), ("H", self.F)):
-            arr = np.ascontiguousarray(state[key], dtype=npf)
-            if arr.shape != shapes[key]:
-                raise ValueError(f"MPM state {key!r}: shape {arr.shape}, expected {shapes[key]}")
-            fld.from_numpy(arr)
+            upload_state_array(fld, state, key, shapes[key], npf, "MPM")
         for law in self.laws:
             law.set_state(state)
         if "time" in state:

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
 from simcli.solvers.pbd.topology import colour, fixed_vertices, mesh_for_entity
 from simcli.solvers.taichi_funcs import make_body_frame_stats
 
@@ -526,10 +526,8 @@ class PBDSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        speed, bad = self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
-        return {e.name: FrameStats(finite=int(bad[k]) == 0,
-                                   max_speed=float(speed[k]) if bad[k] == 0 else float("inf"), n_bad=int(bad[k]))
-                for k, e in enumerate(self.entities)}
+        return frame_stats_per_body([e.name for e in self.entities], self.stat_speed.to_numpy(),
+                                    self.stat_bad.to_numpy())
 
     def stable_dt(self) -> float:
         """XPBD is unconditionally stable; contact needs a vertex to move less than its radius per
@@ -598,10 +596,7 @@ class PBDSolver(Solver):
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("x", self.x), ("v", self.v)):
-            arr = np.ascontiguousarray(state[key], dtype=self.npf)
-            if arr.shape != (self.n, 3):
-                raise ValueError(f"PBD state {key!r}: shape {arr.shape}, expected {(self.n, 3)}")
-            fld.from_numpy(arr)
+            upload_state_array(fld, state, key, (self.n, 3), self.npf, "PBD")
         self.time = float(np.asarray(state.get("time", [0.0])).reshape(-1)[0])
         self.last_dt = float(np.asarray(state.get("last_dt", [0.0])).reshape(-1)[0])
 

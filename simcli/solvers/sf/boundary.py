@@ -40,6 +40,25 @@ def make_at(dim: int):
     return at
 
 
+def make_neighbour(n: tuple, periodic: tuple):
+    """``nb(I, a, s)``: grid index I + s e_a (s = +-1), wrapped on a periodic axis (indices 0 .. n_a - 1
+    either way) of a grid of ``n`` points."""
+
+    @ti.func
+    def nb(I, a: ti.template(), s: ti.template()):
+        J = I
+        if ti.static(periodic[a]):
+            if ti.static(s > 0):
+                J[a] = ti.select(J[a] < n[a] - 1, J[a] + 1, 0)
+            else:
+                J[a] = ti.select(J[a] > 0, J[a] - 1, n[a] - 1)
+        else:
+            J[a] += s
+        return J
+
+    return nb
+
+
 def make_foreach(rng: list):
     """Loops over the box ``rng`` ((lo, hi) per axis), parallel over the outer axes with the last
     (contiguous) axis as a serial inner loop: a stencil sweep costs a third of the CPU time of a flat

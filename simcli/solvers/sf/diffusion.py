@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.sf.boundary import Boundary
+from simcli.solvers.sf.boundary import Boundary, make_neighbour
 from simcli.solvers.sf.grid import Layout, viscosity_operator
 
 with stdout_to_stderr():
@@ -55,18 +55,7 @@ class Diffusion:
         at = bc.at
         loops = bc.face_loops  # per component: (foreach, sum, sum_max, scaled, sum_scaled)
 
-        @ti.func
-        def nb(I, a: ti.template(), s: ti.template()):
-            """Face I + s e_a (wrapped on a periodic axis: faces 0 .. n_a - 1 either way)."""
-            J = I
-            if ti.static(periodic[a]):
-                if ti.static(s > 0):
-                    J[a] = ti.select(J[a] < n[a] - 1, J[a] + 1, 0)
-                else:
-                    J[a] = ti.select(J[a] > 0, J[a] - 1, n[a] - 1)
-            else:
-                J[a] += s
-            return J
+        nb = make_neighbour(n, periodic)  # face I + s e_a
 
         @ti.func
         def offdiag(q: ti.template(), d: ti.template(), I, masked: ti.template()):

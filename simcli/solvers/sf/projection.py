@@ -33,7 +33,7 @@ import math
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.sf.boundary import Boundary, make_foreach, make_foreach_color
+from simcli.solvers.sf.boundary import Boundary, make_foreach, make_foreach_color, make_neighbour
 from simcli.solvers.sf.grid import FREE, OPEN_FACE, Layout
 
 with stdout_to_stderr():
@@ -118,17 +118,7 @@ class Projection:
             foreach, foreach_sum, foreach_sum_max, foreach_scaled, _ = make_foreach([(0, k) for k in n])
             foreach_color = make_foreach_color(n)
 
-            @ti.func
-            def nb(I, a: ti.template(), s: ti.template()):
-                J = I
-                if ti.static(periodic[a]):
-                    if ti.static(s > 0):
-                        J[a] = ti.select(J[a] < n[a] - 1, J[a] + 1, 0)
-                    else:
-                        J[a] = ti.select(J[a] > 0, J[a] - 1, n[a] - 1)
-                else:
-                    J[a] += s
-                return J
+            nb = make_neighbour(n, periodic)
 
             @ti.func
             def offdiag(q: ti.template(), I):

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
 from simcli.solvers.sf.advection import Advector
 from simcli.solvers.sf.boundary import Boundary
 from simcli.solvers.sf.diffusion import Diffusion
@@ -265,10 +265,8 @@ class SFSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        st = self.stats.to_numpy()
-        nbad = int(st[1])
-        return {self.name: FrameStats(finite=nbad == 0, max_speed=float(st[0]) if nbad == 0 else float("inf"),
-                                      n_bad=nbad)}
+        st = self.stats.to_numpy()  # [max speed, non-finite cells]
+        return frame_stats_per_body([self.name], st[0:1], st[1:2])
 
     def max_speed(self) -> float:
         self._frame_stats()
@@ -306,16 +304,21 @@ class SFSolver(Solver):
     def _cell(self, fld) -> np.ndarray:
         return fld.to_numpy().astype(np.float64)[(slice(1, -1),) * self.dim]
 
+    def _cell_faces(self, d: int) -> tuple[tuple, tuple]:
+        """Index tuples picking, from an array of the faces normal to axis d, each cell's low and high face."""
+        lo = [slice(None)] * self.dim
+        hi = [slice(None)] * self.dim
+        lo[d] = slice(0, -1)
+        hi[d] = slice(1, None)
+        return tuple(lo), tuple(hi)
+
     def cell_velocity(self) -> np.ndarray:
         """Velocity at the cell centres (mean of the two faces), shape n + (dim,), x y z index order."""
         comps = []
         for d in range(self.dim):
             F = self._faces(d)
-            lo = [slice(None)] * self.dim
-            hi = [slice(None)] * self.dim
-            lo[d] = slice(0, -1)
-            hi[d] = slice(1, None)
-            comps.append(0.5 * (F[tuple(lo)] + F[tuple(hi)]))
+            lo, hi = self._cell_faces(d)
+            comps.append(0.5 * (F[lo] + F[hi]))
         return np.stack(comps, axis=-1)
 
     def divergence(self) -> np.ndarray:
@@ -323,11 +326,8 @@ class SFSolver(Solver):
         div = np.zeros(self.layout.n)
         for d in range(self.dim):
             F = self._faces(d)
-            lo = [slice(None)] * self.dim
-            hi = [slice(None)] * self.dim
-            lo[d] = slice(0, -1)
-            hi[d] = slice(1, None)
-            div += (F[tuple(hi)] - F[tuple(lo)]) / self.layout.dx[d]
+            lo, hi = self._cell_faces(d)
+            div += (F[hi] - F[lo]) / self.layout.dx[d]
         div[self.layout.flags[(slice(1, -1),) * self.dim] == SOLID] = 0.0
         return div
 
@@ -418,10 +418,7 @@ class SFSolver(Solver):
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("velocity", self.vel), ("scalars", self.scalars), ("pressure", self.pressure)):
-            arr = np.ascontiguousarray(state[key], dtype=self.npf)
-            if arr.shape != fld.shape:
-                raise ValueError(f"SF state {key!r}: shape {arr.shape}, expected {fld.shape}")
-            fld.from_numpy(arr)
+            upload_state_array(fld, state, key, fld.shape, self.npf, "SF")
         if "time" in state:
             self.time = float(np.asarray(state["time"]).reshape(-1)[0])
         self._version += 1

@@ -228,6 +228,17 @@ def make_dfsph(S):
             cg_p[i] = cg_z[i] + beta * cg_p[i]
 
     @ti.func
+    def relax(dt, mode: ti.template()):
+        """One Jacobi step: the velocities from the current stiffness, then the residual after it."""
+        if ti.static(ext):
+            wp.update(kk)
+        for i in range(n):
+            velocity_update(i, dt)
+        err_acc[None] = 0
+        for i in range(n):
+            density_change(i, dt, mode, False)
+
+    @ti.func
     def solve_begin(dt, mode: ti.template()):
         """First residual, then (warm start) the previous substep's stiffness and the residual after it."""
         err_acc[None] = 0
@@ -235,13 +246,7 @@ def make_dfsph(S):
             kacc[i] = 0.0
             density_change(i, dt, mode, True)
         if ti.static(warm):
-            if ti.static(ext):
-                wp.update(kk)
-            for i in range(n):
-                velocity_update(i, dt)
-            err_acc[None] = 0
-            for i in range(n):
-                density_change(i, dt, mode, False)
+            relax(dt, mode)
         if ti.static(use_cg):
             cg_start(dt, mode)
 
@@ -250,13 +255,7 @@ def make_dfsph(S):
         if ti.static(use_cg):
             cg_iteration(dt)
         else:
-            if ti.static(ext):
-                wp.update(kk)
-            for i in range(n):
-                velocity_update(i, dt)
-            err_acc[None] = 0
-            for i in range(n):
-                density_change(i, dt, mode, False)
+            relax(dt, mode)
 
     @ti.func
     def neighbours():

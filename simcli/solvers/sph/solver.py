@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver
+from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, initial_positions
 from simcli.solvers.sph.boundary import make_pushout, sample_boundary
 from simcli.solvers.sph.dfsph import SolveStats, make_dfsph
 from simcli.solvers.sph.kernels import (
@@ -328,16 +328,7 @@ class SPHSolver(Solver):
 
     def _upload(self) -> None:
         npf = self.npf
-        xs = np.concatenate([b.x for b in self.bodies])
-        if not np.all(np.isfinite(xs)):
-            raise ValueError("SPHSolver: initial particle positions are not finite")
-        eps = 1e-9 * self.ps
-        for b in self.bodies:
-            if b.n and (np.any(b.x < self.domain_lo - eps) or np.any(b.x > self.domain_hi + eps)):
-                raise ValueError(
-                    f"entity {b.name!r}: particles outside the domain "
-                    f"{self.domain_lo.tolist()} - {self.domain_hi.tolist()}"
-                )
+        xs = initial_positions(self.bodies, self.domain_lo, self.domain_hi, 1e-9 * self.ps, "SPHSolver")
         self.x.from_numpy(np.clip(xs, self.domain_lo, self.domain_hi).astype(npf))
         self.v.from_numpy(np.concatenate([b.v for b in self.bodies]).astype(npf))
         # mass = rho0 V_rest: the mass that gives rho0 on the sampling lattice; the body's exact-volume mass
@@ -747,15 +738,8 @@ class SPHSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        speed = self.stat_speed.to_numpy()
-        bad = self.stat_bad.to_numpy()
-        out = {}
-        for k, b in enumerate(self.bodies):
-            nbad = int(bad[k])
-            out[b.name] = FrameStats(
-                finite=nbad == 0, max_speed=float(speed[k]) if nbad == 0 else float("inf"), n_bad=nbad
-            )
-        return out
+        return frame_stats_per_body([b.name for b in self.bodies], self.stat_speed.to_numpy(),
+                                    self.stat_bad.to_numpy())
 
     def stable_dt(self) -> float:
         """min(cfl ps / (v + c), VISCOUS_SAFETY ps^2 / nu, max_substep) [s], c the WCSPH sound speed at the
