@@ -189,6 +189,28 @@ def test_two_liquids_layered_start_at_rest_density(ti_f32):
     assert np.abs(oil["density"][near(oil)] / 800.0 - 1.0).max() < 2e-3
 
 
+def test_dfsph_first_warm_start_integrates_both_liquids(ti_f32):
+    """DFSPH's first density solve starts from the hydrostatic pressure of the column: with oil on water it
+    integrates each liquid's rho0 g down the column (it assumed one density per column before session 7),
+    so the first solves need their minimum of 2 iterations."""
+    d = tank("DFSPH")
+    d["entities"] = [
+        {"name": "water", "material": {"type": "SPH.Liquid", "rho": 1000.0, "mu": 0.05},
+         "morph": {"type": "Box", "lower": [0.0, 0.0], "upper": [0.2, 0.1]}},
+        {"name": "oil", "material": {"type": "SPH.Liquid", "rho": 800.0, "mu": 0.05},
+         "morph": {"type": "Box", "lower": [0.0, 0.1], "upper": [0.2, 0.15]}},
+    ]
+    s, _ = make(d)
+    x, mid = s.x.to_numpy(), s.mid.to_numpy()
+    p = s.kappa.to_numpy() * np.array([m.rho for m in s.materials])[mid]
+    for z in (0.0025, 0.0975, 0.1025, 0.1475):  # rows: the floor's, both sides of the interface, the top
+        want = G * (800.0 * (0.15 - max(z, 0.1)) + 1000.0 * max(0.0, 0.1 - z))
+        np.testing.assert_allclose(p[np.abs(x[:, 1] - z) < 1e-4], want, rtol=1e-5)
+    for _ in range(3):
+        s.substep(1e-3)
+    assert s.dfsph_stats.report()["density"]["max_iterations"] == 2
+
+
 def test_wcsph_frame0_pressure_is_tait_of_the_initial_density(ti_f32):
     """WCSPH computes its pressure inside the substep; frame 0 (before any substep) reports Tait's equation of
     state on the initial density, so a compressed start shows its pressure (it reported zeros before

@@ -359,7 +359,7 @@ class SPHSolver(Solver):
     def _hydrostatic_stiffness(self, xs: np.ndarray) -> np.ndarray:
         """The DFSPH density solve's first warm start: the stiffness k = p / rho0 = |g| depth of a liquid at
         rest, depth measured below the top of each particle's column (bins of one particle size across the
-        gravity direction). A column released at rest has this pressure from its first instant (incompressible
+        gravity direction; with several liquids p integrates each one's rho0 g down the column). A column released at rest has this pressure from its first instant (incompressible
         liquid); without it the first substeps must build it from zero with a Jacobi solver, which needs
         O(layers^2) iterations."""
         g = np.asarray(self.scene.sim.gravity_vec, dtype=np.float64)
@@ -375,8 +375,24 @@ class SPHSolver(Solver):
         col = col.reshape(-1)
         top = np.full(col.max() + 1, -np.inf)
         np.maximum.at(top, col, height)
-        depth = top[col] + 0.5 * self.ps - height
-        return gn * depth
+        if len(self.materials) == 1:
+            depth = top[col] + 0.5 * self.ps - height
+            return gn * depth
+        # several liquids: integrate rho0 g down each column (trapezoid between neighbours in the column, half a
+        # particle size of the top particle's own liquid above it), then k_i = p_i / rho0_i
+        mids = np.concatenate([np.full(b.n, m, np.int64) for b, m in zip(self.bodies, self.body_mid)])
+        rho0 = np.array([m.rho for m in self.materials], dtype=np.float64)[mids]
+        order = np.lexsort((-height, col))  # by column, then from the top down
+        p = np.empty(len(xs))
+        prev_col, prev_h, prev_r, acc = -1, 0.0, 0.0, 0.0
+        for i in order:
+            if col[i] != prev_col:
+                acc = gn * rho0[i] * (top[col[i]] + 0.5 * self.ps - height[i])
+            else:
+                acc += gn * 0.5 * (prev_r + rho0[i]) * (prev_h - height[i])
+            p[i] = acc
+            prev_col, prev_h, prev_r = col[i], height[i], rho0[i]
+        return p / rho0
 
     def set_gravity(self, g: list[float]) -> None:
         if len(g) != self.dim:
