@@ -177,6 +177,12 @@ def check_scene(loaded: LoadedScene) -> list[str]:
                 f"{_fmt(mlo)}..{_fmt(mhi)}, domain {_fmt(lo)}..{_fmt(hi)}); move it or enlarge domain")
 
     _check_faces_and_sf(s, err)
+    sph_rho = sorted({e.material.rho for e in s.entities if e.family == "SPH"})
+    if sph.pressure_solver == "DFSPH" and not sph.clamp_pressure and len(sph_rho) > 1:
+        err(("solvers", "sph", "clamp_pressure"),
+            "DFSPH with clamp_pressure: false (its conjugate-gradient solve) does not support liquids of different "
+            f"rest densities (rho: {sph_rho}): its pressure operator is symmetric only for one rest density. Use "
+            "clamp_pressure: true (a free surface), pressure_solver: WCSPH, or one rho for every SPH.Liquid")
     if errors:
         return sort_lines(errors)
 

@@ -149,3 +149,23 @@ entities:
     assert code == 65, out
     assert "solvers.sph.particle_size: scene too large" in out and "boundary particles" in out, out
     assert "mpm" not in out
+
+
+def test_dfsph_cg_rejects_two_rest_densities(tmp_path):
+    """DFSPH's conjugate-gradient solve (clamp_pressure: false) needs one rest density: a scene error that
+    says what to change, from `simcli validate` already, not a wrong answer."""
+    text = """version: 1
+sim: {dim: 2, dt: 1.0e-3, substeps: 1, duration: 0.01}
+domain: {lower: [0, 0], upper: [1, 1]}
+solvers: {sph: {particle_size: 0.01, pressure_solver: DFSPH, clamp_pressure: false}}
+entities:
+  - name: a
+    material: {type: SPH.Liquid, rho: 1000}
+    morph: {type: Box, lower: [0.35, 0.4], upper: [0.5, 0.6]}
+  - name: b
+    material: {type: SPH.Liquid, rho: 500}
+    morph: {type: Box, lower: [0.5, 0.4], upper: [0.65, 0.6]}
+"""
+    code, out, _ = _validate(tmp_path, text)
+    assert code == 65, out
+    assert "solvers.sph.clamp_pressure" in out and "clamp_pressure: true" in out, out

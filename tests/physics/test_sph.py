@@ -168,17 +168,22 @@ def test_two_liquids_conserve_momentum(ti_f32, solver, b):
     assert np.all(np.isfinite(x)) and np.all((x > 0.1) & (x < 0.9))
 
 
+def oil_on_water(solver, water_top, oil_top):
+    """The 2D tank with oil (800) from water_top to oil_top on water (1000) below water_top."""
+    d = tank(solver)
+    d["entities"] = [
+        {"name": name, "material": {"type": "SPH.Liquid", "rho": rho, "mu": 0.05},
+         "morph": {"type": "Box", "lower": [0.0, lo], "upper": [0.2, hi]}}
+        for name, rho, lo, hi in (("water", 1000.0, 0.0, water_top), ("oil", 800.0, water_top, oil_top))
+    ]
+    return d
+
+
 def test_two_liquids_layered_start_at_rest_density(ti_f32):
     """Oil (800) on water (1000) on the lattice: the density is a number density, rho0_i sum_j V_j W_ij, so
     the particles at the interface start at their own rest density (the mass sum gave the oil +4%, about 20x
     the hydrostatic pressure there, and the layers separated)."""
-    d = tank("WCSPH")
-    d["entities"] = [
-        {"name": "water", "material": {"type": "SPH.Liquid", "rho": 1000.0, "mu": 0.05},
-         "morph": {"type": "Box", "lower": [0.0, 0.0], "upper": [0.2, 0.05]}},
-        {"name": "oil", "material": {"type": "SPH.Liquid", "rho": 800.0, "mu": 0.05},
-         "morph": {"type": "Box", "lower": [0.0, 0.05], "upper": [0.2, 0.1]}},
-    ]
+    d = oil_on_water("WCSPH", 0.05, 0.1)
     s, _ = make(d)
     water = s.entity_arrays("water", ["position", "density"])
     oil = s.entity_arrays("oil", ["position", "density"])
@@ -193,13 +198,7 @@ def test_dfsph_first_warm_start_integrates_both_liquids(ti_f32):
     """DFSPH's first density solve starts from the hydrostatic pressure of the column: with oil on water it
     integrates each liquid's rho0 g down the column (it assumed one density per column before session 7),
     so the first solves need their minimum of 2 iterations."""
-    d = tank("DFSPH")
-    d["entities"] = [
-        {"name": "water", "material": {"type": "SPH.Liquid", "rho": 1000.0, "mu": 0.05},
-         "morph": {"type": "Box", "lower": [0.0, 0.0], "upper": [0.2, 0.1]}},
-        {"name": "oil", "material": {"type": "SPH.Liquid", "rho": 800.0, "mu": 0.05},
-         "morph": {"type": "Box", "lower": [0.0, 0.1], "upper": [0.2, 0.15]}},
-    ]
+    d = oil_on_water("DFSPH", 0.1, 0.15)
     s, _ = make(d)
     x, mid = s.x.to_numpy(), s.mid.to_numpy()
     p = s.kappa.to_numpy() * np.array([m.rho for m in s.materials])[mid]
@@ -222,15 +221,6 @@ def test_wcsph_frame0_pressure_is_tait_of_the_initial_density(ti_f32):
     want = np.maximum(50000.0 * ((e["density"].astype(np.float64) / 1000.0) ** 7 - 1.0), 0.0)
     assert e["pressure"].max() > 1e5  # the overlap is compressed
     np.testing.assert_allclose(e["pressure"], want, rtol=1e-4, atol=1e-2)
-
-
-def test_dfsph_cg_rejects_two_rest_densities(ti_f32):
-    """DFSPH's conjugate-gradient solve (clamp_pressure: false) needs one rest density: a scene error that
-    says what to change, not a wrong answer."""
-    from simcli.errors import SceneError
-
-    with pytest.raises(SceneError, match="clamp_pressure: true"):
-        make(two_liquids("DFSPH", {"rho": 1000.0}, {"rho": 500.0}, clamp_pressure=False))
 
 
 @pytest.mark.parametrize("solver", ["WCSPH", "DFSPH"])

@@ -89,16 +89,6 @@ class SPHSolver(Solver):
             if b.entity.material not in self.materials:
                 self.materials.append(b.entity.material)
             self.body_mid.append(self.materials.index(b.entity.material))
-        if self.opts.pressure_solver == "DFSPH" and not self.opts.clamp_pressure and len({m.rho for m in self.materials}) > 1:
-            from simcli.errors import SceneError
-
-            msg = (
-                "solvers.sph: DFSPH with clamp_pressure: false (its conjugate-gradient solve) does not support "
-                f"liquids of different rest densities (rho: {sorted({m.rho for m in self.materials})}): its pressure "
-                "operator is symmetric only for one rest density. Use clamp_pressure: true (a free surface), "
-                "pressure_solver: WCSPH, or one rho for every SPH.Liquid"
-            )
-            raise SceneError([msg])
         self.c_max = max(math.sqrt(m.stiffness * m.exponent / m.rho) for m in self.materials)
         self.nu_max = max(m.mu / m.rho for m in self.materials)
         self.has_viscosity = self.nu_max > 0
@@ -319,11 +309,16 @@ class SPHSolver(Solver):
         self._make_kernels()
         # extrapolated wall pressure (wall_pressure.py): only where there are walls and the option asks for it
         self.wall_pressure = make_wall_pressure(self) if self.ext_walls and self.nbp > 0 else None
-        self._substep = make_dfsph(self) if dfsph else make_wcsph(self)
+        if dfsph:
+            self._substep = make_dfsph(self)
+        else:
+            self._substep, pressure_from_density = make_wcsph(self)
         self._built = True
         self._version = 0
         self._cache: dict = {}
         self._density_only()  # the density stable_dt reads before the first substep
+        if not dfsph:
+            pressure_from_density()  # frame 0's pressure: Tait's of that density (DFSPH's exists after a solve)
         self.frame_check()
 
     def _upload(self) -> None:
@@ -338,9 +333,8 @@ class SPHSolver(Solver):
                 npf
             )
         )
-        self.mid.from_numpy(
-            np.concatenate([np.full(b.n, m, np.int32) for b, m in zip(self.bodies, self.body_mid)])
-        )
+        mids = np.concatenate([np.full(b.n, m, np.int32) for b, m in zip(self.bodies, self.body_mid)])
+        self.mid.from_numpy(mids)
         self.pid.from_numpy(np.arange(self.n, dtype=np.int32))
         self.body_offsets.from_numpy(self.offsets.astype(np.int32))
         for fld, vals in (
@@ -352,11 +346,11 @@ class SPHSolver(Solver):
         ):
             fld.from_numpy(np.asarray(vals, npf))
         if self.kappa is not None:
-            self.kappa.from_numpy(self._hydrostatic_stiffness(xs).astype(npf))
+            self.kappa.from_numpy(self._hydrostatic_stiffness(xs, mids).astype(npf))
             self.kappav.fill(0)
         self.set_gravity(self.scene.sim.gravity_vec)
 
-    def _hydrostatic_stiffness(self, xs: np.ndarray) -> np.ndarray:
+    def _hydrostatic_stiffness(self, xs: np.ndarray, mids: np.ndarray) -> np.ndarray:
         """The DFSPH density solve's first warm start: the stiffness k = p / rho0 = |g| depth of a liquid at
         rest, depth measured below the top of each particle's column (bins of one particle size across the
         gravity direction; with several liquids p integrates each one's rho0 g down the column). A column released at rest has this pressure from its first instant (incompressible
@@ -380,18 +374,17 @@ class SPHSolver(Solver):
             return gn * depth
         # several liquids: integrate rho0 g down each column (trapezoid between neighbours in the column, half a
         # particle size of the top particle's own liquid above it), then k_i = p_i / rho0_i
-        mids = np.concatenate([np.full(b.n, m, np.int64) for b, m in zip(self.bodies, self.body_mid)])
         rho0 = np.array([m.rho for m in self.materials], dtype=np.float64)[mids]
-        order = np.lexsort((-height, col))  # by column, then from the top down
-        p = np.empty(len(xs))
-        prev_col, prev_h, prev_r, acc = -1, 0.0, 0.0, 0.0
-        for i in order:
-            if col[i] != prev_col:
-                acc = gn * rho0[i] * (top[col[i]] + 0.5 * self.ps - height[i])
-            else:
-                acc += gn * 0.5 * (prev_r + rho0[i]) * (prev_h - height[i])
-            p[i] = acc
-            prev_col, prev_h, prev_r = col[i], height[i], rho0[i]
+        o = np.lexsort((-height, col))  # by column, then from the top down
+        c, h, r = col[o], height[o], rho0[o]
+        first = np.r_[True, c[1:] != c[:-1]]  # the top particle of each column
+        inc = np.empty(len(o))
+        inc[first] = gn * r[first] * (top[c[first]] + 0.5 * self.ps - h[first])
+        inc[~first] = gn * 0.5 * (r[:-1] + r[1:])[~first[1:]] * (h[:-1] - h[1:])[~first[1:]]
+        p = np.empty(len(o))
+        bounds = np.r_[np.flatnonzero(first), len(o)]
+        for a, b in zip(bounds[:-1], bounds[1:]):  # a running sum down each column (a loop over columns)
+            p[o[a:b]] = np.cumsum(inc[a:b])
         return p / rho0
 
     def set_gravity(self, g: list[float]) -> None:
@@ -803,24 +796,10 @@ class SPHSolver(Solver):
         if key == "density":  # before the first substep: the density build() computed
             return self.rho.to_numpy()
         if key == "pressure":
-            if self._version == 0 and self.opts.pressure_solver == "WCSPH":
-                return self._initial_tait_pressure()
             return self.p.to_numpy()
         if key == "material_id":
             return self.mid.to_numpy()
         raise KeyError(f"unknown SPH output field {key!r}; known: {', '.join(OUTPUT_FIELDS)}")
-
-    def _initial_tait_pressure(self) -> np.ndarray:
-        """WCSPH's pressure before the first substep: Tait's equation of state on build()'s density (the substep
-        computes it on the fly), so that frame 0 shows the pressure of a start that is not at rest density."""
-        mid = self.mid.to_numpy()
-        rho0 = np.array([m.rho for m in self.materials])[mid]
-        k = np.array([m.stiffness for m in self.materials])[mid]
-        ex = np.array([m.exponent for m in self.materials])[mid]
-        p = k * ((self.rho.to_numpy().astype(np.float64) / rho0) ** ex - 1.0)
-        if self.opts.clamp_pressure:
-            p = np.maximum(p, 0.0)
-        return (p + float(self.opts.background_pressure)).astype(self.npf)
 
     def _full(self, key: str) -> np.ndarray:
         hit = self._cache.get(key)

@@ -13,7 +13,8 @@ Time integration: symplectic Euler (v, then x with the new v).
 
 
 def make_wcsph(S):
-    """The substep kernel of WCSPH for solver ``S`` (fields and shared funcs built by ``SPHSolver``)."""
+    """The substep kernel of WCSPH for solver ``S`` (fields and shared funcs built by ``SPHSolver``), and a kernel
+    that sets the pressure from the current density (the output before the first substep)."""
     ti = S.ti
     f = S.f
     rho, p, mid, v, vnew = S.rho, S.p, S.mid, S.v, S.vnew
@@ -38,6 +39,12 @@ def make_wcsph(S):
         return -mat_rho0[mid[i]] * (p[i] / (ri * ri)) * B[i]  # Akinci et al. 2012, eq. 10
 
     @ti.kernel
+    def pressure_from_density():
+        """Tait's pressure of the current density: frame 0's pressure, before the first substep computes it."""
+        for i in range(n):
+            equation_of_state(i)
+
+    @ti.kernel
     def substep(dt: f):
         S.sort(n)
         for i in range(n):
@@ -49,4 +56,4 @@ def make_wcsph(S):
         for i in range(n):
             S.advect(i, vnew[i], dt)
 
-    return substep
+    return substep, pressure_from_density
