@@ -164,11 +164,9 @@ def collider_particles(spec, lo, hi, h: float, dim: int, layers: int = LAYERS) -
         a, b = np.asarray(spec.a, dtype=np.float64), np.asarray(spec.b, dtype=np.float64)
         axes, vol = [], 1.0
         for d in range(dim):
-            n = max(1, int(np.floor((b[d] - a[d]) / h + 0.5)))
-            sp = (b[d] - a[d]) / n
-            ax = a[d] + sp * (np.arange(n) + 0.5)
+            ax, sp, _ = _axis_coords(a[d], b[d], h, 0)  # the walls' fitted axis, without layers outside
             axes.append(ax[(ax >= blo[d] - 1e-12) & (ax <= bhi[d] + 1e-12)])
-            vol *= sp
+            vol *= sp[0]
     else:
         if spec.kind == "Plane":  # align layers with the plane: a lattice point at half a spacing inside
             anchor = np.asarray(spec.a) - 0.5 * h * np.asarray(spec.b)
