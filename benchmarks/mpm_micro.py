@@ -39,7 +39,13 @@ def lattice_box(lo, hi, spacing):
 
 MATERIALS = {
     "elastic": None,  # MPM.Elastic with --model
-    "von_mises": {"type": "MPM.ElastoPlastic", "E": 3e5, "nu": 0.2, "rho": 1000.0, "von_mises_yield_stress": 3e3},
+    "von_mises": {
+        "type": "MPM.ElastoPlastic",
+        "E": 3e5,
+        "nu": 0.2,
+        "rho": 1000.0,
+        "von_mises_yield_stress": 3e3,
+    },
     "sand": {"type": "MPM.Sand", "E": 3e5, "nu": 0.2, "rho": 1000.0, "friction_angle": 30.0},
     "snow": {"type": "MPM.Snow", "E": 3e5, "nu": 0.2, "rho": 1000.0},
     "liquid": {"type": "MPM.Liquid", "E": 3e5, "nu": 0.2, "rho": 1000.0},
@@ -63,10 +69,13 @@ def field_bytes(solver) -> dict:
             shape = tuple(fld.shape)
             if shape and shape[0] == solver.n:
                 per_particle += size
-            elif shape[-solver.dim:] == tuple(solver.grid_shape):
-                per_node += size * int(np.prod(shape[:-solver.dim]))
-    return {"bytes_per_particle": per_particle, "bytes_per_grid_node": per_node,
-            "grid_nodes": int(np.prod(solver.grid_shape))}
+            elif shape[-solver.dim :] == tuple(solver.grid_shape):
+                per_node += size * int(np.prod(shape[: -solver.dim]))
+    return {
+        "bytes_per_particle": per_particle,
+        "bytes_per_grid_node": per_node,
+        "grid_nodes": int(np.prod(solver.grid_shape)),
+    }
 
 
 def b1_scene(large: bool, model: str, precision: str, threads: int, material: str = "elastic"):
@@ -74,16 +83,27 @@ def b1_scene(large: bool, model: str, precision: str, threads: int, material: st
 
     density, psize, dt = (128.0, 0.005, 1.5e-3) if large else (64.0, 0.01, 4e-3)
     mat = MATERIALS[material] or {"type": "MPM.Elastic", "E": 3e5, "nu": 0.2, "rho": 1000.0, "model": model}
-    return Scene.model_validate({
-        "sim": {"dim": 3, "dt": dt, "substeps": 10, "precision": precision, "backend": "cpu", "threads": threads},
-        "domain": {"lower": [-0.5, -0.5, 0.0], "upper": [0.5, 0.5, 1.0]},
-        "solvers": {"mpm": {"grid_density": density, "particle_size": psize}},
-        "entities": [{
-            "name": "cube",
-            "material": mat,
-            "morph": {"type": "Box", "center": [0.0, 0.0, 0.35], "size": [0.2, 0.2, 0.2]},
-        }],
-    })
+    return Scene.model_validate(
+        {
+            "sim": {
+                "dim": 3,
+                "dt": dt,
+                "substeps": 10,
+                "precision": precision,
+                "backend": "cpu",
+                "threads": threads,
+            },
+            "domain": {"lower": [-0.5, -0.5, 0.0], "upper": [0.5, 0.5, 1.0]},
+            "solvers": {"mpm": {"grid_density": density, "particle_size": psize}},
+            "entities": [
+                {
+                    "name": "cube",
+                    "material": mat,
+                    "morph": {"type": "Box", "center": [0.0, 0.0, 0.35], "size": [0.2, 0.2, 0.2]},
+                }
+            ],
+        }
+    )
 
 
 def main() -> None:
@@ -111,8 +131,15 @@ def main() -> None:
     n = len(x)
     rho = ent.material.rho
     vol_total = float(np.prod(np.subtract(hi, lo)))
-    body = Body(name=ent.name, entity=ent, x=x, v=np.zeros_like(x), volume=np.full(n, vol_total / n),
-                mass=np.full(n, rho * vol_total / n), fixed=np.zeros(n, bool))
+    body = Body(
+        name=ent.name,
+        entity=ent,
+        x=x,
+        v=np.zeros_like(x),
+        volume=np.full(n, vol_total / n),
+        mass=np.full(n, rho * vol_total / n),
+        fixed=np.zeros(n, bool),
+    )
 
     t0 = time.perf_counter()
     solver = MPMSolver(scene, [body])
@@ -138,12 +165,22 @@ def main() -> None:
     sps = steps * 10 / el
     com_z = float(np.mean(solver.entity_arrays("cube", ["position"])["position"][:, 2]))
     res = {
-        "scene": "B1L" if args.large else "B1", "model": args.model, "precision": args.precision,
-        "threads": info["threads"], "particles": n, "init_s": round(t_init, 3), "build_s": round(t_build, 3),
-        "first_substep_s": round(t_first, 3), "substeps_per_s": round(sps, 1),
-        "particle_substeps_per_s": round(sps * n), "sim_time_s": round((steps * 10 + 1) * sub_dt, 3),
-        "com_z": round(com_z, 4), "finite": all(s.finite for s in stats.values()), "counts": solver.counts(),
-        "material": args.material, "memory": field_bytes(solver),
+        "scene": "B1L" if args.large else "B1",
+        "model": args.model,
+        "precision": args.precision,
+        "threads": info["threads"],
+        "particles": n,
+        "init_s": round(t_init, 3),
+        "build_s": round(t_build, 3),
+        "first_substep_s": round(t_first, 3),
+        "substeps_per_s": round(sps, 1),
+        "particle_substeps_per_s": round(sps * n),
+        "sim_time_s": round((steps * 10 + 1) * sub_dt, 3),
+        "com_z": round(com_z, 4),
+        "finite": all(s.finite for s in stats.values()),
+        "counts": solver.counts(),
+        "material": args.material,
+        "memory": field_bytes(solver),
         "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
     }
     if args.json:

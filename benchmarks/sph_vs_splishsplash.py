@@ -89,8 +89,14 @@ def run_splishsplash(py: str, threads: int, duration: float, work: Path, data: s
     gldispatch = Path("/lib/x86_64-linux-gnu/libGLdispatch.so.0")
     if gldispatch.exists():
         env["LD_PRELOAD"] = str(gldispatch)
-    r = subprocess.run([py, str(work / "run.py"), str(duration), str(work / "out"), str(work / "DamBreak.json")],
-                       capture_output=True, text=True, env=env, timeout=3600, check=False)
+    r = subprocess.run(
+        [py, str(work / "run.py"), str(duration), str(work / "out"), str(work / "DamBreak.json")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=3600,
+        check=False,
+    )
     out = r.stdout + r.stderr
     if r.returncode != 0:
         raise RuntimeError(f"SPlisHSPlasH failed ({r.returncode}): {out[-2000:]}")
@@ -100,21 +106,38 @@ def run_splishsplash(py: str, threads: int, duration: float, work: Path, data: s
         return float(m.group(1)) if m else None
 
     step_ms = num(r"Time sum: SimStep: ([\d.e+-]+) ms")
-    return {"particles": int(num(r"Number of fluid particles: (\d+)")), "stepping_s": step_ms / 1000.0,
-            "sim_time": num(r"Total number: Time step size: ([\d.e+-]+)"),
-            "dt_mean": num(r"Average number: Time step size: ([\d.e+-]+)"),
-            "density_iterations": num(r"Average number: DFSPH - iterations: ([\d.e+-]+)"),
-            "divergence_iterations": num(r"Average number: DFSPH - iterationsV: ([\d.e+-]+)"),
-            "setup_s": num(r"time Volume Map Construction: ([\d.e+-]+) ms") / 1000.0,
-            "tolerance_percent": 0.01}
+    return {
+        "particles": int(num(r"Number of fluid particles: (\d+)")),
+        "stepping_s": step_ms / 1000.0,
+        "sim_time": num(r"Total number: Time step size: ([\d.e+-]+)"),
+        "dt_mean": num(r"Average number: Time step size: ([\d.e+-]+)"),
+        "density_iterations": num(r"Average number: DFSPH - iterations: ([\d.e+-]+)"),
+        "divergence_iterations": num(r"Average number: DFSPH - iterationsV: ([\d.e+-]+)"),
+        "setup_s": num(r"time Volume Map Construction: ([\d.e+-]+) ms") / 1000.0,
+        "tolerance_percent": 0.01,
+    }
 
 
 def run_simcli(scene: str, threads: int, sets: list[str]) -> dict:
     import h5py
 
     with tempfile.TemporaryDirectory() as out:
-        cmd = [sys.executable, "-m", "simcli", "run", str(ROOT / scene), "-o", out, "--quiet", "--backend", "cpu",
-               "--set", f"sim.threads={threads}", "--set", "output.fields=[position, velocity, density]"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "simcli",
+            "run",
+            str(ROOT / scene),
+            "-o",
+            out,
+            "--quiet",
+            "--backend",
+            "cpu",
+            "--set",
+            f"sim.threads={threads}",
+            "--set",
+            "output.fields=[position, velocity, density]",
+        ]
         for s in sets:
             cmd += ["--set", s]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=3600, check=False)
@@ -126,25 +149,41 @@ def run_simcli(scene: str, threads: int, sets: list[str]) -> dict:
             rho = np.asarray(g["density"][1:], dtype=np.float64)
     dfsph = info["solvers"]["sph"].get("dfsph", {})
     sub = info["substeps"]
-    return {"particles": info["particles"], "stepping_s": info["timings"]["stepping_s"], "sim_time": info["sim_time"],
-            "dt_mean": info["sim_time"] / max(1, sub["total"]), "substeps": sub["total"],
-            "density_iterations": dfsph.get("density", {}).get("iterations_per_substep"),
-            "divergence_iterations": dfsph.get("divergence", {}).get("iterations_per_substep"),
-            "solver_density_error_percent_max": dfsph.get("density", {}).get("average_error_percent_max"),
-            "density_error_percent": 100 * float(np.maximum(rho / 1000.0 - 1.0, 0.0).mean())}
+    return {
+        "particles": info["particles"],
+        "stepping_s": info["timings"]["stepping_s"],
+        "sim_time": info["sim_time"],
+        "dt_mean": info["sim_time"] / max(1, sub["total"]),
+        "substeps": sub["total"],
+        "density_iterations": dfsph.get("density", {}).get("iterations_per_substep"),
+        "divergence_iterations": dfsph.get("divergence", {}).get("iterations_per_substep"),
+        "solver_density_error_percent_max": dfsph.get("density", {}).get("average_error_percent_max"),
+        "density_error_percent": 100 * float(np.maximum(rho / 1000.0 - 1.0, 0.0).mean()),
+    }
 
 
 def run_genesis(py: str, solver: str, threads: int, steps: int, work: Path) -> dict:
     (work / "genesis_run.py").write_text(GENESIS_RUN)
     env = dict(os.environ, QD_NUM_THREADS=str(threads))
-    r = subprocess.run([py, str(work / "genesis_run.py"), solver, str(steps)], capture_output=True, text=True,
-                       env=env, timeout=3600, check=False)
+    r = subprocess.run(
+        [py, str(work / "genesis_run.py"), solver, str(steps)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=3600,
+        check=False,
+    )
     m = re.search(r"^RESULT (.*)$", r.stdout, re.MULTILINE)
     if r.returncode != 0 or not m:
         raise RuntimeError(f"genesis failed ({r.returncode}): {r.stderr[-2000:]}")
     d = json.loads(m.group(1))
-    return {"particles": d["n"], "stepping_s": d["wall"], "sim_time": d["sim_time"], "dt_mean": 4e-4,
-            "density_error_percent": d["density_error_percent"]}
+    return {
+        "particles": d["n"],
+        "stepping_s": d["wall"],
+        "sim_time": d["sim_time"],
+        "dt_mean": 4e-4,
+        "density_error_percent": d["density_error_percent"],
+    }
 
 
 def pss(r: dict) -> float:
@@ -163,14 +202,27 @@ def main() -> None:
     ap.add_argument("--splishsplash-python", default=str(Path.home() / "sph-venv" / "bin" / "python"))
     ap.add_argument("--duration", type=float, default=1.0, help="simulated time of the dam break [s]")
     ap.add_argument("--genesis-steps", type=int, default=25, help="Genesis B2 steps (4 ms each)")
-    ap.add_argument("--splishsplash-data", default=None,
-                    help="folder with SPlisHSPlasH's Scenes/ and models/ (default: data/ beside its python)")
+    ap.add_argument(
+        "--splishsplash-data",
+        default=None,
+        help="folder with SPlisHSPlasH's Scenes/ and models/ (default: data/ beside its python)",
+    )
     ap.add_argument("--no-genesis", action="store_true", help="skip the Genesis B2 rows")
-    ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                    help="scene override for simcli's dam break (repeatable)")
-    ap.add_argument("--repeat", type=int, default=3,
-                    help="run the dam break N times for each code, alternating, and report the fastest (single "
-                         "runs on a shared machine scatter by up to 2x, SPlisHSPlasH's OpenMP code most)")
+    ap.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="scene override for simcli's dam break (repeatable)",
+    )
+    ap.add_argument(
+        "--repeat",
+        type=int,
+        default=3,
+        help="run the dam break N times for each code, alternating, and report the fastest (single "
+        "runs on a shared machine scatter by up to 2x, SPlisHSPlasH's OpenMP code most)",
+    )
     ap.add_argument("--out", default=str(ROOT / "docs" / "PERFORMANCE_SPH.md"))
     args = ap.parse_args()
     lines = []
@@ -184,49 +236,88 @@ def main() -> None:
                 r = run_splishsplash(spl_py, args.threads, args.duration, work, args.splishsplash_data)
                 print("SPlisHSPlasH", json.dumps(r), flush=True)
                 spl = r if spl is None or r["stepping_s"] < spl["stepping_s"] else spl
-            r = run_simcli("configs/bench/sph_dambreak_splishsplash.yaml", args.threads,
-                           [f"sim.duration={args.duration}", *args.sets])
+            r = run_simcli(
+                "configs/bench/sph_dambreak_splishsplash.yaml",
+                args.threads,
+                [f"sim.duration={args.duration}", *args.sets],
+            )
             print("simcli", json.dumps(r), flush=True)
             ours = r if ours is None or r["stepping_s"] < ours["stepping_s"] else ours
         if spl is not None:
             rows.append(("SPlisHSPlasH 2.19 (DFSPH)", spl))
         rows.append(("simcli (DFSPH)", ours))
-        lines += ["### Dam break (SPlisHSPlasH's DamBreakModel), DFSPH at 0.01 % / 0.1 %, adaptive steps", "",
-                  "| code | particles | simulated [s] | stepping wall [s] | mean step [ms] | density / divergence "
-                  "iterations per step | particle-seconds per wall-second | vs SPlisHSPlasH |", "|---|---|---|---|---|---|---|---|"]
+        lines += [
+            "### Dam break (SPlisHSPlasH's DamBreakModel), DFSPH at 0.01 % / 0.1 %, adaptive steps",
+            "",
+            "| code | particles | simulated [s] | stepping wall [s] | mean step [ms] | density / divergence "
+            "iterations per step | particle-seconds per wall-second | vs SPlisHSPlasH |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
         base = pss(rows[0][1]) if len(rows) > 1 else None
         for name, r in rows:
-            lines.append(f"| {name} | {r['particles']} | {fmt(r['sim_time'])} | {fmt(r['stepping_s'])} | "
-                         f"{fmt(1e3 * r['dt_mean'])} | {fmt(r['density_iterations'])} / {fmt(r['divergence_iterations'])} | "
-                         f"{fmt(pss(r))} | {fmt(pss(r) / base) + 'x' if base else '-'} |")
-        lines += ["", "Both stop each solve at an average density error of 0.01 % (divergence 0.1 %); simcli's "
-                  f"largest per-step average density error was {fmt(ours['solver_density_error_percent_max'])} %. "
-                  "SPlisHSPlasH's one-off volume-map construction (its boundary method) is excluded, as is simcli's "
-                  "compilation.", ""]
+            lines.append(
+                f"| {name} | {r['particles']} | {fmt(r['sim_time'])} | {fmt(r['stepping_s'])} | "
+                f"{fmt(1e3 * r['dt_mean'])} | {fmt(r['density_iterations'])} / {fmt(r['divergence_iterations'])} | "
+                f"{fmt(pss(r))} | {fmt(pss(r) / base) + 'x' if base else '-'} |"
+            )
+        lines += [
+            "",
+            "Both stop each solve at an average density error of 0.01 % (divergence 0.1 %); simcli's "
+            f"largest per-step average density error was {fmt(ours['solver_density_error_percent_max'])} %. "
+            "SPlisHSPlasH's one-off volume-map construction (its boundary method) is excluded, as is simcli's "
+            "compilation.",
+            "",
+        ]
 
         gpy = None if args.no_genesis else genesis_python()
         if gpy:
             grow = []
-            for solver, scene in (("WCSPH", "configs/bench/b2_wcsph.yaml"), ("DFSPH", "configs/bench/b2_dfsph.yaml")):
+            for solver, scene in (
+                ("WCSPH", "configs/bench/b2_wcsph.yaml"),
+                ("DFSPH", "configs/bench/b2_dfsph.yaml"),
+            ):
                 g = run_genesis(gpy, solver, args.threads, args.genesis_steps, work)
                 fixed = run_simcli(scene, args.threads, ["sim.steps=50", "output.every=5"])
-                auto = run_simcli(scene, args.threads, ["sim.steps=50", "output.every=5", "sim.substeps=auto"])
-                print(solver, "genesis", json.dumps(g), "simcli fixed", json.dumps(fixed), "auto", json.dumps(auto),
-                      flush=True)
-                grow += [(solver, "Genesis 1.4.5, fixed 0.4 ms", g), (solver, "simcli, fixed 0.4 ms", fixed),
-                         (solver, "simcli, substeps: auto", auto)]
-            lines += ["### B2 dam break: simulated particle-seconds per wall-second", "",
-                      "| solver | code, step | particles | mean substep [ms] | average density error [%] | "
-                      "particle-seconds per wall-second | vs Genesis |", "|---|---|---|---|---|---|---|"]
+                auto = run_simcli(
+                    scene, args.threads, ["sim.steps=50", "output.every=5", "sim.substeps=auto"]
+                )
+                print(
+                    solver,
+                    "genesis",
+                    json.dumps(g),
+                    "simcli fixed",
+                    json.dumps(fixed),
+                    "auto",
+                    json.dumps(auto),
+                    flush=True,
+                )
+                grow += [
+                    (solver, "Genesis 1.4.5, fixed 0.4 ms", g),
+                    (solver, "simcli, fixed 0.4 ms", fixed),
+                    (solver, "simcli, substeps: auto", auto),
+                ]
+            lines += [
+                "### B2 dam break: simulated particle-seconds per wall-second",
+                "",
+                "| solver | code, step | particles | mean substep [ms] | average density error [%] | "
+                "particle-seconds per wall-second | vs Genesis |",
+                "|---|---|---|---|---|---|---|",
+            ]
             for solver in ("WCSPH", "DFSPH"):
                 rs = [r for r in grow if r[0] == solver]
                 gbase = pss(rs[0][2])
                 for _, name, r in rs:
-                    lines.append(f"| {solver} | {name} | {r['particles']} | {fmt(1e3 * r['dt_mean'])} | "
-                                 f"{fmt(r['density_error_percent'])} | {fmt(pss(r))} | {fmt(pss(r) / gbase)}x |")
-            lines += ["", "Average density error: the mean over particles and frames of max(rho / rho0 - 1, 0), from "
-                      "the density each code computed at the start of its last substep (Genesis: no boundary "
-                      "particles, so its particles at walls are under-dense and count as zero).", ""]
+                    lines.append(
+                        f"| {solver} | {name} | {r['particles']} | {fmt(1e3 * r['dt_mean'])} | "
+                        f"{fmt(r['density_error_percent'])} | {fmt(pss(r))} | {fmt(pss(r) / gbase)}x |"
+                    )
+            lines += [
+                "",
+                "Average density error: the mean over particles and frames of max(rho / rho0 - 1, 0), from "
+                "the density each code computed at the start of its last substep (Genesis: no boundary "
+                "particles, so its particles at walls are under-dense and count as zero).",
+                "",
+            ]
         if not gpy and args.out and Path(args.out).exists():  # keep the last Genesis section, marked as such
             old = Path(args.out).read_text()
             k = old.find("### B2 dam break")
@@ -235,10 +326,15 @@ def main() -> None:
                 if "(kept from an earlier run" not in kept[0]:
                     kept[0] += " (kept from an earlier run with Genesis: this run had --no-genesis)"
                 lines += kept + [""]
-    text = ("## SPH beside SPlisHSPlasH and Genesis\n\n"
-            f"Regenerate with `python benchmarks/sph_vs_splishsplash.py` (measured {time.strftime('%Y-%m-%d')} on "
-            f"{machine()}; {args.threads} threads for every code, "
-            + ("one run" if args.repeat == 1 else f"the fastest of {args.repeat} alternating runs") + ", in sequence).\n\n" + "\n".join(lines) + "\n")
+    text = (
+        "## SPH beside SPlisHSPlasH and Genesis\n\n"
+        f"Regenerate with `python benchmarks/sph_vs_splishsplash.py` (measured {time.strftime('%Y-%m-%d')} on "
+        f"{machine()}; {args.threads} threads for every code, "
+        + ("one run" if args.repeat == 1 else f"the fastest of {args.repeat} alternating runs")
+        + ", in sequence).\n\n"
+        + "\n".join(lines)
+        + "\n"
+    )
     print(text)
     if args.out:
         Path(args.out).write_text(text)

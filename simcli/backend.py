@@ -39,7 +39,11 @@ def _has_gpu_driver() -> bool:
 
     if ctypes.util.find_library("cuda"):
         return True
-    for p in ("/usr/lib/x86_64-linux-gnu/libcuda.so.1", "/usr/lib64/libcuda.so.1", "/usr/lib/wsl/lib/libcuda.so.1"):
+    for p in (
+        "/usr/lib/x86_64-linux-gnu/libcuda.so.1",
+        "/usr/lib64/libcuda.so.1",
+        "/usr/lib/wsl/lib/libcuda.so.1",
+    ):
         if os.path.exists(p):
             return True
     return sys.platform == "darwin"  # Metal
@@ -51,8 +55,9 @@ def platform_hint(backend: str) -> str:
     return f"Taichi found no usable {backend} device"
 
 
-def init_taichi(backend: str = "cpu", precision: str = "f32", threads: int | None = None,
-                debug: bool = False) -> dict:
+def init_taichi(
+    backend: str = "cpu", precision: str = "f32", threads: int | None = None, debug: bool = False
+) -> dict:
     """Initialise Taichi once per process and return facts about it.
 
     backend: auto | cpu | gpu | cuda | vulkan | metal. ``auto`` tries a GPU and falls back
@@ -66,18 +71,34 @@ def init_taichi(backend: str = "cpu", precision: str = "f32", threads: int | Non
         import taichi as ti
     import_s = time.perf_counter() - t0
 
-    arch_map = {"cpu": ti.cpu, "gpu": ti.gpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "metal": ti.metal, "auto": ti.gpu}
+    arch_map = {
+        "cpu": ti.cpu,
+        "gpu": ti.gpu,
+        "cuda": ti.cuda,
+        "vulkan": ti.vulkan,
+        "metal": ti.metal,
+        "auto": ti.gpu,
+    }
     if backend == "auto" and not _has_gpu_driver():
         backend = "cpu"
     elif backend in ("cuda", "gpu") and not _has_gpu_driver():
         from simcli.errors import SimcliError
 
-        raise SimcliError(f"backend '{backend}' requested but not available on this machine ({platform_hint(backend)}). "
-                          f"Use --backend auto (a GPU if present, else the CPU) or --backend cpu")
+        raise SimcliError(
+            f"backend '{backend}' requested but not available on this machine ({platform_hint(backend)}). "
+            f"Use --backend auto (a GPU if present, else the CPU) or --backend cpu"
+        )
     fp = ti.f64 if precision == "f64" else ti.f32
     cache = os.environ.get("SIMCLI_KERNEL_CACHE", default_cache_dir())
-    kwargs = dict(default_fp=fp, default_ip=ti.i32, offline_cache=True, offline_cache_file_path=cache,
-                  log_level=ti.WARN, random_seed=0, debug=debug)
+    kwargs = dict(
+        default_fp=fp,
+        default_ip=ti.i32,
+        offline_cache=True,
+        offline_cache_file_path=cache,
+        log_level=ti.WARN,
+        random_seed=0,
+        debug=debug,
+    )
     if threads is None:
         env = os.environ.get("SLURM_CPUS_PER_TASK") or os.environ.get("SIMCLI_THREADS")
         if env:
@@ -101,9 +122,18 @@ def init_taichi(backend: str = "cpu", precision: str = "f32", threads: int | Non
         # for a GPU must not run for hours on the CPU instead: stop and say so.
         from simcli.errors import SimcliError
 
-        raise SimcliError(f"backend '{backend}' requested but not available on this machine ({platform_hint(backend)}); "
-                          f"Taichi would fall back to the CPU. Use --backend auto (a GPU if present, else the CPU) "
-                          f"or --backend cpu")
-    _STATE.update(arch=arch_name, import_s=import_s, init_s=init_s, threads=threads if arch_name == "x64" or
-                  arch_name == "arm64" else None, cache=cache, precision=precision, taichi=ti.__version__)
+        raise SimcliError(
+            f"backend '{backend}' requested but not available on this machine ({platform_hint(backend)}); "
+            f"Taichi would fall back to the CPU. Use --backend auto (a GPU if present, else the CPU) "
+            f"or --backend cpu"
+        )
+    _STATE.update(
+        arch=arch_name,
+        import_s=import_s,
+        init_s=init_s,
+        threads=threads if arch_name == "x64" or arch_name == "arm64" else None,
+        cache=cache,
+        precision=precision,
+        taichi=ti.__version__,
+    )
     return dict(_STATE)

@@ -28,17 +28,39 @@ def cli() -> None:
 
 @cli.command()
 @click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Output folder (overrides output.dir).")
-@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-              help="Override a scene key by dotted path (list items by index); value parsed as YAML. Repeatable.")
-@click.option("--backend", type=click.Choice(["auto", "cpu", "gpu", "cuda", "vulkan", "metal"]), default=None,
-              help="Compute backend (overrides sim.backend).")
+@click.option(
+    "-o",
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Output folder (overrides output.dir).",
+)
+@click.option(
+    "--set",
+    "sets",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Override a scene key by dotted path (list items by index); value parsed as YAML. Repeatable.",
+)
+@click.option(
+    "--backend",
+    type=click.Choice(["auto", "cpu", "gpu", "cuda", "vulkan", "metal"]),
+    default=None,
+    help="Compute backend (overrides sim.backend).",
+)
 @click.option("--resume", is_flag=True, help="Continue from the newest checkpoint in the output folder.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 @click.option("--json", "as_json", is_flag=True, help="Print run.json to stdout at the end.")
-def run(scene: Path, out: Path | None, sets: tuple[str, ...], backend: str | None, resume: bool, quiet: bool,
-        as_json: bool) -> None:
+def run(
+    scene: Path,
+    out: Path | None,
+    sets: tuple[str, ...],
+    backend: str | None,
+    resume: bool,
+    quiet: bool,
+    as_json: bool,
+) -> None:
     """Run SCENE and write frames, run.json and checkpoints to the output folder."""
     from simcli.scene.loader import load_scene
 
@@ -50,8 +72,16 @@ def run(scene: Path, out: Path | None, sets: tuple[str, ...], backend: str | Non
         sys.exit(EXIT_INVALID_SCENE)
     from simcli.runner import run_scene
 
-    code, info = run_scene(loaded, out_dir=out, backend=backend, resume=resume, quiet=quiet,
-                           sets=list(sets), t_process=_T0, restore_signals=False)
+    code, info = run_scene(
+        loaded,
+        out_dir=out,
+        backend=backend,
+        resume=resume,
+        quiet=quiet,
+        sets=list(sets),
+        t_process=_T0,
+        restore_signals=False,
+    )
     # the run is over: a SIGTERM/SIGUSR1 from now on (Slurm's, during Taichi's clean-up and the
     # interpreter's shut-down, which puts Python-level handlers back to the default) must not turn
     # this exit code into a death by signal. SIG_IGN survives the shut-down.
@@ -135,9 +165,15 @@ def _validate_sweep(path: Path, quiet: bool) -> int:
 
 
 @cli.command()
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Folder to write scene.schema.json (and sweep.schema.json) into; without it the scene "
-              "schema goes to stdout.")
+@click.option(
+    "-o",
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Folder to write scene.schema.json (and sweep.schema.json) into; without it the scene "
+    "schema goes to stdout.",
+)
 def schema(out: Path | None) -> None:
     """Write the JSON Schema of scene files (generated from the same models as validation)."""
     from simcli.scene.schema import schema_text, write_schemas
@@ -177,7 +213,11 @@ def info(as_json: bool) -> None:
 
     from simcli.backend import stdout_to_stderr
 
-    facts: dict = {"simcli": __version__, "python": platform.python_version(), "platform": platform.platform()}
+    facts: dict = {
+        "simcli": __version__,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+    }
     for mod in ("numpy", "h5py", "meshio", "pydantic", "yaml", "click"):
         try:
             facts[mod] = __import__(mod).__version__
@@ -187,7 +227,9 @@ def info(as_json: bool) -> None:
         try:
             import taichi as ti
 
-            facts["taichi"] = ti.__version__ if isinstance(ti.__version__, str) else ".".join(map(str, ti.__version__))
+            facts["taichi"] = (
+                ti.__version__ if isinstance(ti.__version__, str) else ".".join(map(str, ti.__version__))
+            )
             from taichi._lib import core as _ti_core
 
             backends = {}
@@ -202,8 +244,12 @@ def info(as_json: bool) -> None:
     try:
         import subprocess
 
-        r = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total", "--format=csv,noheader"],
-                           capture_output=True, text=True, timeout=5)
+        r = subprocess.run(
+            ["nvidia-smi", "--query-gpu=name,memory.total", "--format=csv,noheader"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+        )
         facts["gpus"] = [g.strip() for g in r.stdout.splitlines() if g.strip()] if r.returncode == 0 else []
     except Exception:
         facts["gpus"] = []

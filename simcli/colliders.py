@@ -14,7 +14,6 @@ Two halves, like the materials:
 Importing this module imports Taichi (with stdout kept clean) but does not initialise it.
 """
 
-
 from dataclasses import dataclass
 from typing import Any
 
@@ -67,13 +66,17 @@ def collider_specs(scene: Any, dim: int) -> list[ColliderSpec]:
             norm = float(np.linalg.norm(n))
             if norm == 0.0:
                 raise ValueError("Plane collider normal must not be zero")
-            specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.point), tuple(n / norm), 0.0, 0.0, c.friction))
+            specs.append(
+                ColliderSpec(kind, c.boundary, 0, tuple(c.point), tuple(n / norm), 0.0, 0.0, c.friction)
+            )
         elif kind == "Box":
             if len(c.lower) != dim or len(c.upper) != dim:
                 raise ValueError(f"Box collider needs {dim} components for lower and upper")
             if any(lo >= hi for lo, hi in zip(c.lower, c.upper)):
                 raise ValueError("Box collider: lower must be < upper on every axis")
-            specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.lower), tuple(c.upper), 0.0, 0.0, c.friction))
+            specs.append(
+                ColliderSpec(kind, c.boundary, 0, tuple(c.lower), tuple(c.upper), 0.0, 0.0, c.friction)
+            )
         elif kind == "Sphere":
             if len(c.center) != dim:
                 raise ValueError(f"Sphere collider needs {dim} components for center")
@@ -83,8 +86,18 @@ def collider_specs(scene: Any, dim: int) -> list[ColliderSpec]:
                 raise ValueError("Cylinder colliders exist only in 3D (use a Sphere, i.e. a disk, in 2D)")
             if len(c.center) != 3:
                 raise ValueError("Cylinder collider needs 3 components for center")
-            specs.append(ColliderSpec(kind, c.boundary, "xyz".index(c.axis), tuple(c.center), zeros, c.radius,
-                                      0.5 * c.height, c.friction))
+            specs.append(
+                ColliderSpec(
+                    kind,
+                    c.boundary,
+                    "xyz".index(c.axis),
+                    tuple(c.center),
+                    zeros,
+                    c.radius,
+                    0.5 * c.height,
+                    c.friction,
+                )
+            )
         else:  # pragma: no cover - the scene schema rejects unknown kinds
             raise ValueError(f"unknown collider type {kind!r}")
     return specs
@@ -236,4 +249,3 @@ def sdf_cylinder(x, center, radius, half_height, axis: ti.template()):
         if q1 > q0:
             n = e
     return phi, n
-

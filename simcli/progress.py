@@ -17,8 +17,15 @@ def _fmt_eta(seconds: float) -> str:
 
 
 class Progress:
-    def __init__(self, total_steps: int, start_step: int, dt: float, quiet: bool = False,
-                 stream=None, interval_s: float | None = None):
+    def __init__(
+        self,
+        total_steps: int,
+        start_step: int,
+        dt: float,
+        quiet: bool = False,
+        stream=None,
+        interval_s: float | None = None,
+    ):
         self.total = total_steps
         self.start = start_step
         self.dt = dt
@@ -45,12 +52,16 @@ class Progress:
             width = 30
             fill = int(round(frac * width))
             bar = "#" * fill + "-" * (width - fill)
-            self.stream.write(f"\r[{bar}] {100 * frac:5.1f}% step {step}/{self.total} t={step * self.dt:.4g}s "
-                              f"{rate:.1f} steps/s ETA {_fmt_eta(eta)}  ")
+            self.stream.write(
+                f"\r[{bar}] {100 * frac:5.1f}% step {step}/{self.total} t={step * self.dt:.4g}s "
+                f"{rate:.1f} steps/s ETA {_fmt_eta(eta)}  "
+            )
             self._drawn = True
         else:
-            self.stream.write(f"simcli: step {step}/{self.total} ({100 * frac:.1f}%) t={step * self.dt:.4g}s "
-                              f"{rate:.1f} steps/s ETA {_fmt_eta(eta)}\n")
+            self.stream.write(
+                f"simcli: step {step}/{self.total} ({100 * frac:.1f}%) t={step * self.dt:.4g}s "
+                f"{rate:.1f} steps/s ETA {_fmt_eta(eta)}\n"
+            )
         self.stream.flush()
 
     def close(self) -> None:

@@ -62,8 +62,14 @@ def _versions(ti_info: dict | None) -> dict:
     import meshio
     import pydantic
 
-    v = {"simcli": __version__, "python": platform.python_version(), "numpy": np.__version__,
-         "h5py": h5py.__version__, "meshio": meshio.__version__, "pydantic": pydantic.__version__}
+    v = {
+        "simcli": __version__,
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "h5py": h5py.__version__,
+        "meshio": meshio.__version__,
+        "pydantic": pydantic.__version__,
+    }
     if ti_info:
         t = ti_info.get("taichi")
         v["taichi"] = ".".join(map(str, t)) if isinstance(t, (tuple, list)) else t
@@ -97,9 +103,17 @@ class _Signals:
             signal.signal(s, h)
 
 
-def run_scene(loaded: LoadedScene, out_dir: Path | None = None, backend: str | None = None, resume: bool = False,
-              quiet: bool = False, sets: list[str] | None = None, t_process: float | None = None,
-              solver_factory=None, restore_signals: bool = True) -> tuple[int, dict | None]:
+def run_scene(
+    loaded: LoadedScene,
+    out_dir: Path | None = None,
+    backend: str | None = None,
+    resume: bool = False,
+    quiet: bool = False,
+    sets: list[str] | None = None,
+    t_process: float | None = None,
+    solver_factory=None,
+    restore_signals: bool = True,
+) -> tuple[int, dict | None]:
     """Run a validated scene. Returns (exit code, run.json dict).
 
     restore_signals: put the caller's SIGTERM/SIGINT/SIGUSR1 handlers back when the run ends. The
@@ -127,8 +141,16 @@ class Runner:
         self.t_process = t_process if t_process is not None else time.perf_counter()
         self.warnings: list[str] = []
         self.info: dict = {}
-        self.timings = {"startup_s": 0.0, "setup_s": 0.0, "taichi_init_s": 0.0, "build_s": 0.0, "compile_s": 0.0,
-                        "stepping_s": 0.0, "output_s": 0.0, "checkpoint_s": 0.0}
+        self.timings = {
+            "startup_s": 0.0,
+            "setup_s": 0.0,
+            "taichi_init_s": 0.0,
+            "build_s": 0.0,
+            "compile_s": 0.0,
+            "stepping_s": 0.0,
+            "output_s": 0.0,
+            "checkpoint_s": 0.0,
+        }
         self.signals = _Signals()
         self.restore_signals = True  # see run_scene
 
@@ -142,9 +164,14 @@ class Runner:
         print(f"simcli: warning: {msg}", file=sys.stderr, flush=True)
 
     def write_run_json(self, status: str, exit_code: int | None) -> dict:
-        self.info.update(status=status, exit_code=exit_code, warnings=self.warnings,
-                         timings={k: round(v, 4) for k, v in self.timings.items()},
-                         peak_memory_mb=round(_peak_memory_mb(), 1), updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+        self.info.update(
+            status=status,
+            exit_code=exit_code,
+            warnings=self.warnings,
+            timings={k: round(v, 4) for k, v in self.timings.items()},
+            peak_memory_mb=round(_peak_memory_mb(), 1),
+            updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        )
         if self.out.is_dir():
             try:
                 _atomic_write(self.out / "run.json", json.dumps(self.info, indent=2) + "\n")
@@ -178,8 +205,11 @@ class Runner:
             return 130, self.write_run_json("killed", 130)
         except Exception as e:  # an internal error: short message, details in run.json
             tb = traceback.format_exc()
-            print(f"simcli: internal error: {type(e).__name__}: {e} (details in {self.out / 'run.json'})",
-                  file=sys.stderr, flush=True)
+            print(
+                f"simcli: internal error: {type(e).__name__}: {e} (details in {self.out / 'run.json'})",
+                file=sys.stderr,
+                flush=True,
+            )
             self.info["error"] = f"{type(e).__name__}: {e}"
             self.info["traceback"] = tb
             return EXIT_OTHER, self.write_run_json("failed", EXIT_OTHER)
@@ -194,8 +224,10 @@ class Runner:
             probe.write_text("ok")
             probe.unlink()
         except OSError as e:
-            raise OutputError(f"cannot write to output folder {self.out}: {e.strerror or e}; choose another with "
-                              f"-o or output.dir") from None
+            raise OutputError(
+                f"cannot write to output folder {self.out}: {e.strerror or e}; choose another with "
+                f"-o or output.dir"
+            ) from None
 
     def _run(self, solver_factory) -> tuple[int, dict]:
         import warnings
@@ -214,8 +246,10 @@ class Runner:
                 self.warnings.append(str(w.message))
                 print(f"simcli: warning: {w.message}", file=sys.stderr)
             if found is None:
-                print(f"simcli: error: --resume: no checkpoint in {self.out / 'checkpoints'}; run without --resume",
-                      file=sys.stderr)
+                print(
+                    f"simcli: error: --resume: no checkpoint in {self.out / 'checkpoints'}; run without --resume",
+                    file=sys.stderr,
+                )
                 return EXIT_USAGE, None
             path, state, meta = found
             meta = dict(meta, path=str(path))
@@ -224,9 +258,17 @@ class Runner:
         scene_text = yaml.safe_dump(self.resolved, sort_keys=False)
         _atomic_write(self.out / "scene.yaml", "# resolved scene: every default filled in\n" + scene_text)
 
-        self.info = {"simcli_version": __version__, "scene": str(self.loaded.path), "name": self.name,
-                     "out": str(self.out), "overrides": self.sets, "resumed": bool(self.resume),
-                     "command": " ".join(sys.argv), "pid": os.getpid(), "host": platform.node()}
+        self.info = {
+            "simcli_version": __version__,
+            "scene": str(self.loaded.path),
+            "name": self.name,
+            "out": str(self.out),
+            "overrides": self.sets,
+            "resumed": bool(self.resume),
+            "command": " ".join(sys.argv),
+            "pid": os.getpid(),
+            "host": platform.node(),
+        }
         self.write_run_json("starting", None)
 
         # ---- set-up: sample bodies (no taichi yet)
@@ -240,8 +282,10 @@ class Runner:
             if len(b.x) == 0:
                 fam = b.entity.family
                 opt = f"solvers.{fam.lower()}.particle_size"
-                raise SimcliError(f"entity '{b.name}' got no particles: its morph is thinner than the "
-                                  f"{fam} particle spacing {opt} = {family_spacing(scene, fam):g} m; lower it")
+                raise SimcliError(
+                    f"entity '{b.name}' got no particles: its morph is thinner than the "
+                    f"{fam} particle spacing {opt} = {family_spacing(scene, fam):g} m; lower it"
+                )
         self.timings["setup_s"] = time.perf_counter() - t0
 
         # ---- taichi and the solver
@@ -250,8 +294,14 @@ class Runner:
         ti_info = init_taichi(self.backend, sim.precision, sim.threads)
         self.signals.install()  # Taichi installs handlers of its own in ti.init: ours must win
         self.timings["taichi_init_s"] = ti_info["import_s"] + ti_info["init_s"]
-        self.info.update(backend=ti_info["arch"], requested_backend=self.backend, threads=ti_info["threads"],
-                         precision=sim.precision, kernel_cache=ti_info["cache"], versions=_versions(ti_info))
+        self.info.update(
+            backend=ti_info["arch"],
+            requested_backend=self.backend,
+            threads=ti_info["threads"],
+            precision=sim.precision,
+            kernel_cache=ti_info["cache"],
+            versions=_versions(ti_info),
+        )
         t0 = time.perf_counter()
         if solver_factory is None:
             from simcli.solvers import make_solvers
@@ -262,7 +312,9 @@ class Runner:
         self._solvers = solvers
         for s in solvers:
             s.build()
-        for s in solvers:  # what a solver changed of the scene as given (e.g. SPH particles inside a collider)
+        for (
+            s
+        ) in solvers:  # what a solver changed of the scene as given (e.g. SPH particles inside a collider)
             for w in getattr(s, "warnings", None) or []:
                 self.warn(w)
         self.timings["build_s"] = time.perf_counter() - t0
@@ -285,20 +337,28 @@ class Runner:
             self._check_resume_meta(meta)
             for s in solvers:
                 try:
-                    s.set_state({k.split("/", 1)[1]: v for k, v in state.items() if k.startswith(s.family + "/")})
+                    s.set_state(
+                        {k.split("/", 1)[1]: v for k, v in state.items() if k.startswith(s.family + "/")}
+                    )
                 except (KeyError, ValueError) as e:  # a checkpoint of another scene: say so, not a traceback
                     what = f"missing {e}" if isinstance(e, KeyError) else str(e)
-                    msg = (f"--resume: the checkpoint in {self.out / 'checkpoints'} does not fit this scene "
-                           f"({s.family}: {what}). Resume with the scene that wrote it, or start afresh "
-                           "(another -o, or without --resume after removing the folder)")
+                    msg = (
+                        f"--resume: the checkpoint in {self.out / 'checkpoints'} does not fit this scene "
+                        f"({s.family}: {what}). Resume with the scene that wrote it, or start afresh "
+                        "(another -o, or without --resume after removing the folder)"
+                    )
                     raise SceneError([msg]) from None
             step = int(meta["step"])
             frame = int(meta["frame"])
             substeps_now = meta.get("substeps_now", substeps_now)
             sub_hist = list(meta.get("substeps_hist", []))
-            self.timings.update({k: float(v) for k, v in meta.get("timings", {}).items() if k == "stepping_s"})
-            self.log(f"resuming from {meta['path'] if 'path' in meta else 'checkpoint'} at step {step} "
-                     f"(t = {step * sim.dt:.6g} s)")
+            self.timings.update(
+                {k: float(v) for k, v in meta.get("timings", {}).items() if k == "stepping_s"}
+            )
+            self.log(
+                f"resuming from {meta['path'] if 'path' in meta else 'checkpoint'} at step {step} "
+                f"(t = {step * sim.dt:.6g} s)"
+            )
         t0 = time.perf_counter()
         attrs = {"name": self.name, "dt": sim.dt, "dim": sim.dim}
         sink.open(entity_meta, scene_text, attrs, resume_frame=(frame + 1) if ckpt is not None else None)
@@ -316,8 +376,10 @@ class Runner:
         # ---- stability warnings for a fixed substep
         if sim.substeps != "auto" and sim.dt / substeps_now > stable:
             need = int(math.ceil(sim.dt / stable))
-            self.warn(f"substep {sim.dt / substeps_now:.3g} s exceeds the stability limit {stable:.3g} s "
-                      f"(CFL / elastic wave speed); suggest sim.substeps >= {need} or sim.substeps: auto")
+            self.warn(
+                f"substep {sim.dt / substeps_now:.3g} s exceeds the stability limit {stable:.3g} s "
+                f"(CFL / elastic wave speed); suggest sim.substeps >= {need} or sim.substeps: auto"
+            )
 
         progress = Progress(total_steps=n_steps, start_step=step, dt=sim.dt, quiet=self.quiet)
         self.write_run_json("running", None)
@@ -333,7 +395,9 @@ class Runner:
         adaptive = sim.substeps == "auto" and sim.auto_check == "substep"
         while step < n_steps:
             if sim.substeps == "auto" and not adaptive and (step % every == 0 or substeps_now is None):
-                stable = max(self._stable_dt(solvers, sim.dt / (substeps_now or 1)), sim.dt / AUTO_MAX_SUBSTEPS)
+                stable = max(
+                    self._stable_dt(solvers, sim.dt / (substeps_now or 1)), sim.dt / AUTO_MAX_SUBSTEPS
+                )
                 substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))
             ts = time.perf_counter()
             k, done_t, sub_dt = 0, 0.0, sim.dt
@@ -384,11 +448,17 @@ class Runner:
             interrupted = self.signals.received is not None
             if interrupted or (ckpt_every and step % ckpt_every == 0 and step < n_steps):
                 t0 = time.perf_counter()
-                meta = {"step": step, "frame": frame, "time": step * sim.dt, "substeps_now": substeps_now,
-                        "dt_range": list(dt_range),
-                        "substeps_hist": sub_hist[-10000:], "scene_name": self.name,
-                        "timings": {"stepping_s": self.timings["stepping_s"]},
-                        "particles": n_particles}
+                meta = {
+                    "step": step,
+                    "frame": frame,
+                    "time": step * sim.dt,
+                    "substeps_now": substeps_now,
+                    "dt_range": list(dt_range),
+                    "substeps_hist": sub_hist[-10000:],
+                    "scene_name": self.name,
+                    "timings": {"stepping_s": self.timings["stepping_s"]},
+                    "particles": n_particles,
+                }
                 state = {}
                 for s in solvers:
                     state.update({f"{s.family}/{k}": v for k, v in s.get_state().items()})
@@ -398,8 +468,12 @@ class Runner:
                 if interrupted:
                     sink.close()
                     self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
-                    print(f"simcli: {self.signals.received} received: checkpoint written at step {step} "
-                          f"({p}); resume with --resume", file=sys.stderr, flush=True)
+                    print(
+                        f"simcli: {self.signals.received} received: checkpoint written at step {step} "
+                        f"({p}); resume with --resume",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                     return EXIT_INTERRUPTED, self.write_run_json("interrupted", EXIT_INTERRUPTED)
             progress.update(step)
             if time.perf_counter() - last_json > 10.0:
@@ -412,9 +486,15 @@ class Runner:
         self.info["loop_wall_s"] = round(time.perf_counter() - t_loop, 4)
         info = self.write_run_json("done", EXIT_OK)
         tp = info["throughput"]
-        rates = [f"{tp[k]:.3g} {what}-substeps/s" for k, what in
-                 (("particle_substeps_per_s", "particle"), ("vertex_substeps_per_s", "vertex"),
-                  ("cell_substeps_per_s", "cell")) if tp.get(k)]
+        rates = [
+            f"{tp[k]:.3g} {what}-substeps/s"
+            for k, what in (
+                ("particle_substeps_per_s", "particle"),
+                ("vertex_substeps_per_s", "vertex"),
+                ("cell_substeps_per_s", "cell"),
+            )
+            if tp.get(k)
+        ]
         if not rates:
             rates = [f"{tp.get('steps_per_s') or 0:.3g} steps/s"]
         self.log(f"done: {step} steps, {frame + 1} frames in {self.out} ({', '.join(rates)})")
@@ -433,22 +513,30 @@ class Runner:
         steady = max(t, 1e-12)
         dt_lo, dt_hi = getattr(self, "_dt_range", (math.inf, 0.0))
         sps = substeps_done / steady if substeps_done else 0.0
-        self.info.update(steps_done=step, sim_time=step * sim.dt,
-                         substeps={"fixed": sim.substeps if sim.substeps != "auto" else None,
-                                   "auto": sim.substeps == "auto",
-                                   "auto_check": sim.auto_check if sim.substeps == "auto" else None,
-                                   "min": min(sub_hist) if sub_hist else None,
-                                   "max": max(sub_hist) if sub_hist else None,
-                                   "mean": float(np.mean(sub_hist)) if sub_hist else None,
-                                   "total": int(sum(sub_hist)),
-                                   "dt_min_s": dt_lo if math.isfinite(dt_lo) else None,
-                                   "dt_max_s": dt_hi if dt_hi > 0 else None},
-                         throughput={"steps_per_s": (step / steady) if step else 0.0, "substeps_per_s": sps,
-                                     "particle_substeps_per_s": sps * n_particles,
-                                     "cell_substeps_per_s": sps * sum(int(s.counts().get("cells", 0))
-                                                                      for s in getattr(self, "_solvers", [])),
-                                     "vertex_substeps_per_s": sps * sum(int(s.counts().get("vertices", 0))
-                                                                        for s in getattr(self, "_solvers", []))})
+        self.info.update(
+            steps_done=step,
+            sim_time=step * sim.dt,
+            substeps={
+                "fixed": sim.substeps if sim.substeps != "auto" else None,
+                "auto": sim.substeps == "auto",
+                "auto_check": sim.auto_check if sim.substeps == "auto" else None,
+                "min": min(sub_hist) if sub_hist else None,
+                "max": max(sub_hist) if sub_hist else None,
+                "mean": float(np.mean(sub_hist)) if sub_hist else None,
+                "total": int(sum(sub_hist)),
+                "dt_min_s": dt_lo if math.isfinite(dt_lo) else None,
+                "dt_max_s": dt_hi if dt_hi > 0 else None,
+            },
+            throughput={
+                "steps_per_s": (step / steady) if step else 0.0,
+                "substeps_per_s": sps,
+                "particle_substeps_per_s": sps * n_particles,
+                "cell_substeps_per_s": sps
+                * sum(int(s.counts().get("cells", 0)) for s in getattr(self, "_solvers", [])),
+                "vertex_substeps_per_s": sps
+                * sum(int(s.counts().get("vertices", 0)) for s in getattr(self, "_solvers", [])),
+            },
+        )
 
     @staticmethod
     def _stable_dt(solvers, fallback: float) -> float:
@@ -482,15 +570,24 @@ class Runner:
             avail = s.output_fields()
             unknown = [f for f in fields if f not in avail]
             if unknown:
-                raise SimcliError(f"output.fields: unknown field(s) {', '.join(unknown)} for entity '{e.name}' "
-                                  f"({s.family}; available: {', '.join(avail)})")
+                raise SimcliError(
+                    f"output.fields: unknown field(s) {', '.join(unknown)} for entity '{e.name}' "
+                    f"({s.family}; available: {', '.join(avail)})"
+                )
             grid = s.entity_grid(e.name)
             kw = {} if grid is None else {"grid_shape": grid[0], "origin": grid[1], "spacing": grid[2]}
-            metas.append(EntityMeta(name=e.name, kind=s.entity_kind(e.name), n=s.entity_size(e.name),
-                                    dim=self.scene.sim.dim, fields={f: avail[f] for f in fields},
-                                    cells=s.entity_cells(e.name),
-                                    cell_fields=tuple(f for f in fields if f in getattr(s, "cell_fields", ())),
-                                    **kw))
+            metas.append(
+                EntityMeta(
+                    name=e.name,
+                    kind=s.entity_kind(e.name),
+                    n=s.entity_size(e.name),
+                    dim=self.scene.sim.dim,
+                    fields={f: avail[f] for f in fields},
+                    cells=s.entity_cells(e.name),
+                    cell_fields=tuple(f for f in fields if f in getattr(s, "cell_fields", ())),
+                    **kw,
+                )
+            )
             self._entity_fields[e.name] = (s, fields)
         return metas
 
@@ -508,21 +605,32 @@ class Runner:
                 if st.finite and cfl <= RUNAWAY_CFL:
                     continue
                 subs = sim.substeps if sim.substeps != "auto" else "auto"
-                what = (f"{st.n_bad} particle(s) with NaN/Inf" if not st.finite
-                        else f"a particle speed of {st.max_speed:.3g} m/s (it crosses {cfl:.1f} cells per substep)")
+                what = (
+                    f"{st.n_bad} particle(s) with NaN/Inf"
+                    if not st.finite
+                    else f"a particle speed of {st.max_speed:.3g} m/s (it crosses {cfl:.1f} cells per substep)"
+                )
                 if s.family == "sph":
                     if subs == "auto":
-                        advice = (f"lower solvers.sph.cfl or solvers.sph.max_substep, or the stiffness of '{name}' "
-                                  f"(WCSPH)")
+                        advice = (
+                            f"lower solvers.sph.cfl or solvers.sph.max_substep, or the stiffness of '{name}' "
+                            f"(WCSPH)"
+                        )
                     else:
-                        advice = (f"use substeps: auto (it follows the CFL, sound-speed and viscous limits), lower "
-                                  f"sim.dt (now {sim.dt:g} s) or the stiffness of '{name}' (WCSPH)")
+                        advice = (
+                            f"use substeps: auto (it follows the CFL, sound-speed and viscous limits), lower "
+                            f"sim.dt (now {sim.dt:g} s) or the stiffness of '{name}' (WCSPH)"
+                        )
                     advice += f", or change solvers.sph.particle_size (now {dx:g} m)"
                 else:
-                    advice = (f"lower sim.dt (now {sim.dt:g} s), raise sim.substeps (now {subs}) or use substeps: "
-                              f"auto, or lower the stiffness E of '{name}'")
+                    advice = (
+                        f"lower sim.dt (now {sim.dt:g} s), raise sim.substeps (now {subs}) or use substeps: "
+                        f"auto, or lower the stiffness E of '{name}'"
+                    )
                 if isinstance(subs, int) and math.isfinite(cfl) and cfl > 0:
                     advice += f"; substeps >= {int(math.ceil(subs * cfl / 0.5))} would keep the CFL number below 0.5"
-                raise NumericalError(f"numerical failure in entity '{name}' before frame {frame} (step {step}, "
-                                     f"t = {step * sim.dt:.6g} s): {what}. Every earlier frame is kept. "
-                                     f"To fix: {advice}.")
+                raise NumericalError(
+                    f"numerical failure in entity '{name}' before frame {frame} (step {step}, "
+                    f"t = {step * sim.dt:.6g} s): {what}. Every earlier frame is kept. "
+                    f"To fix: {advice}."
+                )

@@ -1,18 +1,30 @@
 """Initial SPH densities SPlisHSPlasH computes for the (stretched) lattice next to the walls, for a given
 boundary method and wall gap: one step of 1e-7 s, density of frame 1 (computed from the initial positions)."""
+
 import sys, os, json, subprocess, numpy as np
 from make_scene import scene, SY
 from vtkread import read_vtk
-bhm = int(sys.argv[1]); gap = float(sys.argv[2]); sy = float(sys.argv[3]) if len(sys.argv) > 3 else SY
+
+bhm = int(sys.argv[1])
+gap = float(sys.argv[2])
+sy = float(sys.argv[3]) if len(sys.argv) > 3 else SY
 name = f"calib_{bhm}_{gap}"
 json.dump(scene(bhm, gap, sy=sy, init_dt=1e-7, stop=5e-8), open(name + ".json", "w"), indent=1)
 env = dict(os.environ, SY=str(sy))
-subprocess.run([sys.executable, "run_tank.py", name + ".json", "calib_out/" + name], env=env, capture_output=True, check=True)
+subprocess.run(
+    [sys.executable, "run_tank.py", name + ".json", "calib_out/" + name],
+    env=env,
+    capture_output=True,
+    check=True,
+)
 d = read_vtk(f"calib_out/{name}/vtk/ParticleData_Fluid_1.vtk")
 x, rho = d["position"], d["density"]
-row = np.round((x[:, 1]/sy - 0.0025)/0.005).astype(int); col = np.round((x[:, 0] + 0.0975)/0.005).astype(int)
+row = np.round((x[:, 1] / sy - 0.0025) / 0.005).astype(int)
+col = np.round((x[:, 0] + 0.0975) / 0.005).astype(int)
 mid = np.abs(x[:, 0]) < 0.05
-print(f"bhm {bhm} gap {gap}: floor row {rho[(row==0) & mid].mean():.2f}  row1 {rho[(row==1) & mid].mean():.2f}"
-      f"  interior {rho[mid & (x[:,1]>0.03) & (x[:,1]<0.07)].mean():.3f}"
-      f"  side col {rho[(col==0) & (x[:,1]>0.02) & (x[:,1]<0.07)].mean():.2f}  max {rho.max():.1f} at row {row[rho.argmax()]} col {col[rho.argmax()]}; top-2 {np.sort(rho)[-3:]}")
+print(
+    f"bhm {bhm} gap {gap}: floor row {rho[(row == 0) & mid].mean():.2f}  row1 {rho[(row == 1) & mid].mean():.2f}"
+    f"  interior {rho[mid & (x[:, 1] > 0.03) & (x[:, 1] < 0.07)].mean():.3f}"
+    f"  side col {rho[(col == 0) & (x[:, 1] > 0.02) & (x[:, 1] < 0.07)].mean():.2f}  max {rho.max():.1f} at row {row[rho.argmax()]} col {col[rho.argmax()]}; top-2 {np.sort(rho)[-3:]}"
+)
 os.remove(name + ".json")

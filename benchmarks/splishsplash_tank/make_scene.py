@@ -12,12 +12,16 @@ centres to the mesh walls and floor, `sy` = vertical stretch of the lattice appl
              (the 5 mm lattice's 2D cubic-kernel sum is 1.00086 rho0 with V = (2r)^2).
              The 'effective floor' r*sy below the first row is at y = 0.
 """
+
 import json, sys
+
 r = 0.0025
 SY = 1.0008514038524843
+
+
 def scene(bhm, gap, dtmax=0.0005, sy=1.0, init_dt=0.0001, stop=3.0, fps=10):
-    width = 0.195 + 2*gap
-    yfloor = r*sy - gap               # mesh floor
+    width = 0.195 + 2 * gap
+    yfloor = r * sy - gap  # mesh floor
     ytop = 0.2
     cfg = {
         "pause": False,
@@ -26,36 +30,57 @@ def scene(bhm, gap, dtmax=0.0005, sy=1.0, init_dt=0.0001, stop=3.0, fps=10):
         "simulationMethod": 4,
         "gravitation": [0, -9.81, 0],
         "timeStepSize": init_dt,
-        "cflMethod": 1, "cflFactor": 1, "cflMaxTimeStepSize": dtmax,
+        "cflMethod": 1,
+        "cflFactor": 1,
+        "cflMaxTimeStepSize": dtmax,
         "stopAt": stop,
         "boundaryHandlingMethod": bhm,
         "enableVTKExport": True,
         "enablePartioExport": False,
         "dataExportFPS": fps,
         "particleAttributes": "velocity;density;p / rho^2;pressure acceleration",
-        "DFSPH": {"minIterations": 2, "maxIterations": 100, "maxError": 0.01,
-                  "maxIterationsV": 100, "maxErrorV": 0.1, "enableDivergenceSolver": True}
+        "DFSPH": {
+            "minIterations": 2,
+            "maxIterations": 100,
+            "maxError": 0.01,
+            "maxIterationsV": 100,
+            "maxErrorV": 0.1,
+            "enableDivergenceSolver": True,
+        },
     }
-    if init_dt is None: del cfg["timeStepSize"]
+    if init_dt is None:
+        del cfg["timeStepSize"]
     return {
-      "Configuration": cfg,
-      "Materials": [{"id": "Fluid", "density0": 1000, "viscosityMethod": 1, "Standard viscosity": {"viscosity": 5e-5}}],
-      "RigidBodies": [{
-        "geometryFile": "UnitBox.obj",
-        "translation": [0, round((yfloor + ytop)/2, 8), 0],
-        "rotationAxis": [1, 0, 0], "rotationAngle": 0,
-        "scale": [round(width, 8), round(ytop - yfloor, 8), 0.2],
-        "isDynamic": False, "isWall": True,
-        "mapInvert": True, "mapThickness": 0.0,
-        "mapResolution": [40, 40, 20]
-      }],
-      "FluidBlocks": [{
-        "denseMode": 0,
-        "start": [-0.1025, -0.0025, -0.1],
-        "end": [0.1025, 0.1025, 0.1],
-        "translation": [0, 0, 0], "scale": [1, 1, 1]
-      }]
+        "Configuration": cfg,
+        "Materials": [
+            {"id": "Fluid", "density0": 1000, "viscosityMethod": 1, "Standard viscosity": {"viscosity": 5e-5}}
+        ],
+        "RigidBodies": [
+            {
+                "geometryFile": "UnitBox.obj",
+                "translation": [0, round((yfloor + ytop) / 2, 8), 0],
+                "rotationAxis": [1, 0, 0],
+                "rotationAngle": 0,
+                "scale": [round(width, 8), round(ytop - yfloor, 8), 0.2],
+                "isDynamic": False,
+                "isWall": True,
+                "mapInvert": True,
+                "mapThickness": 0.0,
+                "mapResolution": [40, 40, 20],
+            }
+        ],
+        "FluidBlocks": [
+            {
+                "denseMode": 0,
+                "start": [-0.1025, -0.0025, -0.1],
+                "end": [0.1025, 0.1025, 0.1],
+                "translation": [0, 0, 0],
+                "scale": [1, 1, 1],
+            }
+        ],
     }
+
+
 def wcsph(bhm, gap, dt):
     """The tuned tank with SPlisHSPlasH's WCSPH (simulationMethod 0) at simcli's WCSPH defaults (Tait k = 50 kPa,
     n = 7) and a fixed step dt (simcli's automatic step on this tank: about 0.1 ms). SPlisHSPlasH's WCSPH walls
@@ -67,9 +92,16 @@ def wcsph(bhm, gap, dt):
     c["stiffness"], c["exponent"] = 50000, 7
     c["particleAttributes"] = "velocity;density;pressure"
     return sc
+
+
 GAP_AKINCI = 0.00557
-GAP_VOLMAP = float(sys.argv[1]) if len(sys.argv) > 1 else 0.00548   # calibrated with calib.py
-def write(name, sc): json.dump(sc, open(name, "w"), indent=2)
+GAP_VOLMAP = float(sys.argv[1]) if len(sys.argv) > 1 else 0.00548  # calibrated with calib.py
+
+
+def write(name, sc):
+    json.dump(sc, open(name, "w"), indent=2)
+
+
 if __name__ == "__main__":
     # as requested, with a 0.5 ms time-step cap (SPlisHSPlasH's default cap 5 ms blows up, see *_dt5e-3)
     write("tank2d_akinci_spec.json", scene(0, r))

@@ -4,6 +4,7 @@ Usage: python wcsph_measure.py out_dir [out_dir ...]
 The tank's effective walls are the lattice's outer edges (floor y = 0, side walls x = -/+0.1 m: the tuned
 scenes put the first row and column half a particle size inside them). Pressure: the VTK 'pressure' field
 (SPlisHSPlasH's WCSPH: p = k ((max(rho, rho0) / rho0)^n - 1))."""
+
 import glob
 import os
 import sys
@@ -28,7 +29,10 @@ def measures(x, y, p):
 
 
 for d in sys.argv[1:]:
-    files = sorted(glob.glob(os.path.join(d, "vtk", "ParticleData_Fluid_*.vtk")), key=lambda s: int(s.rsplit("_", 1)[1][:-4]))
+    files = sorted(
+        glob.glob(os.path.join(d, "vtk", "ParticleData_Fluid_*.vtk")),
+        key=lambda s: int(s.rsplit("_", 1)[1][:-4]),
+    )
     f = np.load(os.path.join(d, "frames.npz"))
     rows = []
     for k, fn in enumerate(files):
@@ -42,9 +46,13 @@ for d in sys.argv[1:]:
     print(f"== {d}")
     print("   t     floor p [Pa]  interior [Pa]  wall-layer ratio  mean speed [cm/s]  ymin [mm]  |x|max [mm]")
     for r in rows:
-        print(f"  {r[0]:5.2f}  {r[1]:9.1f}  {r[2]:9.1f}  {r[3]:7.3f}  {100 * r[4]:8.3f}  {1000 * r[5]:7.2f}  {1000 * r[6]:7.2f}")
+        print(
+            f"  {r[0]:5.2f}  {r[1]:9.1f}  {r[2]:9.1f}  {r[3]:7.3f}  {100 * r[4]:8.3f}  {1000 * r[5]:7.2f}  {1000 * r[6]:7.2f}"
+        )
     w = np.array([r for r in rows if 2.0 - 1e-6 <= r[0] <= 3.0 + 1e-3])
     ref = rho0 * g * 0.1
-    print(f"  2-3 s ({len(w)} frames): floor {w[:, 1].mean():.1f} Pa ({100 * (w[:, 1].mean() / ref - 1):+.2f}% vs rho0 g H = {ref:.0f}), "
-          f"interior {w[:, 2].mean():.1f} Pa ({100 * (w[:, 2].mean() / ref - 1):+.2f}%), wall-layer ratio {w[:, 3].mean():.3f}, "
-          f"largest mean speed {100 * w[:, 4].max():.3f} cm/s")
+    print(
+        f"  2-3 s ({len(w)} frames): floor {w[:, 1].mean():.1f} Pa ({100 * (w[:, 1].mean() / ref - 1):+.2f}% vs rho0 g H = {ref:.0f}), "
+        f"interior {w[:, 2].mean():.1f} Pa ({100 * (w[:, 2].mean() / ref - 1):+.2f}%), wall-layer ratio {w[:, 3].mean():.3f}, "
+        f"largest mean speed {100 * w[:, 4].max():.3f} cm/s"
+    )

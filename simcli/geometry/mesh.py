@@ -230,9 +230,13 @@ def _drop_duplicate_faces(tris: np.ndarray) -> np.ndarray:
     if np.all(counts == 1):
         return tris
     # orientation sign of each copy relative to its sorted key (even permutation: +1)
-    par = np.where((tris[:, 0] == key[:, 0]) & (tris[:, 1] == key[:, 1])
-                   | (tris[:, 1] == key[:, 0]) & (tris[:, 2] == key[:, 1])
-                   | (tris[:, 2] == key[:, 0]) & (tris[:, 0] == key[:, 1]), 1, -1)
+    par = np.where(
+        (tris[:, 0] == key[:, 0]) & (tris[:, 1] == key[:, 1])
+        | (tris[:, 1] == key[:, 0]) & (tris[:, 2] == key[:, 1])
+        | (tris[:, 2] == key[:, 0]) & (tris[:, 0] == key[:, 1]),
+        1,
+        -1,
+    )
     net = np.bincount(inv, weights=par, minlength=counts.size)
     keep = np.zeros(len(tris), bool)
     keep[first] = True
@@ -554,7 +558,9 @@ def _missed_volume(ray: np.ndarray, first: np.ndarray, xc: np.ndarray, h: float)
     return float(np.sum(x_s[1::2][empty] - x_s[0::2][empty])) * h * h
 
 
-def _missed_midpoints(ray: np.ndarray, first: np.ndarray, xc: np.ndarray, origin, h: float, nz: int) -> np.ndarray:
+def _missed_midpoints(
+    ray: np.ndarray, first: np.ndarray, xc: np.ndarray, origin, h: float, nz: int
+) -> np.ndarray:
     """Midpoints (in the ray frame: x along the ray, then the lattice's y, z) of the inside intervals
     of the rays that hold no lattice point; none where a ray crosses the surface an odd number of times."""
     if xc.size == 0:

@@ -237,8 +237,19 @@ def sample_morph(
     return x, float(volume), warnings
 
 
-_FIELD_NAMES = {"np": np, "pi": np.pi, "sin": np.sin, "cos": np.cos, "exp": np.exp, "sqrt": np.sqrt,
-                "tanh": np.tanh, "abs": np.abs, "where": np.where, "minimum": np.minimum, "maximum": np.maximum}
+_FIELD_NAMES = {
+    "np": np,
+    "pi": np.pi,
+    "sin": np.sin,
+    "cos": np.cos,
+    "exp": np.exp,
+    "sqrt": np.sqrt,
+    "tanh": np.tanh,
+    "abs": np.abs,
+    "where": np.where,
+    "minimum": np.minimum,
+    "maximum": np.maximum,
+}
 
 
 def velocity_field(entity, x: np.ndarray) -> np.ndarray:
@@ -248,8 +259,10 @@ def velocity_field(entity, x: np.ndarray) -> np.ndarray:
     if not exprs:
         return np.zeros_like(x)
     env = {**_FIELD_NAMES, **dict(zip("xyz", x.T))}
-    cols = [np.broadcast_to(np.asarray(eval(e, {"__builtins__": {}}, env), dtype=np.float64), (len(x),))
-            for e in exprs]  # restricted names, no builtins
+    cols = [
+        np.broadcast_to(np.asarray(eval(e, {"__builtins__": {}}, env), dtype=np.float64), (len(x),))
+        for e in exprs
+    ]  # restricted names, no builtins
     return np.stack(cols, axis=1)
 
 
@@ -267,8 +280,16 @@ def sample_entity(entity, scene, scene_dir: PathLike | None = None, rng=None) ->
     if (jitter or poisson) and rng is None:
         rng = scene.sim.seed
     try:
-        x, volume, warnings = sample_morph(entity.morph, family_spacing(scene, entity.family), dim, scene_dir,
-                                          jitter=jitter, rng=rng, poisson=poisson, thin_layer=thin_layer)
+        x, volume, warnings = sample_morph(
+            entity.morph,
+            family_spacing(scene, entity.family),
+            dim,
+            scene_dir,
+            jitter=jitter,
+            rng=rng,
+            poisson=poisson,
+            thin_layer=thin_layer,
+        )
     except MeshFileNotFoundError as exc:
         raise MeshFileNotFoundError(f"entity '{entity.name}': {exc}") from None
     except MeshError as exc:
@@ -393,7 +414,7 @@ def poisson_disk(lo, hi, radius: float, rng, trials: int = POISSON_TRIALS, insid
         all_cells = all_cells[grown.reshape(-1)]
     phase_of = (all_cells % period) @ weights
     by_phase = [all_cells[phase_of == k] + reach for k in range(period**dim)]
-    strides = np.array([int(np.prod(owner.shape[k + 1:])) for k in range(dim)], dtype=np.int64)
+    strides = np.array([int(np.prod(owner.shape[k + 1 :])) for k in range(dim)], dtype=np.int64)
     flat_offs = offs @ strides
     flat_owner = owner.reshape(-1)  # a view: writes go to owner
     r2 = r * r
@@ -423,8 +444,13 @@ def _poisson_fill(morph, h: float, dim: int, scene_dir, rng) -> tuple[np.ndarray
     if isinstance(morph, MeshShape):
         mesh = load_mesh_morph(morph, scene_dir)
         lo, hi = mesh.bounds
-        x = poisson_disk(lo, hi, r, rng,
-                         inside=lambda o, a, n: lattice_inside_mesh(mesh, o, a, n, thin_check_axes=()).inside)
+        x = poisson_disk(
+            lo,
+            hi,
+            r,
+            rng,
+            inside=lambda o, a, n: lattice_inside_mesh(mesh, o, a, n, thin_check_axes=()).inside,
+        )
         return x[points_inside_mesh(mesh, x, bin_size=h)], float(mesh.volume)
     volume = shape_volume(morph, dim)
     lo, hi = (np.asarray(b, dtype=np.float64) for b in morph.bounds())
@@ -434,9 +460,19 @@ def _poisson_fill(morph, h: float, dim: int, scene_dir, rng) -> tuple[np.ndarray
     if isinstance(morph, SphereShape):
         inner = morph.model_copy(update={"radius": max(morph.radius - m, 0.5 * morph.radius)})
     else:  # Cylinder
-        inner = morph.model_copy(update={"radius": max(morph.radius - m, 0.5 * morph.radius),
-                                         "height": max(morph.height - 2 * m, 0.5 * morph.height)})
-    x = poisson_disk(lo, hi, r, rng,
-                     inside=lambda o, a, n: points_in_shape(inner, _lattice_points(np.asarray(o), np.asarray(n), a))
-                     .reshape(n))
+        inner = morph.model_copy(
+            update={
+                "radius": max(morph.radius - m, 0.5 * morph.radius),
+                "height": max(morph.height - 2 * m, 0.5 * morph.height),
+            }
+        )
+    x = poisson_disk(
+        lo,
+        hi,
+        r,
+        rng,
+        inside=lambda o, a, n: points_in_shape(
+            inner, _lattice_points(np.asarray(o), np.asarray(n), a)
+        ).reshape(n),
+    )
     return x[points_in_shape(inner, x)], volume

@@ -35,8 +35,16 @@ def run_tetgen(verts: np.ndarray, tris: np.ndarray, **kwargs) -> tuple[str, obje
     """("ok", nodes, tets), ("error", message, None), or ("crashed", exit code, None)."""
     ctx = mp.get_context("spawn")
     recv, send = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(send, np.ascontiguousarray(verts, dtype=np.float64),
-                                            np.ascontiguousarray(tris, dtype=np.int32), kwargs), daemon=True)
+    proc = ctx.Process(
+        target=_child,
+        args=(
+            send,
+            np.ascontiguousarray(verts, dtype=np.float64),
+            np.ascontiguousarray(tris, dtype=np.int32),
+            kwargs,
+        ),
+        daemon=True,
+    )
     proc.start()
     send.close()
     try:

@@ -97,7 +97,9 @@ class EntityMeta:
         self.cell_fields = tuple(self.cell_fields)
         for fname in self.cell_fields:
             if fname not in self.fields or fname == "position" or self.kind not in NODES_PER_CELL:
-                raise ValueError(f"entity {self.name!r}: cell field {fname!r} needs a declared field of a mesh")
+                raise ValueError(
+                    f"entity {self.name!r}: cell field {fname!r} needs a declared field of a mesh"
+                )
         if self.kind in NODES_PER_CELL:
             if self.cells is None:
                 raise ValueError(f"mesh entity {self.name!r} ({self.kind}) needs cells")
@@ -313,9 +315,7 @@ class FrameSink:
         self.next_frame = resume_frame or 0
         self._open = True
 
-    def write_frame(
-        self, frame: int, step: int, time: float, data: dict[str, dict[str, np.ndarray]]
-    ) -> None:
+    def write_frame(self, frame: int, step: int, time: float, data: dict[str, dict[str, np.ndarray]]) -> None:
         if not self._open:
             raise RuntimeError("FrameSink.write_frame before open()")
         if frame != self.next_frame:

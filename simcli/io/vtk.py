@@ -33,8 +33,16 @@ if TYPE_CHECKING:  # pragma: no cover
 COMPRESSION_LEVEL = 1
 VTK_CELL_TYPE = {"particles": 1, "lines": 3, "triangles": 5, "tets": 10}  # VERTEX, LINE, TRIANGLE, TETRA
 VTK_TYPE = {
-    "float32": "Float32", "float64": "Float64", "int8": "Int8", "uint8": "UInt8", "int16": "Int16",
-    "uint16": "UInt16", "int32": "Int32", "uint32": "UInt32", "int64": "Int64", "uint64": "UInt64",
+    "float32": "Float32",
+    "float64": "Float64",
+    "int8": "Int8",
+    "uint8": "UInt8",
+    "int16": "Int16",
+    "uint16": "UInt16",
+    "int32": "Int32",
+    "uint32": "UInt32",
+    "int64": "Int64",
+    "uint64": "UInt64",
     "bool": "UInt8",
 }
 
@@ -149,7 +157,9 @@ class _EntityFiles:
         self.entries.append((frame, time, f"{self.e.name}/{self.fname(frame)}"))
         self.write_pvd()
 
-    def _point_arrays(self, data: dict[str, np.ndarray], cell: bool = False) -> list[tuple[str, np.ndarray, int]]:
+    def _point_arrays(
+        self, data: dict[str, np.ndarray], cell: bool = False
+    ) -> list[tuple[str, np.ndarray, int]]:
         """Point data arrays (cell=False) or the per-cell fields of a mesh (cell=True)."""
         out = []
         for fname, (comps, _u, _dt) in self.e.fields.items():
@@ -189,8 +199,12 @@ class _EntityFiles:
                 i += 1
             xml.append(f"</{tag}>")
         xml.append(tail)
-        return ["".join(xml).encode(), b'<AppendedData encoding="raw">\n_', *blocks,
-                b"\n</AppendedData>\n</VTKFile>\n"]
+        return [
+            "".join(xml).encode(),
+            b'<AppendedData encoding="raw">\n_',
+            *blocks,
+            b"\n</AppendedData>\n</VTKFile>\n",
+        ]
 
     def _vtu(self, data: dict[str, np.ndarray]) -> list[bytes]:
         e = self.e
@@ -205,7 +219,9 @@ class _EntityFiles:
             types = np.full(ncell, VTK_CELL_TYPE[e.kind], dtype=np.uint8)
             b = self.comp.blocks([conn, offs, types])
             self._static = [
-                ("connectivity", b[0], "Int64"), ("offsets", b[1], "Int64"), ("types", b[2], "UInt8")
+                ("connectivity", b[0], "Int64"),
+                ("offsets", b[1], "Int64"),
+                ("types", b[2], "UInt8"),
             ]
             self._ncell = ncell
         pos = data["position"]
@@ -240,8 +256,13 @@ class _EntityFiles:
 class VtkWriter:
     """Writes OUT/vtk/; used by :class:`simcli.io.frames.FrameSink`."""
 
-    def __init__(self, root: Path, entities: list[EntityMeta], level: int = COMPRESSION_LEVEL,
-                 threads: int | None = None):
+    def __init__(
+        self,
+        root: Path,
+        entities: list[EntityMeta],
+        level: int = COMPRESSION_LEVEL,
+        threads: int | None = None,
+    ):
         self.root = Path(root)
         self.comp = _Compressor(level, threads)
         self.files = [_EntityFiles(self.root, e, self.comp) for e in entities]

@@ -112,9 +112,9 @@ class XdmfWriter:
             parts.append(
                 '<Geometry GeometryType="ORIGIN_DXDYDZ">'
                 f'<DataItem Dimensions="3" NumberType="Float" Precision="8" Format="XML">'
-                f'{" ".join(_fmt(v) for v in org)}</DataItem>'
+                f"{' '.join(_fmt(v) for v in org)}</DataItem>"
                 f'<DataItem Dimensions="3" NumberType="Float" Precision="8" Format="XML">'
-                f'{" ".join(_fmt(v) for v in spc)}</DataItem>'
+                f"{' '.join(_fmt(v) for v in spc)}</DataItem>"
                 "</Geometry>"
             )
         else:

@@ -72,7 +72,10 @@ def check_scene(loaded: LoadedScene) -> list[str]:
     if ok_dom:
         for a, (x0, x1) in enumerate(zip(lo, hi)):
             if not x0 < x1:
-                err(("domain", "upper"), f"lower must be < upper on every axis (axis {'xyz'[a]}: {x0} >= {x1})")
+                err(
+                    ("domain", "upper"),
+                    f"lower must be < upper on every axis (axis {'xyz'[a]}: {x0} >= {x1})",
+                )
                 ok_dom = False
     for face, b in s.domain.faces.items():
         if dim == 2 and face[0] == "z":
@@ -90,7 +93,10 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         if c.type == "Plane" and all(abs(x) == 0 for x in c.normal):
             err(base + ("normal",), "normal must not be zero")
         if c.type == "Box" and len(c.lower) == len(c.upper) and any(a >= b for a, b in zip(c.lower, c.upper)):
-            err(base + ("upper",), f"lower must be < upper on every axis (got lower {c.lower}, upper {c.upper})")
+            err(
+                base + ("upper",),
+                f"lower must be < upper on every axis (got lower {c.lower}, upper {c.upper})",
+            )
 
     # entities
     seen: dict[str, int] = {}
@@ -102,8 +108,10 @@ def check_scene(loaded: LoadedScene) -> list[str]:
     for i, e in enumerate(s.entities):
         base = ("entities", i)
         if e.name in seen:
-            err(base + ("name",), f"duplicate entity name '{e.name}' (also entities.{seen[e.name]}.name); "
-                "names must be unique")
+            err(
+                base + ("name",),
+                f"duplicate entity name '{e.name}' (also entities.{seen[e.name]}.name); names must be unique",
+            )
         else:
             seen[e.name] = i
         need_len(base + ("velocity",), e.velocity)
@@ -114,8 +122,11 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         if m is None:  # only SF entities may omit it (models.py)
             continue
         if m.type in ("Rectangle", "Line") and e.family != "PBD":
-            err(mpath + ("type",), f"{m.type} morphs are for PBD entities (cloth, rods); {e.material.type} "
-                "entities take Box, Sphere, Cylinder or Mesh")
+            err(
+                mpath + ("type",),
+                f"{m.type} morphs are for PBD entities (cloth, rods); {e.material.type} "
+                "entities take Box, Sphere, Cylinder or Mesh",
+            )
             continue
         if e.family == "PBD":  # sheets, polylines and open meshes: the PBD family checks its own morphs
             from simcli.solvers.pbd.config import check_entity
@@ -173,16 +184,21 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         outside = [a for a in range(dim) if mlo[a] < lo[a] - tol or mhi[a] > hi[a] + tol]
         if outside:
             axes = ", ".join("xyz"[a] for a in outside)
-            err(mpath, f"entity '{e.name}' extends outside the domain along {axes} (its bounds "
-                f"{_fmt(mlo)}..{_fmt(mhi)}, domain {_fmt(lo)}..{_fmt(hi)}); move it or enlarge domain")
+            err(
+                mpath,
+                f"entity '{e.name}' extends outside the domain along {axes} (its bounds "
+                f"{_fmt(mlo)}..{_fmt(mhi)}, domain {_fmt(lo)}..{_fmt(hi)}); move it or enlarge domain",
+            )
 
     _check_faces_and_sf(s, err)
     sph_rho = sorted({e.material.rho for e in s.entities if e.family == "SPH"})
     if sph.pressure_solver == "DFSPH" and not sph.clamp_pressure and len(sph_rho) > 1:
-        err(("solvers", "sph", "clamp_pressure"),
+        err(
+            ("solvers", "sph", "clamp_pressure"),
             "DFSPH with clamp_pressure: false (its conjugate-gradient solve) does not support liquids of different "
             f"rest densities (rho: {sph_rho}): its pressure operator is symmetric only for one rest density. Use "
-            "clamp_pressure: true (a free surface), pressure_solver: WCSPH, or one rho for every SPH.Liquid")
+            "clamp_pressure: true (a free surface), pressure_solver: WCSPH, or one rho for every SPH.Liquid",
+        )
     if errors:
         return sort_lines(errors)
 
@@ -228,25 +244,33 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         need += fem_bytes(fem_v, fem_t, s.solvers.fem.integrator, s.sim.precision)
     avail = _available_memory()
     if need > MEMORY_FRACTION * avail and fem_t and not (n_particles or sf_cells):
-        err(("solvers", "fem", "resolution"),
+        err(
+            ("solvers", "fem", "resolution"),
             f"scene too large: needs about {need / 2**30:.1f} GiB (about {fem_v:,} FEM vertices, {fem_t:,} "
             f"tetrahedra) but only {avail / 2**30:.1f} GiB is available; lower solvers.fem.resolution (Box) "
-            f"or raise max_volume (Sphere, Cylinder, surface meshes)")
+            f"or raise max_volume (Sphere, Cylinder, surface meshes)",
+        )
     elif need > MEMORY_FRACTION * avail and sf_cells:
-        err(("solvers", "sf", "resolution"),
+        err(
+            ("solvers", "sf", "resolution"),
             f"scene too large: needs about {need / 2**30:.1f} GiB ({sf_cells:,} SF grid cells"
             f"{f', {n_particles:,} particles' if n_particles else ''}) but only {avail / 2**30:.1f} GiB is "
-            f"available; lower solvers.sf.resolution")
+            f"available; lower solvers.sf.resolution",
+        )
     elif need > MEMORY_FRACTION * avail and "SPH" in s.families and "MPM" not in s.families:
-        err(("solvers", "sph", "particle_size"),
+        err(
+            ("solvers", "sph", "particle_size"),
             f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {n_bnd:,} boundary "
             f"particles, {sph_cells:,} neighbour-grid cells) but only {avail / 2**30:.1f} GiB is available; raise "
-            f"solvers.sph.particle_size or shrink the domain")
+            f"solvers.sph.particle_size or shrink the domain",
+        )
     elif need > MEMORY_FRACTION * avail:
-        err(("solvers", "mpm", "grid_density") if "MPM" in s.families else ("entities",),
+        err(
+            ("solvers", "mpm", "grid_density") if "MPM" in s.families else ("entities",),
             f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {cells:,} grid "
             f"nodes) but only {avail / 2**30:.1f} GiB is available; lower solvers.mpm.grid_density, raise "
-            f"particle_size or shrink the domain")
+            f"particle_size or shrink the domain",
+        )
     return errors
 
 
@@ -260,7 +284,10 @@ _SF_MAX_CELLS = 2**31 - 1
 
 def _check_sf_entity(e, base: tuple, dim: int, need_len, err) -> None:
     if e.velocity_field is not None and len(e.velocity_field) != dim:
-        err(base + ("velocity_field",), f"expected {dim} expressions for dim {dim} (got {len(e.velocity_field)})")
+        err(
+            base + ("velocity_field",),
+            f"expected {dim} expressions for dim {dim} (got {len(e.velocity_field)})",
+        )
     for j, jet in enumerate(e.jets):
         jpath = base + ("jets", j)
         for key, vec in jet.vectors().items():
@@ -281,39 +308,62 @@ def _check_faces_and_sf(s, err) -> None:
     faces = {"xyz"[a] + sign: s.domain.face("xyz"[a] + sign) for a in range(dim) for sign in "-+"}
     for name, b in faces.items():
         if b.type in grid_only and particle_fams:
-            path = ("domain", "faces", name, "type") if name in s.domain.faces else ("domain", "boundary", "type")
-            err(path, f"'{b.type}' faces are for grid fluids (SF) only; {', '.join(particle_fams)} entities need "
-                "slip, sticky or separate")
+            path = (
+                ("domain", "faces", name, "type")
+                if name in s.domain.faces
+                else ("domain", "boundary", "type")
+            )
+            err(
+                path,
+                f"'{b.type}' faces are for grid fluids (SF) only; {', '.join(particle_fams)} entities need "
+                "slip, sticky or separate",
+            )
         if b.type in grid_only and b.velocity is not None and any(v != 0 for v in b.velocity):
             path = ("domain", "faces", name, "velocity") if name in s.domain.faces else ("domain", "boundary")
             err(path, f"a {b.type} face has no wall velocity (remove it)")
     for a in range(dim):
         lo_p, hi_p = (faces["xyz"[a] + sign].type == "periodic" for sign in "-+")
         if lo_p != hi_p:
-            err(("domain", "faces"), f"periodic faces come in pairs: {'xyz'[a]}- and {'xyz'[a]}+ must both be "
-                "periodic (or neither)", key=True)
+            err(
+                ("domain", "faces"),
+                f"periodic faces come in pairs: {'xyz'[a]}- and {'xyz'[a]}+ must both be "
+                "periodic (or neither)",
+                key=True,
+            )
     if "SF" not in fams:
         return
     sf_ents = [i for i, e in enumerate(s.entities) if e.family == "SF"]
     if len(sf_ents) > 1:
-        err(("entities", sf_ents[1], "material", "type"), "a scene holds one SF.Smoke entity (the fluid fills the "
-            f"whole domain; also entities.{sf_ents[0]})")
+        err(
+            ("entities", sf_ents[1], "material", "type"),
+            "a scene holds one SF.Smoke entity (the fluid fills the "
+            f"whole domain; also entities.{sf_ents[0]})",
+        )
     res = s.solvers.sf.resolution
     if isinstance(res, list) and len(res) != dim:
-        err(("solvers", "sf", "resolution"), f"expected one cell count per axis ({dim}) or a single number "
-            f"(got {len(res)})")
+        err(
+            ("solvers", "sf", "resolution"),
+            f"expected one cell count per axis ({dim}) or a single number (got {len(res)})",
+        )
         return
     lo, hi = s.domain.bounds(dim)
     if len(lo) != dim or len(hi) != dim or any(a >= b for a, b in zip(lo, hi)):
         return
     n, _ = s.solvers.sf.cells(lo, hi)
     if math.prod(n) > _SF_MAX_CELLS:
-        err(("solvers", "sf", "resolution"), f"{'x'.join(map(str, n))} cells exceed the {_SF_MAX_CELLS:,} a grid "
-            "can index; lower it")
+        err(
+            ("solvers", "sf", "resolution"),
+            f"{'x'.join(map(str, n))} cells exceed the {_SF_MAX_CELLS:,} a grid can index; lower it",
+        )
     if min(n) < 2:
-        err(("solvers", "sf", "resolution"), f"every axis needs >= 2 cells (got {'x'.join(map(str, n))} for the "
-            "domain's shape); raise resolution or give one count per axis")
+        err(
+            ("solvers", "sf", "resolution"),
+            f"every axis needs >= 2 cells (got {'x'.join(map(str, n))} for the "
+            "domain's shape); raise resolution or give one count per axis",
+        )
     for a in range(dim):
         if faces["xyz"[a] + "-"].type == "periodic" and n[a] % 2:
-            err(("solvers", "sf", "resolution"), f"a periodic axis needs an even number of cells ({'xyz'[a]}: "
-                f"{n[a]})")
+            err(
+                ("solvers", "sf", "resolution"),
+                f"a periodic axis needs an even number of cells ({'xyz'[a]}: {n[a]})",
+            )

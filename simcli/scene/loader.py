@@ -61,13 +61,17 @@ def _walk(loader, node, path: Path_, loc: Located, errors: list[str]) -> Any:
         for knode, vnode in node.value:
             key = loader.construct_object(knode, deep=True)
             if not isinstance(key, (str, int, float, bool)) or key is None:
-                errors.append(f"{loc.file}:{_mark(knode)[0]}:{_mark(knode)[1]}: {_dotted(path)}: keys must be "
-                              f"plain names (found {type(key).__name__})")
+                errors.append(
+                    f"{loc.file}:{_mark(knode)[0]}:{_mark(knode)[1]}: {_dotted(path)}: keys must be "
+                    f"plain names (found {type(key).__name__})"
+                )
                 continue
             if key in out:
                 line, col = _mark(knode)
-                errors.append(f"{loc.file}:{line}:{col}: {_dotted(path + (key,))}: duplicate key (the last one "
-                              f"would silently win; remove one)")
+                errors.append(
+                    f"{loc.file}:{line}:{col}: {_dotted(path + (key,))}: duplicate key (the last one "
+                    f"would silently win; remove one)"
+                )
             loc.key_pos[path + (key,)] = _mark(knode)
             loc.value_pos[path + (key,)] = _mark(vnode)
             out[key] = _walk(loader, vnode, path + (key,), loc, errors)
@@ -88,11 +92,14 @@ class _Loader(yaml.SafeLoader):
 
 _Loader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
-    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
     |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
     |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
     |[-+]?\.(?:inf|Inf|INF)
-    |\.(?:nan|NaN|NAN))$""", re.VERBOSE),
+    |\.(?:nan|NaN|NAN))$""",
+        re.VERBOSE,
+    ),
     list("-+0123456789."),
 )
 
@@ -134,7 +141,9 @@ def parse_yaml(text: str, file: str) -> Located:
     if loc.data is None:
         loc.data = {}
     if not isinstance(loc.data, dict):
-        raise SceneError([f"{file}:1:1: (top level): expected a mapping of scene keys (found {_kind(loc.data)})"])
+        raise SceneError(
+            [f"{file}:1:1: (top level): expected a mapping of scene keys (found {_kind(loc.data)})"]
+        )
     return loc
 
 
@@ -235,8 +244,11 @@ def _clean_loc(loc: tuple, data: Any) -> Path_:
             out.append(p)
             cur = cur[p]
             continue
-        if isinstance(cur, dict) and isinstance(p, str) and ("[" in p or "." in p or p[:1].isupper()
-                                                              or p in ("int", "float", "str", "list")):
+        if (
+            isinstance(cur, dict)
+            and isinstance(p, str)
+            and ("[" in p or "." in p or p[:1].isupper() or p in ("int", "float", "str", "list"))
+        ):
             continue  # a union tag such as 'MPM.Elastic', 'Box', 'int', "literal['auto']"
         if not isinstance(cur, dict) and isinstance(p, str) and (cur is not None or "[" in p or "-" in p):
             continue  # below a scalar or list, a string is a union tag ('constrained-int', 'list[...]')
@@ -253,7 +265,11 @@ def _describe(err: dict, data: Any, path: Path_) -> str:
         model = _model_at(path[:-1], data)
         known = list(model.model_fields) if model is not None else []
         hint = difflib.get_close_matches(str(path[-1]), known, n=1, cutoff=0.6)
-        tail = f" (did you mean '{hint[0]}'?)" if hint else (f" (known keys: {', '.join(known)})" if known else "")
+        tail = (
+            f" (did you mean '{hint[0]}'?)"
+            if hint
+            else (f" (known keys: {', '.join(known)})" if known else "")
+        )
         return f"unknown key{tail}"
     if t == "missing":
         return "required key missing"
@@ -262,20 +278,26 @@ def _describe(err: dict, data: Any, path: Path_) -> str:
         expected = ctx.get("expected_tags", "")
         if t == "union_tag_not_found":
             return f"missing 'type' (expected one of {expected})"
-        hint = difflib.get_close_matches(str(tag), [s.strip(" '") for s in str(expected).split(",")], n=1, cutoff=0.6)
+        hint = difflib.get_close_matches(
+            str(tag), [s.strip(" '") for s in str(expected).split(",")], n=1, cutoff=0.6
+        )
         tail = f" (did you mean '{hint[0]}'?)" if hint else ""
         if len(path) >= 2 and path[-2] == "material":
             if tag in PLANNED_TYPES:
-                return (f"material type '{tag}' is not implemented in this version of simcli "
-                        f"(available: {', '.join(material_type_names())})")
+                return (
+                    f"material type '{tag}' is not implemented in this version of simcli "
+                    f"(available: {', '.join(material_type_names())})"
+                )
             return f"unknown material type '{tag}'{tail}; available: {', '.join(material_type_names())}"
         return f"unknown type '{tag}'; expected one of {expected}{tail}"
     if t == "literal_error":
         expected = ctx.get("expected", "")
         if path and path[-1] == "type" and len(path) >= 2 and path[-2] == "material":
             if got in PLANNED_TYPES:
-                return (f"material type '{got}' is not implemented in this version of simcli "
-                        f"(available: {', '.join(material_type_names())})")
+                return (
+                    f"material type '{got}' is not implemented in this version of simcli "
+                    f"(available: {', '.join(material_type_names())})"
+                )
             hint = difflib.get_close_matches(str(got), material_type_names() + list(PLANNED_TYPES), n=1)
             tail = f" (did you mean '{hint[0]}'?)" if hint else ""
             return f"unknown material type {_short(got)}; expected {expected}{tail}"
@@ -283,8 +305,12 @@ def _describe(err: dict, data: Any, path: Path_) -> str:
         hint = difflib.get_close_matches(str(got), opts, n=1, cutoff=0.6)
         tail = f" (did you mean '{hint[0]}'?)" if hint and hint[0] != str(got) else ""
         return f"expected {expected} (got {_short(got)}){tail}"
-    bounds = {"greater_than": ("> ", "gt"), "greater_than_equal": (">= ", "ge"),
-              "less_than": ("< ", "lt"), "less_than_equal": ("<= ", "le")}
+    bounds = {
+        "greater_than": ("> ", "gt"),
+        "greater_than_equal": (">= ", "ge"),
+        "less_than": ("< ", "lt"),
+        "less_than_equal": ("<= ", "le"),
+    }
     if t in bounds:
         sym, key = bounds[t]
         return f"must be {sym}{ctx.get(key)} (got {_short(got)})"

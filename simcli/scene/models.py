@@ -52,7 +52,9 @@ class Sim(Strict):
     duration: float | None = Field(
         None, gt=0, description="Simulated time [s]. Give duration or steps, not both (default 1 s)."
     )
-    steps: int | None = Field(None, ge=1, description="Number of steps to run. Give duration or steps, not both.")
+    steps: int | None = Field(
+        None, ge=1, description="Number of steps to run. Give duration or steps, not both."
+    )
     gravity: Vec | None = Field(
         None,
         description="Gravitational acceleration [m/s^2], one component per dimension. Default: -9.81 along "
@@ -72,10 +74,14 @@ class Sim(Strict):
         if self.duration is not None and self.steps is not None:
             raise ValueError("give sim.duration or sim.steps, not both")
         if self.auto_check == "substep" and self.substeps != "auto":
-            raise ValueError(f"sim.auto_check: substep needs sim.substeps: auto (got substeps: {self.substeps}); "
-                             "remove auto_check or set substeps: auto")
+            raise ValueError(
+                f"sim.auto_check: substep needs sim.substeps: auto (got substeps: {self.substeps}); "
+                "remove auto_check or set substeps: auto"
+            )
         if self.gravity is not None and len(self.gravity) != self.dim:
-            raise ValueError(f"sim.gravity must have {self.dim} components for dim {self.dim} (got {len(self.gravity)})")
+            raise ValueError(
+                f"sim.gravity must have {self.dim} components for dim {self.dim} (got {len(self.gravity)})"
+            )
         return self
 
     @property
@@ -111,7 +117,8 @@ class Boundary(Strict):
 
 class Domain(Strict):
     lower: Vec | None = Field(
-        None, description="Lower corner of the simulation box [m]. Default (-0.5, -0.5, 0) in 3D, (0, 0) in 2D."
+        None,
+        description="Lower corner of the simulation box [m]. Default (-0.5, -0.5, 0) in 3D, (0, 0) in 2D.",
     )
     upper: Vec | None = Field(
         None, description="Upper corner of the simulation box [m]. Default (0.5, 0.5, 1) in 3D, (1, 1) in 2D."
@@ -176,10 +183,18 @@ Collider = Annotated[
 
 class Solvers(Strict):
     mpm: MPMOptions = Field(default_factory=MPMOptions, description="MPM solver options.")
-    sph: SPHOptions = Field(default_factory=SPHOptions, description="SPH solver options (WCSPH / DFSPH liquids).")
-    sf: SFOptions = Field(default_factory=SFOptions, description="Stable-fluids grid solver options (SF.Smoke).")
-    fem: FEMOptions = Field(default_factory=FEMOptions, description="FEM solver options (tetrahedral solids).")
-    pbd: PBDOptions = Field(default_factory=PBDOptions, description="PBD solver options (XPBD cloth and rods).")
+    sph: SPHOptions = Field(
+        default_factory=SPHOptions, description="SPH solver options (WCSPH / DFSPH liquids)."
+    )
+    sf: SFOptions = Field(
+        default_factory=SFOptions, description="Stable-fluids grid solver options (SF.Smoke)."
+    )
+    fem: FEMOptions = Field(
+        default_factory=FEMOptions, description="FEM solver options (tetrahedral solids)."
+    )
+    pbd: PBDOptions = Field(
+        default_factory=PBDOptions, description="PBD solver options (XPBD cloth and rods)."
+    )
 
 
 # ---------------------------------------------------------------------- entities
@@ -189,21 +204,23 @@ class Entity(Strict):
     name: str = Field(description="Unique name; names the output groups and files.", min_length=1)
     material: Material = Field(description="Material; its `type` selects the solver family and model.")
     morph: Morph | None = Field(
-        None, description="Initial shape. Required for every family except SF, where it is optional and marks "
-        "where smoke starts (the SF fluid fills the whole domain)."
+        None,
+        description="Initial shape. Required for every family except SF, where it is optional and marks "
+        "where smoke starts (the SF fluid fills the whole domain).",
     )
     velocity: Vec | None = Field(None, description="Initial velocity [m/s], one component per dimension.")
     fixed: Region | list[Region] | None = Field(
         None, description="Region (or list of regions): particles/vertices inside are held in place."
     )
     jets: list[Jet] = Field(
-        default_factory=list, description="SF only: sources of smoke, heat and momentum (a ball each, fixed or "
-        "moving on a path)."
+        default_factory=list,
+        description="SF only: sources of smoke, heat and momentum (a ball each, fixed or moving on a path).",
     )
     velocity_field: list[str] | None = Field(
-        None, description="SF and SPH: initial velocity [m/s], one numpy expression of x, y[, z] [m] per component "
+        None,
+        description="SF and SPH: initial velocity [m/s], one numpy expression of x, y[, z] [m] per component "
         "(e.g. ['sin(x) * cos(y)', '-cos(x) * sin(y)']; pi, sin, cos, exp, sqrt, tanh, abs, where), added to "
-        "`velocity`."
+        "`velocity`.",
     )
 
     @model_validator(mode="after")
@@ -211,13 +228,16 @@ class Entity(Strict):
         fam = self.family
         if fam != "SF":
             if self.morph is None:
-                raise ValueError(f"morph is required for {self.material.type} entities (only SF.Smoke entities "
-                                 "may omit it)")
+                raise ValueError(
+                    f"morph is required for {self.material.type} entities (only SF.Smoke entities "
+                    "may omit it)"
+                )
             if self.jets:
                 raise ValueError(f"jets are for SF.Smoke entities only (this one is {self.material.type})")
             if self.velocity_field is not None and fam != "SPH":
-                raise ValueError(f"velocity_field is for SF.Smoke and SPH entities only (this one is "
-                                 f"{self.material.type})")
+                raise ValueError(
+                    f"velocity_field is for SF.Smoke and SPH entities only (this one is {self.material.type})"
+                )
         elif self.fixed is not None:
             raise ValueError("fixed regions are not available for SF.Smoke entities (use colliders)")
         return self

@@ -43,7 +43,10 @@ class BoxShape(_Shape):
     def bounds(self) -> tuple[list[float], list[float]]:
         if self.lower is not None:
             return list(self.lower), list(self.upper)
-        return ([c - s / 2 for c, s in zip(self.center, self.size)], [c + s / 2 for c, s in zip(self.center, self.size)])
+        return (
+            [c - s / 2 for c, s in zip(self.center, self.size)],
+            [c + s / 2 for c, s in zip(self.center, self.size)],
+        )
 
 
 class SphereShape(_Shape):
@@ -72,12 +75,17 @@ class CylinderShape(_Shape):
 
 class MeshShape(_Shape):
     type: Literal["Mesh"]
-    file: str = Field(description="Closed surface mesh (any format meshio reads), relative to the scene file.")
+    file: str = Field(
+        description="Closed surface mesh (any format meshio reads), relative to the scene file."
+    )
     scale: float | Vec = Field(1.0, description="Scale factor [-] (scalar or per axis), applied first.")
     rotate: Vec = Field(
-        default_factory=lambda: [0.0, 0.0, 0.0], description="Rotation: Euler angles x, y, z [deg], applied second."
+        default_factory=lambda: [0.0, 0.0, 0.0],
+        description="Rotation: Euler angles x, y, z [deg], applied second.",
     )
-    translate: Vec = Field(default_factory=lambda: [0.0, 0.0, 0.0], description="Translation [m], applied last.")
+    translate: Vec = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0], description="Translation [m], applied last."
+    )
 
 
 class RectangleShape(_Shape):
@@ -85,14 +93,22 @@ class RectangleShape(_Shape):
 
     type: Literal["Rectangle"]
     center: Vec = Field(description="Centre of the sheet [m] (3 components).")
-    size: list[float] = Field(description="Side lengths [m] along the sheet's two in-plane axes u and v "
-                              "(2 components). u is the x axis projected onto the sheet (the y axis when the "
-                              "normal is close to x), v = normal x u.", min_length=2, max_length=2)
+    size: list[float] = Field(
+        description="Side lengths [m] along the sheet's two in-plane axes u and v "
+        "(2 components). u is the x axis projected onto the sheet (the y axis when the "
+        "normal is close to x), v = normal x u.",
+        min_length=2,
+        max_length=2,
+    )
     resolution: int | list[int] = Field(
-        20, description="Segments along u and v (one number for both, or 2); each grid cell is split into two "
-        "triangles, diagonals alternating.")
-    normal: Vec = Field(default_factory=lambda: [0.0, 0.0, 1.0], description="Unit normal of the sheet [-] "
-                        "(normalised on load).")
+        20,
+        description="Segments along u and v (one number for both, or 2); each grid cell is split into two "
+        "triangles, diagonals alternating.",
+    )
+    normal: Vec = Field(
+        default_factory=lambda: [0.0, 0.0, 1.0],
+        description="Unit normal of the sheet [-] (normalised on load).",
+    )
 
     @model_validator(mode="after")
     def _check(self):
@@ -114,13 +130,22 @@ class LineShape(_Shape):
     """A rope or chain along a polyline (PBD rods): ``segments`` equal segments along its arc length."""
 
     type: Literal["Line"]
-    points: list[Vec] = Field(description="Polyline corners [m] (at least 2); the rest length is the polyline's "
-                              "length.", min_length=2)
+    points: list[Vec] = Field(
+        description="Polyline corners [m] (at least 2); the rest length is the polyline's length.",
+        min_length=2,
+    )
     segments: int | None = Field(
-        None, ge=1, description="Number of equal-length segments (vertices = segments + 1), spread along the "
-        "polyline by arc length (default: one per polyline piece).")
-    radius: float = Field(0.005, gt=0, description="Radius of the rod's cross-section [m]: mass = rho x pi "
-                          "radius^2 x length, and its contact thickness.")
+        None,
+        ge=1,
+        description="Number of equal-length segments (vertices = segments + 1), spread along the "
+        "polyline by arc length (default: one per polyline piece).",
+    )
+    radius: float = Field(
+        0.005,
+        gt=0,
+        description="Radius of the rod's cross-section [m]: mass = rho x pi "
+        "radius^2 x length, and its contact thickness.",
+    )
 
     @model_validator(mode="after")
     def _check(self):
@@ -130,10 +155,14 @@ class LineShape(_Shape):
 
     def bounds(self):
         d = len(self.points[0])
-        return ([min(p[k] for p in self.points) for k in range(d)],
-                [max(p[k] for p in self.points) for k in range(d)])
+        return (
+            [min(p[k] for p in self.points) for k in range(d)],
+            [max(p[k] for p in self.points) for k in range(d)],
+        )
 
 
-Morph = Annotated[BoxShape | SphereShape | CylinderShape | MeshShape | RectangleShape | LineShape,
-                  Field(discriminator="type")]
+Morph = Annotated[
+    BoxShape | SphereShape | CylinderShape | MeshShape | RectangleShape | LineShape,
+    Field(discriminator="type"),
+]
 Region = Annotated[BoxShape | SphereShape | CylinderShape, Field(discriminator="type")]

@@ -11,7 +11,9 @@ import yaml
 def split_path(dotted: str) -> tuple:
     """'entities.0.material.E' -> ('entities', 0, 'material', 'E')."""
     if not dotted or dotted.startswith(".") or dotted.endswith(".") or ".." in dotted:
-        raise ValueError(f"bad key path '{dotted}' (expected dotted keys such as sim.dt or entities.0.material.E)")
+        raise ValueError(
+            f"bad key path '{dotted}' (expected dotted keys such as sim.dt or entities.0.material.E)"
+        )
     return tuple(int(p) if p.lstrip("-").isdigit() else p for p in dotted.split("."))
 
 

@@ -39,8 +39,9 @@ def frame_stats_per_body(names, speed, bad) -> dict[str, FrameStats]:
     out = {}
     for k, name in enumerate(names):
         nbad = int(bad[k])
-        out[name] = FrameStats(finite=nbad == 0, max_speed=float(speed[k]) if nbad == 0 else float("inf"),
-                               n_bad=nbad)
+        out[name] = FrameStats(
+            finite=nbad == 0, max_speed=float(speed[k]) if nbad == 0 else float("inf"), n_bad=nbad
+        )
     return out
 
 

@@ -60,7 +60,9 @@ def _table(rows: list[list[str]]) -> str:
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)
 
 
-SWEEP_ARG = click.argument("sweep_file", metavar="SWEEP.yaml", type=click.Path(dir_okay=False, path_type=Path))
+SWEEP_ARG = click.argument(
+    "sweep_file", metavar="SWEEP.yaml", type=click.Path(dir_okay=False, path_type=Path)
+)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -78,8 +80,21 @@ def expand(sweep_file: Path, as_json: bool) -> None:
 
     ls = _load(sweep_file)
     if as_json:
-        click.echo(json.dumps([{"index": r.index, "name": r.name, "out": str(ls.run_dir(r)),
-                                "overrides": r.params, "set": r.set_args()} for r in ls.runs], indent=2))
+        click.echo(
+            json.dumps(
+                [
+                    {
+                        "index": r.index,
+                        "name": r.name,
+                        "out": str(ls.run_dir(r)),
+                        "overrides": r.params,
+                        "set": r.set_args(),
+                    }
+                    for r in ls.runs
+                ],
+                indent=2,
+            )
+        )
         return
     keys = list(ls.runs[0].params) if ls.runs else []
     rows = [["INDEX", "NAME"] + keys]
@@ -101,10 +116,19 @@ def validate(sweep_file: Path, quiet: bool) -> None:
 
 @sweep.command()
 @SWEEP_ARG
-@click.option("--task", "task", type=int, default=None,
-              help="Run index (see `sweep expand`); default $SLURM_ARRAY_TASK_ID.")
-@click.option("--threads", type=click.IntRange(min=1), default=None,
-              help="CPU threads of the simulation (default: $SLURM_CPUS_PER_TASK, else every core).")
+@click.option(
+    "--task",
+    "task",
+    type=int,
+    default=None,
+    help="Run index (see `sweep expand`); default $SLURM_ARRAY_TASK_ID.",
+)
+@click.option(
+    "--threads",
+    type=click.IntRange(min=1),
+    default=None,
+    help="CPU threads of the simulation (default: $SLURM_CPUS_PER_TASK, else every core).",
+)
 @click.option("--quiet", "-q", is_flag=True, help="No progress output from the simulation.")
 def run(sweep_file: Path, task: int | None, threads: int | None, quiet: bool) -> None:
     """Run one task into OUTPUT/<name>/: a no-op when it is done, a resume when it was interrupted.
@@ -122,18 +146,30 @@ def run(sweep_file: Path, task: int | None, threads: int | None, quiet: bool) ->
             raise click.UsageError(f"SLURM_ARRAY_TASK_ID is not an integer: {env!r}") from None
     ls = _load(sweep_file)
     if not 0 <= task < len(ls.runs):
-        raise click.BadParameter(f"task {task} does not exist: the sweep has {len(ls.runs)} runs "
-                                 f"(0-{len(ls.runs) - 1})", param_hint="--task")
+        raise click.BadParameter(
+            f"task {task} does not exist: the sweep has {len(ls.runs)} runs (0-{len(ls.runs) - 1})",
+            param_hint="--task",
+        )
     sys.exit(run_task(ls, task, threads=threads, quiet=quiet))
 
 
 @sweep.command("run-local")
 @SWEEP_ARG
-@click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Tasks running at the same time.")
+@click.option(
+    "-j",
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Tasks running at the same time.",
+)
 @click.option("--tasks", default=None, metavar="LIST", help="Only these runs, e.g. 0-3,7 (default: all).")
-@click.option("--threads", type=click.IntRange(min=1), default=None,
-              help="CPU threads per task (default: the cores divided by -j).")
+@click.option(
+    "--threads",
+    type=click.IntRange(min=1),
+    default=None,
+    help="CPU threads per task (default: the cores divided by -j).",
+)
 @click.option("--quiet", "-q", is_flag=True, help="No progress lines in the task logs.")
 def run_local(sweep_file: Path, jobs: int, tasks: str | None, threads: int | None, quiet: bool) -> None:
     """Run the sweep's tasks as local processes, J at a time (each one as `sweep run --task N`).
@@ -148,21 +184,50 @@ def run_local(sweep_file: Path, jobs: int, tasks: str | None, threads: int | Non
 @sweep.command()
 @SWEEP_ARG
 @click.option("--partition", "-p", default=None, help="Slurm partition.")
-@click.option("--time", "-t", "time_limit", default=None, help="Time limit per task (Slurm syntax, e.g. 4:00:00).")
-@click.option("--cpus-per-task", "-c", type=click.IntRange(min=1), default=None,
-              help="CPU cores per task; the simulation uses as many threads.")
+@click.option(
+    "--time", "-t", "time_limit", default=None, help="Time limit per task (Slurm syntax, e.g. 4:00:00)."
+)
+@click.option(
+    "--cpus-per-task",
+    "-c",
+    type=click.IntRange(min=1),
+    default=None,
+    help="CPU cores per task; the simulation uses as many threads.",
+)
 @click.option("--gpus-per-task", type=click.IntRange(min=0), default=None, help="GPUs per task.")
-@click.option("--max-parallel", "-K", type=click.IntRange(min=1), default=None,
-              help="At most K tasks running at once (--array=...%K).")
+@click.option(
+    "--max-parallel",
+    "-K",
+    type=click.IntRange(min=1),
+    default=None,
+    help="At most K tasks running at once (--array=...%K).",
+)
 @click.option("--mem", default=None, help="Memory per task (Slurm syntax, e.g. 8G).")
 @click.option("--account", "-A", default=None, help="Slurm account.")
 @click.option("--qos", default=None, help="Slurm QOS.")
 @click.option("--tasks", default=None, metavar="LIST", help="Only these runs, e.g. 0-3,7 (default: all).")
-@click.option("--sbatch-option", "extra", multiple=True, metavar="OPT",
-              help="Another sbatch option for the script, e.g. --constraint=a100. Repeatable.")
+@click.option(
+    "--sbatch-option",
+    "extra",
+    multiple=True,
+    metavar="OPT",
+    help="Another sbatch option for the script, e.g. --constraint=a100. Repeatable.",
+)
 @click.option("--dry-run", is_flag=True, help="Write and print the script, do not submit it.")
-def submit(sweep_file: Path, partition, time_limit, cpus_per_task, gpus_per_task, max_parallel, mem, account, qos,
-           tasks, extra, dry_run) -> None:
+def submit(
+    sweep_file: Path,
+    partition,
+    time_limit,
+    cpus_per_task,
+    gpus_per_task,
+    max_parallel,
+    mem,
+    account,
+    qos,
+    tasks,
+    extra,
+    dry_run,
+) -> None:
     """Submit the sweep as one Slurm job array (one element per run; preemption-safe).
 
     Writes OUTPUT/_sweep/<sweep>.sbatch, submits it with sbatch and records the job id in
@@ -173,13 +238,28 @@ def submit(sweep_file: Path, partition, time_limit, cpus_per_task, gpus_per_task
 
     ls = _load_valid(sweep_file)
     indices = _indices(ls, tasks)
-    opts = SbatchOptions(partition=partition, time=time_limit, cpus_per_task=cpus_per_task,
-                         gpus_per_task=gpus_per_task, max_parallel=max_parallel, mem=mem, account=account,
-                         qos=qos, extra=list(extra))
+    opts = SbatchOptions(
+        partition=partition,
+        time=time_limit,
+        cpus_per_task=cpus_per_task,
+        gpus_per_task=gpus_per_task,
+        max_parallel=max_parallel,
+        mem=mem,
+        account=account,
+        qos=qos,
+        extra=list(extra),
+    )
     admin = ls.admin_dir.resolve()
     log_dir = admin / "logs"
-    text = sbatch_script(sweep_path=ls.path.resolve(), workdir=Path.cwd(), python=sys.executable,
-                         log_dir=log_dir, job_name=f"simcli-{ls.label}", indices=indices, opts=opts)
+    text = sbatch_script(
+        sweep_path=ls.path.resolve(),
+        workdir=Path.cwd(),
+        python=sys.executable,
+        log_dir=log_dir,
+        job_name=f"simcli-{ls.label}",
+        indices=indices,
+        opts=opts,
+    )
     script = admin / f"{ls.label}.sbatch"
     try:
         log_dir.mkdir(parents=True, exist_ok=True)  # Slurm does not create the log folder
@@ -196,9 +276,17 @@ def submit(sweep_file: Path, partition, time_limit, cpus_per_task, gpus_per_task
     except SubmitError as e:
         _err(f"simcli sweep: {e}")
         sys.exit(EXIT_OTHER)
-    path = record_submission(admin, {"job_id": job, "array": array_spec(indices, max_parallel), "script": str(script),
-                                     "sweep": str(ls.path.resolve()), "workdir": str(Path.cwd()),
-                                     "n_tasks": len(indices)})
+    path = record_submission(
+        admin,
+        {
+            "job_id": job,
+            "array": array_spec(indices, max_parallel),
+            "script": str(script),
+            "sweep": str(ls.path.resolve()),
+            "workdir": str(Path.cwd()),
+            "n_tasks": len(indices),
+        },
+    )
     _err(f"submitted job array {job} ({len(indices)} tasks of {ls.path}); recorded in {path}")
     _err(f"  follow it:   simcli sweep status {sweep_file}    (and squeue -j {job})")
     _err(f"  logs:        {log_dir}/simcli-{ls.label}_{job}_<task>.out")
@@ -222,11 +310,25 @@ def status(sweep_file: Path, as_json: bool) -> None:
         return
     rows = [["INDEX", "NAME", "STATE", "EXIT", "STEPS", "SIM_TIME", "JOB", "DETAIL"]]
     for s in states:
-        steps = "" if s.steps_done is None else (f"{s.steps_done}/{s.n_steps}" if s.n_steps else str(s.steps_done))
+        steps = (
+            ""
+            if s.steps_done is None
+            else (f"{s.steps_done}/{s.n_steps}" if s.n_steps else str(s.steps_done))
+        )
         if s.steps_done is not None and s.n_steps and s.state not in ("done",):
             steps += f" ({100.0 * s.steps_done / s.n_steps:.0f}%)"
-        rows.append([str(s.index), s.name, s.state, "" if s.exit_code is None else str(s.exit_code), steps,
-                     "" if s.sim_time is None else f"{s.sim_time:.4g}", s.job or "", s.detail])
+        rows.append(
+            [
+                str(s.index),
+                s.name,
+                s.state,
+                "" if s.exit_code is None else str(s.exit_code),
+                steps,
+                "" if s.sim_time is None else f"{s.sim_time:.4g}",
+                s.job or "",
+                s.detail,
+            ]
+        )
     click.echo(_table(rows))
     counts: dict[str, int] = {}
     for s in states:
@@ -239,12 +341,24 @@ def status(sweep_file: Path, as_json: bool) -> None:
 
 @sweep.command()
 @SWEEP_ARG
-@click.option("-o", "--out", "out", default=None, metavar="CSV",
-              help="Where to write the table (default OUTPUT/results.csv; '-' for stdout).")
-@click.option("--metric", "-m", "metrics", multiple=True, metavar="PATH",
-              help="Another column: a dotted path into run.json (throughput.steps_per_s) or "
-                   "measure.<quantity>.<entity>[.<axis>][.final|max|min|mean] (a verification measurement of "
-                   "sim.h5, e.g. measure.com.jelly.1). Repeatable; adds to the sweep file's metrics.")
+@click.option(
+    "-o",
+    "--out",
+    "out",
+    default=None,
+    metavar="CSV",
+    help="Where to write the table (default OUTPUT/results.csv; '-' for stdout).",
+)
+@click.option(
+    "--metric",
+    "-m",
+    "metrics",
+    multiple=True,
+    metavar="PATH",
+    help="Another column: a dotted path into run.json (throughput.steps_per_s) or "
+    "measure.<quantity>.<entity>[.<axis>][.final|max|min|mean] (a verification measurement of "
+    "sim.h5, e.g. measure.com.jelly.1). Repeatable; adds to the sweep file's metrics.",
+)
 def collect(sweep_file: Path, out: str | None, metrics: tuple[str, ...]) -> None:
     """One CSV row per run: index, name, state, every varied value, and the chosen metrics."""
     from simcli.sweep.tasks import collect_rows, write_csv
@@ -266,4 +380,3 @@ def collect(sweep_file: Path, out: str | None, metrics: tuple[str, ...]) -> None
         sys.exit(EXIT_OUTPUT)
     done = sum(1 for r in rows if r[2] == "done")
     _err(f"wrote {path}: {len(rows)} runs ({done} done), {len(header)} columns")
-

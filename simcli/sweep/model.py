@@ -57,7 +57,9 @@ class Sweep(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, title="simcli sweep")
 
     version: Literal[1] = Field(1, description="Sweep file format version.")
-    base: str = Field(min_length=1, description="Scene file every run starts from, relative to this sweep file.")
+    base: str = Field(
+        min_length=1, description="Scene file every run starts from, relative to this sweep file."
+    )
     name: str | None = Field(
         None,
         min_length=1,
@@ -233,13 +235,17 @@ def _format_model_errors(exc: ValidationError, loc: Located) -> list[str]:
         if t == "extra_forbidden":
             known = list(Sweep.model_fields)
             hint = difflib.get_close_matches(str(path[-1]), known, n=1, cutoff=0.6)
-            msg = "unknown key" + (f" (did you mean '{hint[0]}'?)" if hint else f" (known keys: {', '.join(known)})")
+            msg = "unknown key" + (
+                f" (did you mean '{hint[0]}'?)" if hint else f" (known keys: {', '.join(known)})"
+            )
             prefer_key = True
         elif t == "too_short":
             msg = "must list at least one value" if path[:1] in (("grid",), ("zip",)) else "must not be empty"
         elif t == "dict_type" and path in (("grid",), ("zip",)):
-            msg = "expected a mapping of dotted scene keys to lists of values (got " \
-                  f"{type(err.get('input')).__name__})"
+            msg = (
+                "expected a mapping of dotted scene keys to lists of values (got "
+                f"{type(err.get('input')).__name__})"
+            )
         elif t == "list_type" and path[:1] in (("grid",), ("zip",)):
             msg = f"expected a list of values (got {err.get('input')!r}); write [{err.get('input')!r}] for one value"
         else:
@@ -285,15 +291,21 @@ def load_sweep(path: str | Path) -> LoadedSweep:
         for sb, kb in keys[:i]:
             pa, pb = split_path(ka), split_path(kb)
             if pa == pb:
-                errors.append(f"{loc.where((sa, ka), prefer_key=True)}: {_sweep_key((sa, ka))}: also varied in "
-                              f"{sb} (at {loc.where((sb, kb), prefer_key=True)}); vary each key once")
+                errors.append(
+                    f"{loc.where((sa, ka), prefer_key=True)}: {_sweep_key((sa, ka))}: also varied in "
+                    f"{sb} (at {loc.where((sb, kb), prefer_key=True)}); vary each key once"
+                )
             elif pa[: len(pb)] == pb or pb[: len(pa)] == pa:
-                errors.append(f"{loc.where((sa, ka), prefer_key=True)}: {_sweep_key((sa, ka))}: overlaps "
-                              f"{sb}.{kb} (one key lies inside the other); vary one of them")
+                errors.append(
+                    f"{loc.where((sa, ka), prefer_key=True)}: {_sweep_key((sa, ka))}: overlaps "
+                    f"{sb}.{kb} (one key lies inside the other); vary one of them"
+                )
     lengths = {k: len(v) for k, v in sweep.zip.items()}
     if len(set(lengths.values())) > 1:
         detail = ", ".join(f"{k}: {n}" for k, n in lengths.items())
-        errors.append(f"{loc.where(('zip',), prefer_key=True)}: zip: the lists must have equal lengths ({detail})")
+        errors.append(
+            f"{loc.where(('zip',), prefer_key=True)}: zip: the lists must have equal lengths ({detail})"
+        )
 
     base_path = Path(os.path.normpath(path.parent / sweep.base))
     base_text = ""
@@ -314,8 +326,15 @@ def load_sweep(path: str | Path) -> LoadedSweep:
     runs = _expand(sweep, loc, base_loc, errors)
     if errors:
         raise SceneError(sort_lines(list(dict.fromkeys(errors))))
-    return LoadedSweep(sweep=sweep, path=path, located=loc, base_path=base_path, base_located=base_loc,
-                       base_text=base_text, runs=runs)
+    return LoadedSweep(
+        sweep=sweep,
+        path=path,
+        located=loc,
+        base_path=base_path,
+        base_located=base_loc,
+        base_text=base_text,
+        runs=runs,
+    )
 
 
 def _expand(sweep: Sweep, loc: Located, base_loc: Located, errors: list[str]) -> list[Run]:
@@ -342,15 +361,19 @@ def _expand(sweep: Sweep, loc: Located, base_loc: Located, errors: list[str]) ->
             try:
                 apply_overrides(data, [(split_path(k), copy.deepcopy(v))])
             except ValueError as e:
-                errors.append(f"{loc.where((section, k), prefer_key=True)}: {_sweep_key((section, k))}: "
-                              f"cannot set it in {base_loc.file}: {e}")
+                errors.append(
+                    f"{loc.where((section, k), prefer_key=True)}: {_sweep_key((section, k))}: "
+                    f"cannot set it in {base_loc.file}: {e}"
+                )
         name = _render_name(sweep, loc, index, width, params, data, errors)
         if name is None:
             continue
         if name in names:
             varied = ", ".join(grid_keys + zip_keys) or "(none)"
-            errors.append(f"{loc.where(('name',))}: name: runs {names[name]} and {index} both get the name "
-                          f"'{name}'; put every varied key into the template (varied: {varied})")
+            errors.append(
+                f"{loc.where(('name',))}: name: runs {names[name]} and {index} both get the name "
+                f"'{name}'; put every varied key into the template (varied: {varied})"
+            )
             continue
         names[name] = index
         runs.append(Run(index=index, name=name, params=params, sources=sources))
@@ -369,8 +392,9 @@ def _lookup(data: Any, path: tuple) -> tuple[bool, Any]:
     return True, cur
 
 
-def _render_name(sweep: Sweep, loc: Located, index: int, width: int, params: dict, data: Any,
-                 errors: list[str]) -> str | None:
+def _render_name(
+    sweep: Sweep, loc: Located, index: int, width: int, params: dict, data: Any, errors: list[str]
+) -> str | None:
     where = loc.where(("name",))
     if sweep.name is None:
         return f"{index:0{width}d}"
@@ -385,7 +409,9 @@ def _render_name(sweep: Sweep, loc: Located, index: int, width: int, params: dic
         if field_name is None:
             continue
         if conversion:
-            errors.append(f"{where}: name: conversions such as !{conversion} are not supported in {{{field_name}}}")
+            errors.append(
+                f"{where}: name: conversions such as !{conversion} are not supported in {{{field_name}}}"
+            )
             return None
         if field_name == "":
             errors.append(f"{where}: name: empty placeholder {{}}; name a key, e.g. {{sim.dt}}, or {{index}}")
@@ -403,8 +429,10 @@ def _render_name(sweep: Sweep, loc: Located, index: int, width: int, params: dic
                 candidates = list(params) + ["index"]
                 hint = difflib.get_close_matches(field_name, candidates, n=1, cutoff=0.6)
                 tail = f" (did you mean '{hint[0]}'?)" if hint else f" (varied keys: {', '.join(candidates)})"
-                errors.append(f"{where}: name: {{{field_name}}} is neither a varied key nor a key of the base "
-                              f"scene{tail}")
+                errors.append(
+                    f"{where}: name: {{{field_name}}} is neither a varied key nor a key of the base "
+                    f"scene{tail}"
+                )
                 return None
         try:
             out.append(name_value_text(value, spec or ""))
@@ -425,8 +453,13 @@ def run_located(ls: LoadedSweep, run: Run) -> Located:
     """The base scene's located data with the run's values applied; each value set by the
     sweep is reported at its place in the sweep file."""
     base = ls.base_located
-    loc = Located(data=copy.deepcopy(base.data), file=base.file, key_pos=dict(base.key_pos),
-                  value_pos=dict(base.value_pos), override_src=dict(base.override_src))
+    loc = Located(
+        data=copy.deepcopy(base.data),
+        file=base.file,
+        key_pos=dict(base.key_pos),
+        value_pos=dict(base.value_pos),
+        override_src=dict(base.override_src),
+    )
     for key, value in run.params.items():
         path = split_path(key)
         apply_overrides(loc.data, [(path, copy.deepcopy(value))])

@@ -51,18 +51,28 @@ def _job_name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]", "_", text)[:64] or "simcli-sweep"
 
 
-def sbatch_script(*, sweep_path: Path, workdir: Path, python: str, log_dir: Path, job_name: str,
-                  indices: list[int], opts: SbatchOptions) -> str:
+def sbatch_script(
+    *,
+    sweep_path: Path,
+    workdir: Path,
+    python: str,
+    log_dir: Path,
+    job_name: str,
+    indices: list[int],
+    opts: SbatchOptions,
+) -> str:
     """The text of the sbatch script. Paths should be absolute: the job may start anywhere."""
     q = shlex.quote
-    lines = ["#!/bin/bash",
-             f"#SBATCH --job-name={_job_name(opts.job_name or job_name)}",
-             f"#SBATCH --array={array_spec(indices, opts.max_parallel)}",
-             f"#SBATCH --output={log_dir}/%x_%A_%a.out",
-             "#SBATCH --open-mode=append",
-             "#SBATCH --ntasks=1",
-             f"#SBATCH --signal=B:USR1@{opts.signal_lead_s}",
-             "#SBATCH --requeue"]
+    lines = [
+        "#!/bin/bash",
+        f"#SBATCH --job-name={_job_name(opts.job_name or job_name)}",
+        f"#SBATCH --array={array_spec(indices, opts.max_parallel)}",
+        f"#SBATCH --output={log_dir}/%x_%A_%a.out",
+        "#SBATCH --open-mode=append",
+        "#SBATCH --ntasks=1",
+        f"#SBATCH --signal=B:USR1@{opts.signal_lead_s}",
+        "#SBATCH --requeue",
+    ]
     if opts.partition:
         lines.append(f"#SBATCH --partition={opts.partition}")
     if opts.time:
@@ -87,12 +97,14 @@ def sbatch_script(*, sweep_path: Path, workdir: Path, python: str, log_dir: Path
         'threads="${SLURM_CPUS_PER_TASK:-1}"',
         'export OMP_NUM_THREADS="$threads" SIMCLI_THREADS="$threads"',
         'task="${SLURM_ARRAY_JOB_ID}_${SLURM_ARRAY_TASK_ID}"',
-        ('echo "simcli sweep: array element $task on $(hostname), attempt $((${SLURM_RESTART_COUNT:-0} + 1)),'
-         ' $(date -Is)" >&2'),
+        (
+            'echo "simcli sweep: array element $task on $(hostname), attempt $((${SLURM_RESTART_COUNT:-0} + 1)),'
+            ' $(date -Is)" >&2'
+        ),
         "",
         "# Slurm sends USR1 (--signal=B:...) to this shell only: run the task in the background and",
         "# pass the signal on, so it checkpoints and exits 75 before the time limit.",
-        f"{q(python)} -m simcli sweep run {q(str(sweep_path))} --task \"$SLURM_ARRAY_TASK_ID\" --threads \"$threads\" &",
+        f'{q(python)} -m simcli sweep run {q(str(sweep_path))} --task "$SLURM_ARRAY_TASK_ID" --threads "$threads" &',
         "child=$!",
         "trap 'kill -USR1 \"$child\" 2>/dev/null' USR1",
         "trap 'kill -TERM \"$child\" 2>/dev/null' TERM",
@@ -124,15 +136,20 @@ def submit(script: Path) -> str:
     """``sbatch --parsable SCRIPT``; returns the job id."""
     exe = shutil.which("sbatch")
     if exe is None:
-        raise SubmitError("sbatch not found: is this a Slurm login node? (use --dry-run to only write the "
-                          "script, or `simcli sweep run-local` to run the sweep here)")
+        raise SubmitError(
+            "sbatch not found: is this a Slurm login node? (use --dry-run to only write the "
+            "script, or `simcli sweep run-local` to run the sweep here)"
+        )
     try:
-        r = subprocess.run([exe, "--parsable", str(script)], capture_output=True, text=True, timeout=120,
-                           check=False)
+        r = subprocess.run(
+            [exe, "--parsable", str(script)], capture_output=True, text=True, timeout=120, check=False
+        )
     except (OSError, subprocess.TimeoutExpired) as e:
         raise SubmitError(f"sbatch failed: {e}") from None
     if r.returncode != 0:
-        raise SubmitError(f"sbatch refused the job (exit {r.returncode}): {r.stderr.strip() or r.stdout.strip()}")
+        raise SubmitError(
+            f"sbatch refused the job (exit {r.returncode}): {r.stderr.strip() or r.stdout.strip()}"
+        )
     job = r.stdout.strip().split(";")[0]
     if not job:
         raise SubmitError(f"sbatch printed no job id: {r.stdout!r} {r.stderr!r}")

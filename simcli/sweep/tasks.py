@@ -164,7 +164,9 @@ def run_task(ls: LoadedSweep, index: int, threads: int | None = None, quiet: boo
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            _log(f"{tag}: already running (another `simcli sweep run` holds {out / LOCK_FILE}); nothing to do")
+            _log(
+                f"{tag}: already running (another `simcli sweep run` holds {out / LOCK_FILE}); nothing to do"
+            )
             return EXIT_OTHER
         return _run_locked(ls, run, out, tag, threads, quiet)
     finally:
@@ -179,16 +181,28 @@ def _run_locked(ls: LoadedSweep, run: Run, out: Path, tag: str, threads: int | N
     status = rj.get("status") if rj else None
     ckpts = checkpoints(out)
     if rec.get("params") not in (None, params) and (rj is not None or ckpts):
-        diff = ", ".join(f"{k}: {rec['params'].get(k)!r} there, {v!r} now" for k, v in params.items()
-                         if rec["params"].get(k) != v) or "other keys varied"
-        _log(f"{tag}: {out} holds a run with other values ({diff}): the sweep file changed. Remove {out} "
-             f"(or give the sweep another output folder) to run it again")
+        diff = (
+            ", ".join(
+                f"{k}: {rec['params'].get(k)!r} there, {v!r} now"
+                for k, v in params.items()
+                if rec["params"].get(k) != v
+            )
+            or "other keys varied"
+        )
+        _log(
+            f"{tag}: {out} holds a run with other values ({diff}): the sweep file changed. Remove {out} "
+            f"(or give the sweep another output folder) to run it again"
+        )
         return EXIT_OTHER
     if status == "done" and rj.get("exit_code") == EXIT_OK:
         if rec.get("fingerprint") not in (None, fp):
-            _log(f"{tag}: warning: the base scene changed since this run finished; remove {out} to run it again")
-        _log(f"{tag}: already done ({rj.get('steps_done', '?')} steps, t = {rj.get('sim_time', '?')} s); "
-             f"nothing to do")
+            _log(
+                f"{tag}: warning: the base scene changed since this run finished; remove {out} to run it again"
+            )
+        _log(
+            f"{tag}: already done ({rj.get('steps_done', '?')} steps, t = {rj.get('sim_time', '?')} s); "
+            f"nothing to do"
+        )
         return EXIT_OK
     resume = bool(ckpts)
     why_fresh = None
@@ -200,11 +214,22 @@ def _run_locked(ls: LoadedSweep, run: Run, out: Path, tag: str, threads: int | N
         _log(f"{tag}: starting over: {why_fresh}")
         shutil.rmtree(out / "checkpoints", ignore_errors=True)
 
-    attempt = {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": platform.node(), "pid": os.getpid(),
-               "resume": resume, "slurm_job": _slurm_id(),
-               "slurm_restart_count": os.environ.get("SLURM_RESTART_COUNT")}
-    rec.update(sweep=str(ls.path.resolve()), index=run.index, name=run.name, base=str(ls.base_path.resolve()),
-               params=params, fingerprint=fp)
+    attempt = {
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "host": platform.node(),
+        "pid": os.getpid(),
+        "resume": resume,
+        "slurm_job": _slurm_id(),
+        "slurm_restart_count": os.environ.get("SLURM_RESTART_COUNT"),
+    }
+    rec.update(
+        sweep=str(ls.path.resolve()),
+        index=run.index,
+        name=run.name,
+        base=str(ls.base_path.resolve()),
+        params=params,
+        fingerprint=fp,
+    )
     rec["attempts"] = (rec.get("attempts") or [])[-49:] + [attempt]
     try:
         write_json(out / TASK_FILE, rec)
@@ -229,8 +254,7 @@ def _run_locked(ls: LoadedSweep, run: Run, out: Path, tag: str, threads: int | N
     fwd = _Forwarder().install()
     try:
         try:
-            proc = subprocess.Popen(cmd, env=env, start_new_session=True,
-                                    preexec_fn=_child_setup)  # noqa: PLW1509 - single-threaded
+            proc = subprocess.Popen(cmd, env=env, start_new_session=True, preexec_fn=_child_setup)  # noqa: PLW1509 - single-threaded
         except OSError as e:
             _log(f"{tag}: cannot start {cmd[0]}: {e}")
             return EXIT_OTHER
@@ -257,10 +281,17 @@ def _settle(out: Path, code: int, received: list[int], tag: str) -> int:
         sig = signal.Signals(-code).name
         if received:
             # interrupted before it could install its handlers or write a checkpoint: safe to rerun
-            code, new, err = EXIT_INTERRUPTED, "interrupted", f"stopped by {sig} before a checkpoint was written"
+            code, new, err = (
+                EXIT_INTERRUPTED,
+                "interrupted",
+                f"stopped by {sig} before a checkpoint was written",
+            )
         else:
-            code, new, err = 128 - code, "failed", f"killed by {sig}" + (" (out of memory?)" if sig == "SIGKILL"
-                                                                        else "")
+            code, new, err = (
+                128 - code,
+                "failed",
+                f"killed by {sig}" + (" (out of memory?)" if sig == "SIGKILL" else ""),
+            )
         if status in (None, "starting", "running"):
             d = dict(rj or {})
             d.update(status=new, exit_code=code, error=err, updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
@@ -270,8 +301,11 @@ def _settle(out: Path, code: int, received: list[int], tag: str) -> int:
                 pass
     elif status in ("starting", "running"):
         d = dict(rj)
-        d.update(status="done" if code == 0 else ("interrupted" if code == EXIT_INTERRUPTED else "failed"),
-                 exit_code=code, updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+        d.update(
+            status="done" if code == 0 else ("interrupted" if code == EXIT_INTERRUPTED else "failed"),
+            exit_code=code,
+            updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        )
         d.setdefault("error", f"the simulation exited {code} without updating run.json")
         try:
             write_json(out / "run.json", d)
@@ -308,8 +342,21 @@ class TaskState:
     extra: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
-        return {k: getattr(self, k) for k in ("index", "name", "state", "exit_code", "steps_done", "n_steps",
-                                               "sim_time", "updated", "job", "detail")}
+        return {
+            k: getattr(self, k)
+            for k in (
+                "index",
+                "name",
+                "state",
+                "exit_code",
+                "steps_done",
+                "n_steps",
+                "sim_time",
+                "updated",
+                "job",
+                "detail",
+            )
+        }
 
 
 def _pid_alive(pid) -> bool:
@@ -381,8 +428,9 @@ def sweep_states(ls: LoadedSweep) -> list[TaskState]:
 # ------------------------------------------------------------------ run-local
 
 
-def run_local(ls: LoadedSweep, indices: list[int], jobs: int, threads: int | None = None,
-              quiet: bool = False) -> int:
+def run_local(
+    ls: LoadedSweep, indices: list[int], jobs: int, threads: int | None = None, quiet: bool = False
+) -> int:
     """Run tasks as local processes, ``jobs`` at a time, each through ``simcli sweep run``
     (the code path of a Slurm task); logs go to OUTPUT/_sweep/logs/local_<index>.log."""
     log_dir = ls.admin_dir / "logs"
@@ -405,11 +453,26 @@ def run_local(ls: LoadedSweep, indices: list[int], jobs: int, threads: int | Non
                 i = queue.pop(0)
                 run = ls.runs[i]
                 logf = open(log_dir / f"local_{i}.log", "ab")  # noqa: SIM115 - closed when the task ends
-                cmd = [sys.executable, "-m", "simcli", "sweep", "run", str(ls.path), "--task", str(i),
-                       "--threads", str(threads)] + (["--quiet"] if quiet else [])
-                p = subprocess.Popen(cmd, stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                     start_new_session=True,
-                                     preexec_fn=_child_setup)  # noqa: PLW1509 - single-threaded
+                cmd = [
+                    sys.executable,
+                    "-m",
+                    "simcli",
+                    "sweep",
+                    "run",
+                    str(ls.path),
+                    "--task",
+                    str(i),
+                    "--threads",
+                    str(threads),
+                ] + (["--quiet"] if quiet else [])
+                p = subprocess.Popen(
+                    cmd,
+                    stdout=logf,
+                    stderr=subprocess.STDOUT,
+                    stdin=subprocess.DEVNULL,
+                    start_new_session=True,
+                    preexec_fn=_child_setup,
+                )  # noqa: PLW1509 - single-threaded
                 running[i] = (p, logf)
                 fwd.add(p.pid)
                 _log(f"task {i} '{run.name}': started (log {log_dir / f'local_{i}.log'})")
@@ -448,12 +511,23 @@ def run_local(ls: LoadedSweep, indices: list[int], jobs: int, threads: int | Non
 
 # -------------------------------------------------------------------- results
 
-DEFAULT_METRICS = ["steps_done", "sim_time", "particles", "backend", "timings.startup_s", "timings.stepping_s",
-                   "throughput.steps_per_s", "throughput.particle_substeps_per_s", "peak_memory_mb"]
+DEFAULT_METRICS = [
+    "steps_done",
+    "sim_time",
+    "particles",
+    "backend",
+    "timings.startup_s",
+    "timings.stepping_s",
+    "throughput.steps_per_s",
+    "throughput.particle_substeps_per_s",
+    "peak_memory_mb",
+]
 REDUCTIONS = ("final", "max", "min", "mean")
-METRIC_HELP = ("a dotted path into run.json (throughput.steps_per_s), or measure.<quantity>.<entity>[.<axis>]"
-               "[.final|max|min|mean]: a verification measurement of sim.h5 (simcli.verify.measure: com, "
-               "min_coord, max_speed, kinetic_energy, ...), reduced over the frames (default: the last frame)")
+METRIC_HELP = (
+    "a dotted path into run.json (throughput.steps_per_s), or measure.<quantity>.<entity>[.<axis>]"
+    "[.final|max|min|mean]: a verification measurement of sim.h5 (simcli.verify.measure: com, "
+    "min_coord, max_speed, kinetic_energy, ...), reduced over the frames (default: the last frame)"
+)
 
 
 def _dig(d, dotted: str):
@@ -472,7 +546,9 @@ def parse_measure(metric: str) -> tuple[str, str, int | None, str]:
     """'measure.com.jelly.1.max' -> ('com', 'jelly', 1, 'max'). Raises ValueError."""
     parts = metric.split(".")
     if len(parts) < 3 or parts[0] != "measure":
-        raise ValueError(f"'{metric}': expected measure.<quantity>.<entity>[.<axis>][.{'|'.join(REDUCTIONS)}]")
+        raise ValueError(
+            f"'{metric}': expected measure.<quantity>.<entity>[.<axis>][.{'|'.join(REDUCTIONS)}]"
+        )
     quantity, entity, axis, reduce = parts[1], parts[2], None, "final"
     for p in parts[3:]:
         if p.isdigit():
@@ -480,7 +556,9 @@ def parse_measure(metric: str) -> tuple[str, str, int | None, str]:
         elif p in REDUCTIONS:
             reduce = p
         else:
-            raise ValueError(f"'{metric}': '{p}' is neither an axis (0, 1, 2) nor one of {', '.join(REDUCTIONS)}")
+            raise ValueError(
+                f"'{metric}': '{p}' is neither an axis (0, 1, 2) nor one of {', '.join(REDUCTIONS)}"
+            )
     return quantity, entity, axis, reduce
 
 
@@ -517,7 +595,10 @@ def collect_rows(ls: LoadedSweep, metrics: list[str]) -> tuple[list[str], list[l
         st = task_state(ls, run)
         rj = read_json(out / "run.json") or {}
         row = [run.index, run.name, st.state, st.exit_code]
-        row += [json.dumps(run.params[k]) if isinstance(run.params[k], (list, dict)) else run.params[k] for k in keys]
+        row += [
+            json.dumps(run.params[k]) if isinstance(run.params[k], (list, dict)) else run.params[k]
+            for k in keys
+        ]
         for m in columns:
             v = None
             if m.startswith("measure."):
@@ -537,8 +618,10 @@ def collect_rows(ls: LoadedSweep, metrics: list[str]) -> tuple[list[str], list[l
     for m in metrics:
         if m not in found and any(r[2] == "done" for r in rows):
             why = failed.get(m)
-            notes.append(f"metric '{m}' has no value in any run" + (f" ({why})" if why else
-                                                                     f"; a metric is {METRIC_HELP}"))
+            notes.append(
+                f"metric '{m}' has no value in any run"
+                + (f" ({why})" if why else f"; a metric is {METRIC_HELP}")
+            )
     return ["index", "name", "state", "exit_code"] + keys + columns, rows, notes
 
 

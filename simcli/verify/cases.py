@@ -38,14 +38,18 @@ class Measure(_M):
 
 class Reference(_M):
     analytic: str | None = Field(
-        None, description="Formula in t (time [s]) and the constants; numpy functions as np.*.")
+        None, description="Formula in t (time [s]) and the constants; numpy functions as np.*."
+    )
     table: str | None = Field(
-        None, description="CSV file (relative to the case file; ${SHARED} = ../shared); first column is time.")
+        None, description="CSV file (relative to the case file; ${SHARED} = ../shared); first column is time."
+    )
     column: int = Field(1, ge=1, description="Column of the table holding the reference value.")
     value: float | None = Field(None, description="A single reference value.")
     constants: dict[str, float] = Field(default_factory=dict, description="Named constants of the formula.")
     scale_t: str | None = Field(None, description="Formula converting the table's time column to seconds.")
-    scale_v: str | None = Field(None, description="Formula converting the table's value column to the measure's unit.")
+    scale_v: str | None = Field(
+        None, description="Formula converting the table's value column to the measure's unit."
+    )
     note: str = Field("", description="Where the reference comes from.")
 
     @model_validator(mode="after")
@@ -56,10 +60,24 @@ class Reference(_M):
 
 
 class ErrorSpec(_M):
-    metric: Literal["max_abs", "max_rel", "rms", "rms_rel", "final_abs", "final_rel", "mean_abs", "mean_rel",
-                    "mean_value_rel", "mean_value_abs", "midrange_rel", "period_mean_rel"] = Field(
-        "max_rel", description="How measured and reference series are compared. mean_value_*: compare the "
-        "time averages over the window (an oscillation about a static state); midrange_rel: (max + min) / 2 over the window; period_mean_rel: the time average over the largest whole number of oscillation periods in the window (the static state of an undamped oscillation).")
+    metric: Literal[
+        "max_abs",
+        "max_rel",
+        "rms",
+        "rms_rel",
+        "final_abs",
+        "final_rel",
+        "mean_abs",
+        "mean_rel",
+        "mean_value_rel",
+        "mean_value_abs",
+        "midrange_rel",
+        "period_mean_rel",
+    ] = Field(
+        "max_rel",
+        description="How measured and reference series are compared. mean_value_*: compare the "
+        "time averages over the window (an oscillation about a static state); midrange_rel: (max + min) / 2 over the window; period_mean_rel: the time average over the largest whole number of oscillation periods in the window (the static state of an undamped oscillation).",
+    )
     window: list[float] | None = Field(None, description="Time window [t0, t1] compared [s].")
     scale: float | None = Field(None, description="Normalisation for *_rel metrics (default |reference|).")
 
@@ -73,11 +91,16 @@ class Case(_M):
     tolerance: float = Field(gt=0, description="Pass when error <= tolerance.")
     refine: dict[str, float] = Field(
         default_factory=dict,
-        description="Per refinement level, multiply these scene keys (dotted paths) by these factors.")
+        description="Per refinement level, multiply these scene keys (dotted paths) by these factors.",
+    )
     refine_tolerance_level: int | None = Field(
-        None, description="With --refine, the level (0 = coarsest) whose error must meet the tolerance "
-        "(default: the finest).")
-    overrides: dict[str, Any] = Field(default_factory=dict, description="--set overrides applied to the scene.")
+        None,
+        description="With --refine, the level (0 = coarsest) whose error must meet the tolerance "
+        "(default: the finest).",
+    )
+    overrides: dict[str, Any] = Field(
+        default_factory=dict, description="--set overrides applied to the scene."
+    )
     tags: list[str] = Field(default_factory=list, description="'fast' marks the CI default set.")
     timeout_s: float = Field(1800, gt=0)
 

@@ -15,19 +15,41 @@ from simcli.errors import EXIT_INVALID_SCENE, SceneError
 @click.argument("cases", nargs=-1)
 @click.option("--all", "all_", is_flag=True, help="Every case (default: the fast set, tag 'fast').")
 @click.option("--tag", default=None, help="Only cases with this tag.")
-@click.option("--refine", type=click.IntRange(1, 8), default=1,
-              help="Run each case at N successive resolutions (each level applies the case's refine factors) "
-              "and report the observed order of convergence and the work-precision diagram.")
-@click.option("--root", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Folder holding *.case.yaml files (default configs/validation).")
-@click.option("-o", "--out", "out", type=click.Path(file_okay=False, path_type=Path), default=Path("out/verify"),
-              help="Where runs, CSV, Markdown and plots go.")
-@click.option("--report", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Also write the Markdown report here (e.g. docs/VALIDATION.md).")
+@click.option(
+    "--refine",
+    type=click.IntRange(1, 8),
+    default=1,
+    help="Run each case at N successive resolutions (each level applies the case's refine factors) "
+    "and report the observed order of convergence and the work-precision diagram.",
+)
+@click.option(
+    "--root",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Folder holding *.case.yaml files (default configs/validation).",
+)
+@click.option(
+    "-o",
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("out/verify"),
+    help="Where runs, CSV, Markdown and plots go.",
+)
+@click.option(
+    "--report",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Also write the Markdown report here (e.g. docs/VALIDATION.md).",
+)
 @click.option("--backend", default=None, help="Compute backend for the runs.")
 @click.option("--list", "list_", is_flag=True, help="List the cases and exit.")
-@click.option("--reuse", is_flag=True, help="Reuse finished runs in OUT whose resolved scene is unchanged "
-              "(regenerate a report without rerunning).")
+@click.option(
+    "--reuse",
+    is_flag=True,
+    help="Reuse finished runs in OUT whose resolved scene is unchanged "
+    "(regenerate a report without rerunning).",
+)
 def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse):
     """Run validation cases against their references; exit 1 when a case fails."""
     from simcli.verify.cases import discover, select
@@ -51,12 +73,18 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse):
     t0 = time.perf_counter()
     for c in chosen:
         click.echo(f"verify: {c.name} ...", err=True)
-        rs = (run_refinement(c, refine, out, backend, reuse=reuse) if refine > 1
-              else [run_case(c, 0, out, backend, reuse=reuse)])
+        rs = (
+            run_refinement(c, refine, out, backend, reuse=reuse)
+            if refine > 1
+            else [run_case(c, 0, out, backend, reuse=reuse)]
+        )
         for r in rs:
             state = "pass" if r.passed else ("FAIL" if r.passed is False else "-")
-            click.echo(f"verify:   level {r.level} ({r.resolution}): error {r.error if r.error is None else f'{r.error:.4g}'}"
-                       f" tol {r.tolerance:g} {state} [{r.wall_s:.1f} s] {r.message}", err=True)
+            click.echo(
+                f"verify:   level {r.level} ({r.resolution}): error {r.error if r.error is None else f'{r.error:.4g}'}"
+                f" tol {r.tolerance:g} {state} [{r.wall_s:.1f} s] {r.message}",
+                err=True,
+            )
         results.extend(rs)
     table = markdown_table(results)
     click.echo(table, err=True)
@@ -79,7 +107,8 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse):
             f"{time.perf_counter() - t0:.0f} s. Each case is a scene plus a `.case.yaml` in configs/validation/ "
             "(measurement, reference, tolerance). With --refine, only the finest level (or the case's "
             "refine_tolerance_level) is judged against the tolerance; order = observed order of convergence "
-            "between successive levels.\n\n" + table + img)
+            "between successive levels.\n\n" + table + img
+        )
         click.echo(f"wrote {report}", err=True)
     failed = [r for r in results if r.passed is False]
     sys.exit(1 if failed else 0)

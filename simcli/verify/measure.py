@@ -157,7 +157,9 @@ def pressure_at_depth(f, entity, depth, axis=None, band=None, spacing=None, **_)
     band = spacing if band is None else band
     # the top layer's median height (not the highest particle: one displaced particle would move it)
     top = z.max(axis=1, keepdims=True)
-    surface = np.array([[np.median(zf[zf >= tf[0] - 0.5 * spacing])] for zf, tf in zip(z, top)]) + 0.5 * spacing
+    surface = (
+        np.array([[np.median(zf[zf >= tf[0] - 0.5 * spacing])] for zf, tf in zip(z, top)]) + 0.5 * spacing
+    )
     sel = np.abs((surface - z) - depth) <= 0.5 * band
     counts = sel.sum(axis=1)
     if np.any(counts == 0):
@@ -219,7 +221,7 @@ def min_separation(f, entity, other, spacing, **_):
     for xa, xb in zip(a, b):
         best = np.inf
         for k in range(0, len(xa), 512):  # blocks: memory stays small
-            d2 = ((xa[k:k + 512, None, :] - xb[None, :, :]) ** 2).sum(axis=2)
+            d2 = ((xa[k : k + 512, None, :] - xb[None, :, :]) ** 2).sum(axis=2)
             best = min(best, float(d2.min()))
         out.append(np.sqrt(best) / spacing)
     return f["time"][...], np.asarray(out)
@@ -276,7 +278,9 @@ def tet_volume_ratio(f, entity, **_):
 
     def vol(p):
         a = p[cells[:, 0]]
-        return np.einsum("ij,ij->", p[cells[:, 1]] - a, np.cross(p[cells[:, 2]] - a, p[cells[:, 3]] - a)) / 6.0
+        return (
+            np.einsum("ij,ij->", p[cells[:, 1]] - a, np.cross(p[cells[:, 2]] - a, p[cells[:, 3]] - a)) / 6.0
+        )
 
     rest = x[0] - np.asarray(g["displacement"][0], dtype=np.float64)
     v0 = vol(rest)
@@ -305,11 +309,11 @@ def be_decay_ratio(f, entity, w, axis=2, lower=None, upper=None, alpha=0.0, beta
         raise ValueError("be_decay_ratio: no vertex inside the region")
     t, y = f["time"][...], u[:, sel, axis].mean(axis=1)
     dt = float(t[1] - t[0])
-    y = np.asarray(y[int(skip):], dtype=np.float64)
+    y = np.asarray(y[int(skip) :], dtype=np.float64)
     p = 2 * int(modes)
     if len(y) < 4 * p:
         raise ValueError(f"be_decay_ratio: {len(y)} frames after skip, need at least {4 * p}")
-    A = np.stack([y[p - 1 - k:len(y) - 1 - k] for k in range(p)] + [np.ones(len(y) - p)], axis=1)
+    A = np.stack([y[p - 1 - k : len(y) - 1 - k] for k in range(p)] + [np.ones(len(y) - p)], axis=1)
     coef, *_ = np.linalg.lstsq(A, y[p:], rcond=None)
     roots = np.roots(np.concatenate([[1.0], -coef[:p]]))
     osc = roots[np.imag(roots) > 1e-12]
@@ -332,7 +336,11 @@ def _grid(f: h5py.File, entity: str | None, field: str = "velocity", frame: int 
         raise TypeError(f"entity is a {g.attrs.get('kind')} entity, not a grid")
     d = g[field]
     a = np.asarray(d[...] if frame is None else d[frame], dtype=np.float64)
-    return a, np.asarray(g.attrs["origin"], dtype=np.float64), np.asarray(g.attrs["spacing"], dtype=np.float64)
+    return (
+        a,
+        np.asarray(g.attrs["origin"], dtype=np.float64),
+        np.asarray(g.attrs["spacing"], dtype=np.float64),
+    )
 
 
 def _centres(origin, spacing, shape_xyz):
@@ -374,7 +382,7 @@ def vortex_centre(f, entity, axis=0, kind="min", **_):
     s = -psi if kind == "min" else psi
     j, i = np.unravel_index(np.argmax(s[1:-1, 1:-1]), (s.shape[0] - 2, s.shape[1] - 2))
     j, i = j + 1, i + 1
-    w = s[j - 1:j + 2, i - 1:i + 2]
+    w = s[j - 1 : j + 2, i - 1 : i + 2]
     # fit s = c0 + c1 X + c2 Y + c3 X^2 + c4 X Y + c5 Y^2 on the 3 x 3 stencil (X, Y in cells)
     X, Y = np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0])
     A = np.stack([np.ones(9), X.ravel(), Y.ravel(), X.ravel() ** 2, (X * Y).ravel(), Y.ravel() ** 2], axis=1)

@@ -10,8 +10,17 @@ import numpy as np
 
 from simcli.verify.cases import Case, ErrorSpec, Reference
 
-_SAFE = {"np": np, "math": math, "pi": math.pi, "sqrt": np.sqrt, "exp": np.exp, "sin": np.sin, "cos": np.cos,
-         "log": np.log, "abs": np.abs}
+_SAFE = {
+    "np": np,
+    "math": math,
+    "pi": math.pi,
+    "sqrt": np.sqrt,
+    "exp": np.exp,
+    "sin": np.sin,
+    "cos": np.cos,
+    "log": np.log,
+    "abs": np.abs,
+}
 
 
 def shared_dir() -> Path:
@@ -129,5 +138,11 @@ def compute_error(case: Case, t: np.ndarray, measured: np.ndarray) -> dict:
         err = abs(meas.mean() - ref.mean()) / (scale or abs(ref.mean()))
     else:  # pragma: no cover - the model restricts metric
         raise ValueError(m)
-    return {"error": float(err), "measured": judged, "reference": judged_ref, "measured_mean": float(meas.mean()),
-            "reference_mean": float(ref.mean()), "points": len(tt)}
+    return {
+        "error": float(err),
+        "measured": judged,
+        "reference": judged_ref,
+        "measured_mean": float(meas.mean()),
+        "reference_mean": float(ref.mean()),
+        "points": len(tt),
+    }

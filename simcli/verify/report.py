@@ -7,8 +7,22 @@ from pathlib import Path
 
 from simcli.verify.run import Result
 
-COLUMNS = ["case", "level", "resolution", "error", "tolerance", "passed", "order", "wall_s", "stepping_s",
-           "compile_s", "particles", "particle_substeps_per_s", "exit_code", "message"]
+COLUMNS = [
+    "case",
+    "level",
+    "resolution",
+    "error",
+    "tolerance",
+    "passed",
+    "order",
+    "wall_s",
+    "stepping_s",
+    "compile_s",
+    "particles",
+    "particle_substeps_per_s",
+    "exit_code",
+    "message",
+]
 
 
 def _fmt(v) -> str:
@@ -22,16 +36,39 @@ def _fmt(v) -> str:
 
 
 def markdown_table(results: list[Result]) -> str:
-    head = ["case", "level", "resolution", "error", "tolerance", "result", "order", "wall [s]", "stepping [s]",
-            "particles", "particle-substeps/s", "note"]
+    head = [
+        "case",
+        "level",
+        "resolution",
+        "error",
+        "tolerance",
+        "result",
+        "order",
+        "wall [s]",
+        "stepping [s]",
+        "particles",
+        "particle-substeps/s",
+        "note",
+    ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in results:
         result = "pass" if r.passed else ("FAIL" if r.passed is False else "(coarser level)")
         if r.passed is None and r.exit_code != 0:
             result = f"run failed ({r.exit_code})"
-        cells = [r.case, str(r.level), r.resolution, _fmt(r.error), _fmt(r.tolerance), result, _fmt(r.order),
-                 _fmt(r.wall_s), _fmt(r.stepping_s), _fmt(r.particles), _fmt(r.particle_substeps_per_s),
-                 _fmt(r.message)]
+        cells = [
+            r.case,
+            str(r.level),
+            r.resolution,
+            _fmt(r.error),
+            _fmt(r.tolerance),
+            result,
+            _fmt(r.order),
+            _fmt(r.wall_s),
+            _fmt(r.stepping_s),
+            _fmt(r.particles),
+            _fmt(r.particle_substeps_per_s),
+            _fmt(r.message),
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

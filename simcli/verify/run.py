@@ -92,8 +92,15 @@ def _reusable(case: Case, sets: list[str], out: Path) -> float | None:
         return None
 
 
-def run_case(case: Case, level: int, out_root: Path, backend: str | None = None, judge: bool = True,
-             quiet: bool = True, reuse: bool = False) -> Result:
+def run_case(
+    case: Case,
+    level: int,
+    out_root: Path,
+    backend: str | None = None,
+    judge: bool = True,
+    quiet: bool = True,
+    reuse: bool = False,
+) -> Result:
     sets = level_overrides(case, level)
     # cases that measure different things on the same scene and resolution share one run
     key = hashlib.sha1(json.dumps([str(case.scene_path), sets, backend]).encode()).hexdigest()[:10]
@@ -126,11 +133,22 @@ def run_case(case: Case, level: int, out_root: Path, backend: str | None = None,
         pass
     t = info.get("timings", {})
     tp = info.get("throughput", {})
-    res = Result(case=case.name, level=level, resolution=_resolution(case, sets), error=None,
-                 tolerance=case.tolerance, passed=False if judge else None, wall_s=round(wall, 3),
-                 stepping_s=t.get("stepping_s"), compile_s=t.get("compile_s"), particles=info.get("particles"),
-                 particle_substeps_per_s=tp.get("particle_substeps_per_s"),
-                 substeps_total=(info.get("substeps") or {}).get("total"), exit_code=code, overrides=sets)
+    res = Result(
+        case=case.name,
+        level=level,
+        resolution=_resolution(case, sets),
+        error=None,
+        tolerance=case.tolerance,
+        passed=False if judge else None,
+        wall_s=round(wall, 3),
+        stepping_s=t.get("stepping_s"),
+        compile_s=t.get("compile_s"),
+        particles=info.get("particles"),
+        particle_substeps_per_s=tp.get("particle_substeps_per_s"),
+        substeps_total=(info.get("substeps") or {}).get("total"),
+        exit_code=code,
+        overrides=sets,
+    )
     if code != 0:
         res.message = f"run failed (exit {code}): {stderr.strip().splitlines()[-1] if stderr.strip() else ''}"
         return res
@@ -142,9 +160,16 @@ def run_case(case: Case, level: int, out_root: Path, backend: str | None = None,
         res.message = f"measurement failed: {type(ex).__name__}: {ex}"
         return res
     res.error = e["error"]
-    where = {"max_abs": " (worst point)", "max_rel": " (worst point)", "final_abs": " (final)",
-             "final_rel": " (final)", "rms": " (mean)", "rms_rel": " (mean)", "mean_abs": " (mean)",
-             "mean_rel": " (mean)"}.get(case.error.metric, "")
+    where = {
+        "max_abs": " (worst point)",
+        "max_rel": " (worst point)",
+        "final_abs": " (final)",
+        "final_rel": " (final)",
+        "rms": " (mean)",
+        "rms_rel": " (mean)",
+        "mean_abs": " (mean)",
+        "mean_rel": " (mean)",
+    }.get(case.error.metric, "")
     res.message = f"measured {e['measured']:.6g}, reference {e['reference']:.6g}{where}"
     if judge:
         res.passed = bool(math.isfinite(res.error) and res.error <= case.tolerance)
@@ -158,8 +183,9 @@ def refinement_ratio(case: Case) -> float:
     return 2.0
 
 
-def run_refinement(case: Case, levels: int, out_root: Path, backend: str | None = None,
-                   reuse: bool = False) -> list[Result]:
+def run_refinement(
+    case: Case, levels: int, out_root: Path, backend: str | None = None, reuse: bool = False
+) -> list[Result]:
     judged = case.refine_tolerance_level if case.refine_tolerance_level is not None else levels - 1
     results = []
     for k in range(levels):

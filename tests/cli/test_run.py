@@ -40,8 +40,9 @@ def _scene(tmp_path: Path, text: str = SCENE, name: str = "scene.yaml") -> Path:
 
 
 def _run(args, timeout=300, **kw):
-    return subprocess.run([sys.executable, "-m", "simcli", *args], capture_output=True, text=True,
-                          timeout=timeout, **kw)
+    return subprocess.run(
+        [sys.executable, "-m", "simcli", *args], capture_output=True, text=True, timeout=timeout, **kw
+    )
 
 
 def test_run_writes_every_output(tmp_path):
@@ -122,8 +123,12 @@ LONG = SCENE.replace("steps: 40", "steps: 100000").replace("every: 2", "every: 1
 
 def test_sigkill_leaves_readable_outputs(tmp_path):
     out = tmp_path / "out"
-    p = subprocess.Popen([sys.executable, "-m", "simcli", "run", str(_scene(tmp_path, LONG)), "-o", str(out), "-q"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "simcli", "run", str(_scene(tmp_path, LONG)), "-o", str(out), "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         _wait_for_frames(out / "sim.h5", 15, p)
         p.send_signal(signal.SIGKILL)
@@ -159,8 +164,12 @@ def test_sigterm_checkpoint_then_resume_matches_uninterrupted(tmp_path):
 
     out = tmp_path / "out"
     slow = text.replace(f"steps: {steps}", f"steps: {steps}")
-    p = subprocess.Popen([sys.executable, "-m", "simcli", "run", str(_scene(tmp_path, slow, "s2.yaml")), "-o",
-                          str(out), "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "simcli", "run", str(_scene(tmp_path, slow, "s2.yaml")), "-o", str(out), "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     _wait_for_frames(out / "sim.h5", 4, p)
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=120)
@@ -193,8 +202,12 @@ def test_signal_after_the_run_finished_does_not_kill_the_process(tmp_path):
     """A SIGTERM during shut-down (after run.json says done) leaves exit 0, not a death by signal."""
     scene = _scene(tmp_path, SCENE)
     out = tmp_path / "out"
-    p = subprocess.Popen([sys.executable, "-m", "simcli", "run", str(scene), "-o", str(out), "-q"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "simcli", "run", str(scene), "-o", str(out), "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.time() + 300
     while time.time() < deadline and p.poll() is None:
         try:
@@ -233,7 +246,9 @@ def test_auto_check_substep_adapts_each_substep_and_lands_on_steps(tmp_path):
     sub = info["substeps"]
     assert sub["auto"] and sub["auto_check"] == "substep"
     assert sub["dt_max_s"] <= 0.002 * (1 + 1e-9)  # max_substep
-    assert sub["dt_min_s"] < sub["dt_max_s"]  # the collapsing column speeds up: the CFL limit shrinks the substep
+    assert (
+        sub["dt_min_s"] < sub["dt_max_s"]
+    )  # the collapsing column speeds up: the CFL limit shrinks the substep
     assert sub["total"] >= 3 * 25  # at most 2 ms each over 3 x 50 ms
     # one stable_dt check per substep (plus the start-up one)
     assert info["solvers"]["sph"]["stable_dt"]["checks"] == sub["total"] + 1
@@ -243,8 +258,15 @@ def test_auto_check_substep_adapts_each_substep_and_lands_on_steps(tmp_path):
 
 
 def test_auto_check_substep_needs_auto_substeps(tmp_path):
-    r = _run(["run", str(_scene(tmp_path, ADAPTIVE.replace("substeps: auto", "substeps: 10"))), "-o",
-              str(tmp_path / "out"), "--quiet"])
+    r = _run(
+        [
+            "run",
+            str(_scene(tmp_path, ADAPTIVE.replace("substeps: auto", "substeps: 10"))),
+            "-o",
+            str(tmp_path / "out"),
+            "--quiet",
+        ]
+    )
     assert r.returncode == 65
     assert "auto_check: substep needs sim.substeps: auto" in r.stderr
 
@@ -255,10 +277,14 @@ def test_auto_check_substep_resume_matches_uninterrupted(tmp_path):
     a 50 ms step the frame-0 runaway check must use the stable substep, not the whole step."""
     import shutil
 
-    text = (ADAPTIVE.replace("steps: 3", "steps: 4").replace("output: {every: 1,", "checkpoint: {every: 1, keep: 10}\n"
-                                                                                     "output: {every: 1,")
-            .replace("    morph: {type: Box, lower: [0.0, 0.0], upper: [0.1, 0.2]}",
-                     "    morph: {type: Box, lower: [0.0, 0.0], upper: [0.1, 0.2]}\n    velocity: [2.0, 0.0]"))
+    text = (
+        ADAPTIVE.replace("steps: 3", "steps: 4")
+        .replace("output: {every: 1,", "checkpoint: {every: 1, keep: 10}\noutput: {every: 1,")
+        .replace(
+            "    morph: {type: Box, lower: [0.0, 0.0], upper: [0.1, 0.2]}",
+            "    morph: {type: Box, lower: [0.0, 0.0], upper: [0.1, 0.2]}\n    velocity: [2.0, 0.0]",
+        )
+    )
     scene = _scene(tmp_path, text)
     ref = tmp_path / "ref"
     r = _run(["run", str(scene), "-o", str(ref), "-q"])

@@ -46,23 +46,40 @@ def test_good_scene_passes(tmp_path):
         ("nu: 0.2", "nu: 0.5", ":6:49: entities.0.material.nu: must be < 0.5 (got 0.5)"),
         ("E: 3.0e5", "E: -3.0e5", ":6:38: entities.0.material.E: must be > 0"),
         ("dt: 2.0e-3", "dt: -1.0e-3", ":2:19: sim.dt: must be > 0"),
-        ("upper: [0.1, 0.1, 0.5]", "upper: [0.1, -0.2, 0.5]", ":7:12: entities.0.morph: lower must be < upper"),
+        (
+            "upper: [0.1, 0.1, 0.5]",
+            "upper: [0.1, -0.2, 0.5]",
+            ":7:12: entities.0.morph: lower must be < upper",
+        ),
         ("upper: [0.5, 0.5, 1.0]}", "upper: [0.5, -0.5, 1.0]}", "domain.upper: lower must be < upper"),
         # unknown keys, with a suggestion
         ("substeps: 10", "substep: 10", ":2:27: sim.substep: unknown key (did you mean 'substeps'?)"),
         ("rho: 1000}", "rho: 1000, young: 3}", "entities.0.material.young: unknown key"),
         # unknown material and morph types
-        ("type: MPM.Elastic", "type: MPM.Elastik", ":6:22: entities.0.material.type: unknown material type 'MPM.Elastik'"),
+        (
+            "type: MPM.Elastic",
+            "type: MPM.Elastik",
+            ":6:22: entities.0.material.type: unknown material type 'MPM.Elastik'",
+        ),
         ("type: Box", "type: Cube", ":7:19: entities.0.morph.type: unknown type 'Cube'"),
         # entity outside the domain
-        ("upper: [0.1, 0.1, 0.5]", "upper: [0.1, 0.1, 1.5]", ":7:12: entities.0.morph: entity 'jelly' extends "
-         "outside the domain along z"),
+        (
+            "upper: [0.1, 0.1, 0.5]",
+            "upper: [0.1, 0.1, 1.5]",
+            ":7:12: entities.0.morph: entity 'jelly' extends outside the domain along z",
+        ),
         # missing mesh file
-        ("morph: {type: Box, lower: [-0.1, -0.1, 0.3], upper: [0.1, 0.1, 0.5]}", "morph: {type: Mesh, file: no.obj}",
-         ":7:31: entities.0.morph.file: mesh file not found"),
+        (
+            "morph: {type: Box, lower: [-0.1, -0.1, 0.3], upper: [0.1, 0.1, 0.5]}",
+            "morph: {type: Mesh, file: no.obj}",
+            ":7:31: entities.0.morph.file: mesh file not found",
+        ),
         # too large for memory: estimated before allocating
-        ("duration: 0.1}", "duration: 0.1}\nsolvers: {mpm: {grid_density: 4000, particle_size: 0.0005}}",
-         "scene too large"),
+        (
+            "duration: 0.1}",
+            "duration: 0.1}\nsolvers: {mpm: {grid_density: 4000, particle_size: 0.0005}}",
+            "scene too large",
+        ),
     ],
 )
 def test_bad_input(tmp_path, old, new, expect):
@@ -113,9 +130,11 @@ def test_missing_file_and_non_mapping(tmp_path):
 def test_validate_is_fast_and_never_imports_taichi(tmp_path):
     p = tmp_path / "scene.yaml"
     p.write_text(GOOD)
-    code = ("import sys, time; t=time.perf_counter(); from simcli.cli import cli\n"
-            "try:\n    cli(['validate', sys.argv[1]])\nexcept SystemExit as e:\n    rc = e.code\n"
-            "print(rc, 'taichi' in sys.modules, time.perf_counter() - t)")
+    code = (
+        "import sys, time; t=time.perf_counter(); from simcli.cli import cli\n"
+        "try:\n    cli(['validate', sys.argv[1]])\nexcept SystemExit as e:\n    rc = e.code\n"
+        "print(rc, 'taichi' in sys.modules, time.perf_counter() - t)"
+    )
     r = subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True, timeout=60)
     rc, imported, secs = r.stdout.split()
     assert rc == "0" and imported == "False", r.stderr
@@ -124,8 +143,9 @@ def test_validate_is_fast_and_never_imports_taichi(tmp_path):
 
 def test_example_configs_validate():
     root = Path(__file__).resolve().parents[2] / "configs"
-    files = sorted(f for f in root.rglob("*.yaml")
-                   if not f.name.endswith(".case.yaml") and "sweeps" not in f.parts)
+    files = sorted(
+        f for f in root.rglob("*.yaml") if not f.name.endswith(".case.yaml") and "sweeps" not in f.parts
+    )
     assert files
     for f in files:
         r = CliRunner().invoke(cli, ["validate", "-q", str(f)])

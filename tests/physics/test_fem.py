@@ -93,7 +93,9 @@ print("RESULT " + json.dumps(out, default=float))
 def _run(tmp_path_factory, what):
     script = tmp_path_factory.mktemp("fem") / "run.py"
     script.write_text(SCRIPT)
-    r = subprocess.run([sys.executable, str(script), str(ROOT), what], capture_output=True, text=True, timeout=900)
+    r = subprocess.run(
+        [sys.executable, str(script), str(ROOT), what], capture_output=True, text=True, timeout=900
+    )
     assert r.returncode == 0, r.stderr[-4000:]
     return json.loads(next(ln for ln in r.stdout.splitlines() if ln.startswith("RESULT "))[7:])
 
@@ -194,8 +196,10 @@ def _first_bending_frequency(scene_path: Path) -> tuple[float, np.ndarray]:
         G = np.vstack([-B[e].sum(0), B[e]])  # shape-function gradients (F = Ds B)
         for a in range(4):
             for b in range(4):
-                blk = vol[e] * (mu * G[a] @ G[b] * np.eye(3) + mu * np.outer(G[b], G[a]) + lam * np.outer(G[a], G[b]))
-                K[3 * T[e, a]:3 * T[e, a] + 3, 3 * T[e, b]:3 * T[e, b] + 3] += blk
+                blk = vol[e] * (
+                    mu * G[a] @ G[b] * np.eye(3) + mu * np.outer(G[b], G[a]) + lam * np.outer(G[a], G[b])
+                )
+                K[3 * T[e, a] : 3 * T[e, a] + 3, 3 * T[e, b] : 3 * T[e, b] + 3] += blk
     free = s.free.reshape(-1) > 0
     m = np.repeat(s.mass, 3)[free]
     A = K[np.ix_(free, free)] / np.sqrt(np.outer(m, m))
@@ -221,7 +225,22 @@ def test_damping_case_frequency_is_the_meshs_first_bending_mode():
 def test_implicit_damping_matches_backward_euler(tmp_path):
     """The vibrating cantilever's first mode decays per step as backward Euler predicts, without and with
     Rayleigh damping, within 10 % of the decay rate (simcli verify exits 1 when a case fails)."""
-    r = subprocess.run([sys.executable, "-m", "simcli", "verify", "fem_damping", "fem_damping_rayleigh",
-                        "-o", str(tmp_path)], check=False, capture_output=True, text=True, timeout=900, cwd=ROOT)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "simcli",
+            "verify",
+            "fem_damping",
+            "fem_damping_rayleigh",
+            "-o",
+            str(tmp_path),
+        ],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=900,
+        cwd=ROOT,
+    )
     assert r.returncode == 0, (r.stdout[-3000:], r.stderr[-3000:])
     assert (r.stdout + r.stderr).count("| pass |") == 2, r.stderr[-3000:]

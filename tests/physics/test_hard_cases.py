@@ -80,8 +80,11 @@ def _check_grid(name: str, grp, n: int, res: dict, code: int) -> None:
         assert cfl.max() <= res["solvers"]["sf"]["max_cfl"], (name, cfl.max())
     ent = next(e for e in res["entities"] if e["name"] == name)
     walls = [res["domain"]["boundary"]] + list(res["domain"]["faces"].values())
-    driven = bool(ent.get("jets")) or ent.get("morph") is not None or any(
-        w.get("velocity") and any(c != 0 for c in w["velocity"]) for w in walls)
+    driven = (
+        bool(ent.get("jets"))
+        or ent.get("morph") is not None
+        or any(w.get("velocity") and any(c != 0 for c in w["velocity"]) for w in walls)
+    )
     if not driven:
         ke = 0.5 * (v * v).reshape(n, -1).sum(axis=1)
         assert ke.max() <= ke[0] * 1.01 + 1e-12, (name, ke[0], ke.max())
@@ -91,8 +94,12 @@ def _check_grid(name: str, grp, n: int, res: dict, code: int) -> None:
 @pytest.mark.parametrize("scene", list(_params()))
 def test_hard_case(scene: Path, tmp_path: Path):
     out = tmp_path / "out"
-    r = subprocess.run([sys.executable, "-m", "simcli", "run", str(scene), "-o", str(out), "-q"],
-                       capture_output=True, text=True, timeout=850)
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "run", str(scene), "-o", str(out), "-q"],
+        capture_output=True,
+        text=True,
+        timeout=850,
+    )
     assert "Traceback" not in r.stderr, r.stderr
     assert r.returncode in (0, 70), r.stderr
     res = yaml.safe_load((out / "scene.yaml").read_text().split("\n", 1)[1])

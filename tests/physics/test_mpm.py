@@ -34,7 +34,9 @@ def make_body(entity, lo, hi, h, fixed_below_x=None):
     if entity.velocity is not None:
         v[:] = entity.velocity
     fixed = np.zeros(n, bool) if fixed_below_x is None else x[:, 0] < fixed_below_x
-    return Body(entity.name, entity, x, v, np.full(n, vol / n), np.full(n, entity.material.rho * vol / n), fixed)
+    return Body(
+        entity.name, entity, x, v, np.full(n, vol / n), np.full(n, entity.material.rho * vol / n), fixed
+    )
 
 
 def make_scene(**kw):
@@ -83,9 +85,16 @@ def drop3d(ti_f32):
                 solver.substep(DROP_DT / DROP_SUB)
         a = solver.entity_arrays("cube", ["position", "velocity"])
         stats = solver.frame_check()["cube"]
-        traj.append({"t": step * DROP_DT, "com": com(a["position"], body.mass), "minz": a["position"][:, 2].min(),
-                         "vmax": np.linalg.norm(a["velocity"], axis=1).max(), "finite": stats.finite,
-                         "stat_speed": stats.max_speed})
+        traj.append(
+            {
+                "t": step * DROP_DT,
+                "com": com(a["position"], body.mass),
+                "minz": a["position"][:, 2].min(),
+                "vmax": np.linalg.norm(a["velocity"], axis=1).max(),
+                "finite": stats.finite,
+                "stat_speed": stats.max_speed,
+            }
+        )
     return {"solver": solver, "body": body, "traj": traj, "scene": scene, "stable0": stable0}
 
 
@@ -119,7 +128,9 @@ def test_block_comes_to_rest_on_the_floor(drop3d):
     assert max(r["vmax"] for r in late) < 0.02 * impact  # the bounces have died out: at rest
     rest_z = np.mean([r["com"][2] for r in late])
     half = 0.05 - 0.0125 / 2
-    assert 0.0 < rest_z - half < 1.5 * dx  # resting on the floor (grid contact gap below one and a half cells)
+    assert (
+        0.0 < rest_z - half < 1.5 * dx
+    )  # resting on the floor (grid contact gap below one and a half cells)
     assert all(abs(r["com"][0]) < 1e-4 and abs(r["com"][1]) < 1e-4 for r in traj)  # no sideways drift
 
 
@@ -174,8 +185,15 @@ def ramp2d(ti_f32):
     scene = make_scene(
         sim={"dim": 2, "dt": 1e-3, "substeps": 4},
         domain={"lower": [0.0, 0.0], "upper": [0.5, 0.5]},
-        colliders=[{"type": "Plane", "point": list(RAMP_POINT), "normal": list(RAMP_NORMAL),
-                    "boundary": "slip", "friction": 0.0}],
+        colliders=[
+            {
+                "type": "Plane",
+                "point": list(RAMP_POINT),
+                "normal": list(RAMP_NORMAL),
+                "boundary": "slip",
+                "friction": 0.0,
+            }
+        ],
         solvers={"mpm": {"grid_density": 64}},
         entities=[{"name": "slab", "material": elastic("neohooken", E=2e5, nu=0.3), "morph": box(lo, hi)}],
     )
@@ -188,8 +206,14 @@ def ramp2d(ti_f32):
             for _ in range(4):
                 solver.substep(2.5e-4)
         p = solver.entity_arrays("slab", ["position"])["position"]
-        traj.append({"t": step * 1e-3, "com": com(p, body.mass), "dmin": ramp_distance(p).min(),
-                         "finite": solver.frame_check()["slab"].finite})
+        traj.append(
+            {
+                "t": step * 1e-3,
+                "com": com(p, body.mass),
+                "dmin": ramp_distance(p).min(),
+                "finite": solver.frame_check()["slab"].finite,
+            }
+        )
     return {"traj": traj, "body": body, "solver": solver}
 
 
@@ -238,17 +262,31 @@ def obstacles(ti_f32):
 
     soft = elastic("corotation", E=1e5)
     stiff = elastic("neohooken", E=2e5, nu=0.3)
-    cubes = {"on_sphere": ((-0.24, -0.04, 0.2), (-0.16, 0.04, 0.28), soft),
-             "on_box": ((-0.04, -0.04, 0.2), (0.04, 0.04, 0.28), stiff),
-             "on_cylinder": ((0.16, -0.04, 0.2), (0.24, 0.04, 0.28), soft)}
+    cubes = {
+        "on_sphere": ((-0.24, -0.04, 0.2), (-0.16, 0.04, 0.28), soft),
+        "on_box": ((-0.04, -0.04, 0.2), (0.04, 0.04, 0.28), stiff),
+        "on_cylinder": ((0.16, -0.04, 0.2), (0.24, 0.04, 0.28), soft),
+    }
     scene = make_scene(
         sim={"dim": 3, "dt": 2e-3, "substeps": 5},
         domain={"lower": [-0.35, -0.15, 0.0], "upper": [0.35, 0.15, 0.4]},
         colliders=[
             {"type": "Sphere", "center": list(SPHERE_C), "radius": SPHERE_R, "boundary": "sticky"},
-            {"type": "Box", "lower": list(BOXC_LO), "upper": list(BOXC_HI), "boundary": "separate", "friction": 0.5},
-            {"type": "Cylinder", "center": list(CYL_C), "radius": CYL_R, "height": CYL_H, "axis": "y",
-             "boundary": "slip"},
+            {
+                "type": "Box",
+                "lower": list(BOXC_LO),
+                "upper": list(BOXC_HI),
+                "boundary": "separate",
+                "friction": 0.5,
+            },
+            {
+                "type": "Cylinder",
+                "center": list(CYL_C),
+                "radius": CYL_R,
+                "height": CYL_H,
+                "axis": "y",
+                "boundary": "slip",
+            },
         ],
         solvers={"mpm": {"grid_density": 50}},
         entities=[{"name": k, "material": m, "morph": box(lo, hi)} for k, (lo, hi, m) in cubes.items()],
@@ -265,10 +303,18 @@ def obstacles(ti_f32):
             for b in bodies:
                 p = solver.entity_arrays(b.name, ["position"])["position"]
                 worst[b.name] = min(worst[b.name], _collider_distance(b.name, p).min())
-    final = {b.name: solver.entity_arrays(b.name, ["position", "velocity", "J", "stress", "material_id"])
-             for b in bodies}
-    return {"solver": solver, "bodies": bodies, "initial": initial, "final": final, "worst": worst,
-                "stats": solver.frame_check()}
+    final = {
+        b.name: solver.entity_arrays(b.name, ["position", "velocity", "J", "stress", "material_id"])
+        for b in bodies
+    }
+    return {
+        "solver": solver,
+        "bodies": bodies,
+        "initial": initial,
+        "final": final,
+        "worst": worst,
+        "stats": solver.frame_check(),
+    }
 
 
 def _collider_distance(name, p):
@@ -349,7 +395,7 @@ def test_sliding_block_decelerates_at_mu_g(ti_f32):
             assert v == pytest.approx(v0 - mu * G * k * h, abs=0.03), k * h
     a = solver.entity_arrays("b", ["position", "velocity"])
     assert abs(a["velocity"][:, 0].mean()) < 0.05  # stopped
-    assert a["position"][:, 0].mean() - x0 == pytest.approx(v0 ** 2 / (2 * mu * G), rel=0.05)
+    assert a["position"][:, 0].mean() - x0 == pytest.approx(v0**2 / (2 * mu * G), rel=0.05)
 
 
 # ------------------------------------------------------------------ 2D fixed cantilever
@@ -363,8 +409,14 @@ def test_fixed_region_clamps_a_cantilever(ti_f32):
         sim={"dim": 2, "dt": 1e-3, "substeps": 4},
         domain={"lower": [0.0, 0.0], "upper": [0.5, 0.5]},
         solvers={"mpm": {"grid_density": 100}},
-        entities=[{"name": "beam", "material": elastic(E=1e6, nu=0.3), "morph": box(lo, hi),
-                   "fixed": box((0.0, 0.0), (0.1, 0.5))}],
+        entities=[
+            {
+                "name": "beam",
+                "material": elastic(E=1e6, nu=0.3),
+                "morph": box(lo, hi),
+                "fixed": box((0.0, 0.0), (0.1, 0.5)),
+            }
+        ],
     )
     body = make_body(scene.entities[0], lo, hi, 0.005, fixed_below_x=0.1)
     assert body.fixed.sum() > 0
@@ -446,8 +498,15 @@ def test_f64_run_in_a_subprocess():
     tests = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     repo = os.path.dirname(tests)
     env = dict(os.environ, PYTHONPATH=repo + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", F64_SCRIPT.format(tests=tests)], capture_output=True, text=True, check=False,
-                         env=env, timeout=300, cwd=repo)
+    out = subprocess.run(
+        [sys.executable, "-c", F64_SCRIPT.format(tests=tests)],
+        capture_output=True,
+        text=True,
+        check=False,
+        env=env,
+        timeout=300,
+        cwd=repo,
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     res = json.loads(out.stdout.strip().splitlines()[-1])
     assert res["dtype"] == "float64"

@@ -49,7 +49,9 @@ def _weights(x, origin, inv_dx):
     X = (x - origin) * inv_dx
     base = (X - 0.5).astype(np.int64)
     fx = X - base
-    w = np.stack([0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2], axis=1)  # (n, 3, dim)
+    w = np.stack(
+        [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2], axis=1
+    )  # (n, 3, dim)
     return base, fx, w
 
 
@@ -102,8 +104,13 @@ def test_energy_budget_of_a_bouncing_elastic_body(ti_f32):
         sim={"dim": 2, "dt": 1e-3, "substeps": 2},
         domain={"lower": [0.0, 0.0], "upper": [0.5, 0.4]},
         solvers={"mpm": {"grid_density": 64, "particle_size": 1 / 128}},
-        entities=[{"name": "b", "material": {"type": "MPM.Elastic", "E": E, "nu": nu, "rho": rho},
-                   "morph": box((0.2, 0.06), (0.3, 0.16))}],
+        entities=[
+            {
+                "name": "b",
+                "material": {"type": "MPM.Elastic", "E": E, "nu": nu, "rho": rho},
+                "morph": box((0.2, 0.06), (0.3, 0.16)),
+            }
+        ],
     )
     solver, (body,) = build(scene)
     m, V0 = body.mass, body.volume
@@ -134,13 +141,13 @@ def test_energy_budget_of_a_bouncing_elastic_body(ti_f32):
         vstar[has] = gp_f[has] / gm[has][:, None] + dt * g
         vbc = vstar.copy()
         vbc[: lo[0] + 1, :, 0] = 0.0  # slip walls: the normal velocity of wall nodes, both ways
-        vbc[hi[0]:, :, 0] = 0.0
+        vbc[hi[0] :, :, 0] = 0.0
         vbc[:, : lo[1] + 1, 1] = 0.0
-        vbc[:, hi[1]:, 1] = 0.0
+        vbc[:, hi[1] :, 1] = 0.0
         # the wall's loss: the kinetic energy of the transferred motion it takes from the wall nodes
         # (the stress and gravity impulses it also cancels there do no work: the nodes stay put)
         wall = np.zeros(gm.shape, bool)
-        wall[: lo[0] + 1], wall[hi[0]:], wall[:, : lo[1] + 1], wall[:, hi[1]:] = True, True, True, True
+        wall[: lo[0] + 1], wall[hi[0] :], wall[:, : lo[1] + 1], wall[:, hi[1] :] = True, True, True, True
         vt = np.zeros_like(gp_t)
         vt[has] = gp_t[has] / gm[has][:, None]
         w_has = wall & has
@@ -160,9 +167,11 @@ def test_energy_budget_of_a_bouncing_elastic_body(ti_f32):
     e1 = total(st)
     lost = e0 - e1
     explained = sums["p2g"] + sums["g2p"] + sums["wall"]
-    print(f"\nenergy budget over 0.6 s: E0 {e0:.5f} J/m, lost {lost:.3e} ({100 * lost / e0:.2f} %); "
-          f"P2G {sums['p2g']:.3e}, G2P {sums['g2p']:.3e}, wall {sums['wall']:.3e}, "
-          f"time integration {lost - explained:+.3e}")
+    print(
+        f"\nenergy budget over 0.6 s: E0 {e0:.5f} J/m, lost {lost:.3e} ({100 * lost / e0:.2f} %); "
+        f"P2G {sums['p2g']:.3e}, G2P {sums['g2p']:.3e}, wall {sums['wall']:.3e}, "
+        f"time integration {lost - explained:+.3e}"
+    )
     assert worst_grid < 1e-3  # the replica is the solver's substep (f32 vs f64)
     assert st["x"][:, 1].min() > 0.0 and lost > 0
     assert abs(lost - explained) < 0.1 * lost  # the loss is the transfers' and the wall's
@@ -184,9 +193,19 @@ def test_sand_slope_holds_below_and_flows_above_the_friction_angle(ti_f32, beta,
         sim={"dim": 2, "gravity": _tilted(beta)},
         domain={"lower": [0.0, 0.0], "upper": [0.3, 0.15], "boundary": {"type": "slip", "friction": 0.6}},
         solvers={"mpm": {"grid_density": 64, "particle_size": 1 / 128, "sampling": "jitter"}},
-        entities=[{"name": "s", "material": {"type": "MPM.Sand", "friction_angle": 30.0, "rho": 1500.0,
-                                             "E": 1.0e6, "nu": 0.3},
-                   "morph": box((0.0, 0.0), (0.3, 0.06))}],
+        entities=[
+            {
+                "name": "s",
+                "material": {
+                    "type": "MPM.Sand",
+                    "friction_angle": 30.0,
+                    "rho": 1500.0,
+                    "E": 1.0e6,
+                    "nu": 0.3,
+                },
+                "morph": box((0.0, 0.0), (0.3, 0.06)),
+            }
+        ],
     )
     solver, _ = build(scene)
     x0 = solver.entity_arrays("s", ["position"])["position"].copy()
@@ -210,9 +229,14 @@ def test_snow_compacts_hardens_and_keeps_jp_je_j(ti_f32):
         sim={"dim": 2, "gravity": [0.0, 0.0]},
         domain={"lower": [0.0, 0.0], "upper": [0.4, 0.4]},
         solvers={"mpm": {"grid_density": 64, "particle_size": 1 / 128, "sampling": "poisson"}},
-        entities=[{"name": "snow", "material": {"type": "MPM.Snow", "E": 1.4e5, "nu": 0.2, "rho": 400.0},
-                   "morph": {"type": "Sphere", "center": [0.2, 0.15], "radius": 0.05},
-                   "velocity": [0.0, -6.0]}],
+        entities=[
+            {
+                "name": "snow",
+                "material": {"type": "MPM.Snow", "E": 1.4e5, "nu": 0.2, "rho": 400.0},
+                "morph": {"type": "Sphere", "center": [0.2, 0.15], "radius": 0.05},
+                "velocity": [0.0, -6.0],
+            }
+        ],
     )
     solver, (body,) = build(scene)
     vol0 = body.volume.copy()
@@ -245,9 +269,20 @@ def test_viscous_liquid_shear_mode_decays_at_nu_k2(ti_f32):
         sim={"dim": 2, "gravity": [0.0, 0.0]},
         domain={"lower": [0.0, 0.0], "upper": [0.5, 0.2]},
         solvers={"mpm": {"grid_density": 400, "particle_size": 0.00125}},
-        entities=[{"name": "w", "material": {"type": "MPM.Liquid", "E": 1.0e6, "nu": 0.2, "rho": rho,
-                                             "viscous": True, "mu": mu},
-                   "morph": box((0.1, y0), (0.4, y0 + H))}],
+        entities=[
+            {
+                "name": "w",
+                "material": {
+                    "type": "MPM.Liquid",
+                    "E": 1.0e6,
+                    "nu": 0.2,
+                    "rho": rho,
+                    "viscous": True,
+                    "mu": mu,
+                },
+                "morph": box((0.1, y0), (0.4, y0 + H)),
+            }
+        ],
     )
     solver, _ = build(scene)
     k = math.pi / H
@@ -282,12 +317,27 @@ def test_muscle_group_contracts_along_its_fibres(ti_f32):
         sim={"dim": 2, "gravity": [0.0, 0.0]},
         domain={"lower": [0.0, 0.0], "upper": [1.0, 0.5]},
         solvers={"mpm": {"grid_density": 64, "particle_size": 1 / 128}},
-        entities=[{"name": "m", "material": {
-            "type": "MPM.Muscle", "E": 1.0e5, "nu": 0.3, "rho": 1000.0, "n_groups": 2,
-            "fiber_direction": [1.0, 0.0],
-            "groups": [{"region": box((0.0, 0.0), (0.5, 0.5)), "actuation": {"type": "constant", "value": a_act}},
-                       {"actuation": {"type": "constant", "value": 0.0}}]},
-            "morph": box((0.3, 0.2), (0.7, 0.3))}],
+        entities=[
+            {
+                "name": "m",
+                "material": {
+                    "type": "MPM.Muscle",
+                    "E": 1.0e5,
+                    "nu": 0.3,
+                    "rho": 1000.0,
+                    "n_groups": 2,
+                    "fiber_direction": [1.0, 0.0],
+                    "groups": [
+                        {
+                            "region": box((0.0, 0.0), (0.5, 0.5)),
+                            "actuation": {"type": "constant", "value": a_act},
+                        },
+                        {"actuation": {"type": "constant", "value": 0.0}},
+                    ],
+                },
+                "morph": box((0.3, 0.2), (0.7, 0.3)),
+            }
+        ],
     )
     solver, (body,) = build(scene)
     x0 = body.x
@@ -296,8 +346,9 @@ def test_muscle_group_contracts_along_its_fibres(ti_f32):
     pas = right & (np.abs(x0[:, 0] - 0.6) < 0.09)
 
     def strain(x, sel):
-        return (np.percentile(x[sel, 0], 95) - np.percentile(x[sel, 0], 5)) / \
-            (np.percentile(x0[sel, 0], 95) - np.percentile(x0[sel, 0], 5)) - 1
+        return (np.percentile(x[sel, 0], 95) - np.percentile(x[sel, 0], 5)) / (
+            np.percentile(x0[sel, 0], 95) - np.percentile(x0[sel, 0], 5)
+        ) - 1
 
     h, t, hist = 0.5 * solver.stable_dt(), 0.0, []
     while t < 0.5:
@@ -323,9 +374,18 @@ def test_muscle_sine_actuation_uses_the_scene_time(ti_f32):
         sim={"dim": 2, "gravity": [0.0, 0.0]},
         domain={"lower": [0.0, 0.0], "upper": [0.5, 0.5]},
         solvers={"mpm": {"grid_density": 32}},
-        entities=[{"name": "m", "material": {"type": "MPM.Muscle", "groups": [
-            {"actuation": {"type": "sine", "amplitude": 0.2, "frequency": 2.0, "offset": 0.1}}]},
-            "morph": box((0.2, 0.2), (0.3, 0.3))}],
+        entities=[
+            {
+                "name": "m",
+                "material": {
+                    "type": "MPM.Muscle",
+                    "groups": [
+                        {"actuation": {"type": "sine", "amplitude": 0.2, "frequency": 2.0, "offset": 0.1}}
+                    ],
+                },
+                "morph": box((0.2, 0.2), (0.3, 0.3)),
+            }
+        ],
     )
     solver, _ = build(scene)
     law = next(lw for lw in solver.laws if isinstance(lw, MuscleNeoHookeanLaw))
@@ -351,10 +411,16 @@ def test_light_block_floats_half_submerged(ti_f32):
         domain={"lower": [0.0, 0.0], "upper": [0.4, 0.4]},
         solvers={"mpm": {"grid_density": 100, "particle_size": 0.005}},
         entities=[
-            {"name": "water", "material": {"type": "MPM.Liquid", "E": 1.0e6, "rho": 1000.0, "viscous": True, "mu": 20.0},
-             "morph": box((0.0, 0.0), (0.4, 0.15))},
-            {"name": "block", "material": {"type": "MPM.Elastic", "E": 1.0e5, "nu": 0.3, "rho": 500.0},
-             "morph": box((0.15, 0.17), (0.25, 0.27))},
+            {
+                "name": "water",
+                "material": {"type": "MPM.Liquid", "E": 1.0e6, "rho": 1000.0, "viscous": True, "mu": 20.0},
+                "morph": box((0.0, 0.0), (0.4, 0.15)),
+            },
+            {
+                "name": "block",
+                "material": {"type": "MPM.Elastic", "E": 1.0e5, "nu": 0.3, "rho": 500.0},
+                "morph": box((0.15, 0.17), (0.25, 0.27)),
+            },
         ],
     )
     solver, _ = build(scene)
@@ -384,13 +450,24 @@ def test_restart_of_plastic_liquid_and_muscle_state_is_bit_for_bit(ti_f32):
         entities=[
             {"name": "sand", "material": {"type": "MPM.Sand"}, "morph": box((0.05, 0.05), (0.2, 0.2))},
             {"name": "snow", "material": {"type": "MPM.Snow"}, "morph": box((0.25, 0.05), (0.4, 0.2))},
-            {"name": "vm", "material": {"type": "MPM.ElastoPlastic", "von_mises_yield_stress": 500.0},
-             "morph": box((0.45, 0.05), (0.6, 0.2))},
-            {"name": "water", "material": {"type": "MPM.Liquid", "viscous": True, "mu": 0.1},
-             "morph": box((0.65, 0.05), (0.8, 0.2))},
-            {"name": "muscle", "material": {"type": "MPM.Muscle", "groups": [
-                {"actuation": {"type": "sine", "amplitude": 0.3, "frequency": 3.0}}]},
-             "morph": box((0.82, 0.05), (0.95, 0.2))},
+            {
+                "name": "vm",
+                "material": {"type": "MPM.ElastoPlastic", "von_mises_yield_stress": 500.0},
+                "morph": box((0.45, 0.05), (0.6, 0.2)),
+            },
+            {
+                "name": "water",
+                "material": {"type": "MPM.Liquid", "viscous": True, "mu": 0.1},
+                "morph": box((0.65, 0.05), (0.8, 0.2)),
+            },
+            {
+                "name": "muscle",
+                "material": {
+                    "type": "MPM.Muscle",
+                    "groups": [{"actuation": {"type": "sine", "amplitude": 0.3, "frequency": 3.0}}],
+                },
+                "morph": box((0.82, 0.05), (0.95, 0.2)),
+            },
         ],
     )
     solver, _ = build(scene)
@@ -420,10 +497,12 @@ def test_poisson_disk_sampling(dim):
 
     h, R = 0.01, (0.12 if dim == 2 else 0.07)
     morph = {"type": "Sphere", "center": [0.0] * (dim - 1) + [0.5], "radius": R}
-    scene = make_scene(sim={"dim": dim, "seed": 3}, domain={"lower": [-0.5] * (dim - 1) + [0.0],
-                                                          "upper": [0.5] * (dim - 1) + [1.0]},
-                       solvers={"mpm": {"particle_size": h, "sampling": "poisson"}},
-                       entities=[{"name": "s", "material": {"type": "MPM.Sand"}, "morph": morph}])
+    scene = make_scene(
+        sim={"dim": dim, "seed": 3},
+        domain={"lower": [-0.5] * (dim - 1) + [0.0], "upper": [0.5] * (dim - 1) + [1.0]},
+        solvers={"mpm": {"particle_size": h, "sampling": "poisson"}},
+        entities=[{"name": "s", "material": {"type": "MPM.Sand"}, "morph": morph}],
+    )
     a = sample_entity(scene.entities[0], scene)
     b = sample_entity(scene.entities[0], scene)
     x = a.x
@@ -454,10 +533,16 @@ def test_bunny_mesh_fills(thin):
     from simcli.geometry.sampling import sample_entity
 
     h = 0.02
-    scene = make_scene(solvers={"mpm": {"particle_size": h, "thin_parts": thin}},
-                       entities=[{"name": "b", "material": {"type": "MPM.Elastic"},
-                                  "morph": {"type": "Mesh", "file": str(BUNNY), "scale": 0.2,
-                                            "translate": [0.0, 0.0, 0.3]}}])
+    scene = make_scene(
+        solvers={"mpm": {"particle_size": h, "thin_parts": thin}},
+        entities=[
+            {
+                "name": "b",
+                "material": {"type": "MPM.Elastic"},
+                "morph": {"type": "Mesh", "file": str(BUNNY), "scale": 0.2, "translate": [0.0, 0.0, 0.3]},
+            }
+        ],
+    )
     body = sample_entity(scene.entities[0], scene)
     mesh = load_mesh_morph(scene.entities[0].morph)
     assert points_inside_mesh(mesh, body.x).all()

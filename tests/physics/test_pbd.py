@@ -24,11 +24,24 @@ def test_free_fall_of_a_cloth(ti_f32):
     from simcli.solvers.pbd.solver import PBDSolver
 
     dt, n = 1e-3, 200
-    scene = Scene.model_validate({
-        "sim": {"dt": dt, "substeps": 1},
-        "domain": {"lower": [-1, -1, 0], "upper": [1, 1, 2]},
-        "entities": [{"name": "c", "material": {"type": "PBD.Cloth", "rho": 0.3},
-                      "morph": {"type": "Rectangle", "center": [0, 0, 1.5], "size": [0.4, 0.3], "resolution": 8}}]})
+    scene = Scene.model_validate(
+        {
+            "sim": {"dt": dt, "substeps": 1},
+            "domain": {"lower": [-1, -1, 0], "upper": [1, 1, 2]},
+            "entities": [
+                {
+                    "name": "c",
+                    "material": {"type": "PBD.Cloth", "rho": 0.3},
+                    "morph": {
+                        "type": "Rectangle",
+                        "center": [0, 0, 1.5],
+                        "size": [0.4, 0.3],
+                        "resolution": 8,
+                    },
+                }
+            ],
+        }
+    )
     s = PBDSolver(scene, [])
     s.build()
     for _ in range(n):
@@ -62,8 +75,13 @@ print(json.dumps(out))
 
 
 def test_hanging_chain_support_force_is_19_m_g():
-    r = subprocess.run([sys.executable, "-c", CHAIN, str(ROOT / "configs/validation/pbd_chain.yaml")],
-                       capture_output=True, text=True, timeout=300, check=False)
+    r = subprocess.run(
+        [sys.executable, "-c", CHAIN, str(ROOT / "configs/validation/pbd_chain.yaml")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     force = json.loads(r.stdout.strip().splitlines()[-1])
     for it, fz in force.items():
@@ -98,8 +116,13 @@ print(json.dumps(out))
 
 @pytest.mark.slow
 def test_cloth_sag_does_not_depend_on_iterations_or_substep():
-    r = subprocess.run([sys.executable, "-c", SAG, str(ROOT / "configs/validation/pbd_cloth_sag.yaml")],
-                       capture_output=True, text=True, timeout=1200, check=False)
+    r = subprocess.run(
+        [sys.executable, "-c", SAG, str(ROOT / "configs/validation/pbd_cloth_sag.yaml")],
+        capture_output=True,
+        text=True,
+        timeout=1200,
+        check=False,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     sag = json.loads(r.stdout.strip().splitlines()[-1])
     assert sag["it20"] > 0.02  # the strip does sag (it is exactly as long as the span)
@@ -114,13 +137,26 @@ def test_fixed_vertices_on_a_prescribed_path(ti_f32):
     from simcli.solvers.pbd.solver import PBDSolver
 
     dt, n = 1e-3, 300
-    scene = Scene.model_validate({
-        "sim": {"dt": dt, "substeps": 1, "gravity": [0, 0, 0]},
-        "domain": {"lower": [-1, -1, 0], "upper": [1, 1, 2]},
-        "solvers": {"pbd": {"stretch_iterations": 20}},
-        "entities": [{"name": "c", "material": {"type": "PBD.Cloth", "rho": 0.3, "fixed_velocity": [0.5, 0, 0]},
-                      "morph": {"type": "Rectangle", "center": [0, 0, 1.0], "size": [0.4, 0.2], "resolution": 8},
-                      "fixed": {"type": "Box", "lower": [-0.21, -0.2, 0.9], "upper": [-0.19, 0.2, 1.1]}}]})
+    scene = Scene.model_validate(
+        {
+            "sim": {"dt": dt, "substeps": 1, "gravity": [0, 0, 0]},
+            "domain": {"lower": [-1, -1, 0], "upper": [1, 1, 2]},
+            "solvers": {"pbd": {"stretch_iterations": 20}},
+            "entities": [
+                {
+                    "name": "c",
+                    "material": {"type": "PBD.Cloth", "rho": 0.3, "fixed_velocity": [0.5, 0, 0]},
+                    "morph": {
+                        "type": "Rectangle",
+                        "center": [0, 0, 1.0],
+                        "size": [0.4, 0.2],
+                        "resolution": 8,
+                    },
+                    "fixed": {"type": "Box", "lower": [-0.21, -0.2, 0.9], "upper": [-0.19, 0.2, 1.1]},
+                }
+            ],
+        }
+    )
     s = PBDSolver(scene, [])
     s.build()
     for _ in range(n):
@@ -145,12 +181,20 @@ def test_liquid_block_at_rest_keeps_density_mass_and_height(ti_f32):
     from simcli.solvers.pbd.solver import PBDSolver
 
     ps = 0.01
-    scene = Scene.model_validate({
-        "sim": {"dt": 2e-3, "substeps": 5},
-        "domain": {"lower": [0, 0, 0], "upper": [0.08, 0.08, 0.3]},
-        "solvers": {"pbd": {"particle_size": ps}},
-        "entities": [{"name": "w", "material": {"type": "PBD.Liquid", "rho": 1000},
-                      "morph": {"type": "Box", "lower": [0, 0, 0], "upper": [0.08, 0.08, 0.08]}}]})
+    scene = Scene.model_validate(
+        {
+            "sim": {"dt": 2e-3, "substeps": 5},
+            "domain": {"lower": [0, 0, 0], "upper": [0.08, 0.08, 0.3]},
+            "solvers": {"pbd": {"particle_size": ps}},
+            "entities": [
+                {
+                    "name": "w",
+                    "material": {"type": "PBD.Liquid", "rho": 1000},
+                    "morph": {"type": "Box", "lower": [0, 0, 0], "upper": [0.08, 0.08, 0.08]},
+                }
+            ],
+        }
+    )
     s = PBDSolver(scene, [])
     s.build()
     assert s.counts()["particles"] == 512
@@ -178,12 +222,25 @@ def test_state_round_trip_restarts_bit_for_bit(ti_f32):
     from simcli.scene.models import Scene
     from simcli.solvers.pbd.solver import PBDSolver
 
-    scene = Scene.model_validate({
-        "sim": {"dt": 2e-3, "substeps": 4},
-        "domain": {"lower": [-0.5, -0.5, 0], "upper": [0.5, 0.5, 1]},
-        "colliders": [{"type": "Sphere", "center": [0, 0, 0.3], "radius": 0.1, "friction": 0.3}],
-        "entities": [{"name": "c", "material": {"type": "PBD.Cloth", "rho": 0.3},
-                      "morph": {"type": "Rectangle", "center": [0, 0, 0.45], "size": [0.4, 0.4], "resolution": 10}}]})
+    scene = Scene.model_validate(
+        {
+            "sim": {"dt": 2e-3, "substeps": 4},
+            "domain": {"lower": [-0.5, -0.5, 0], "upper": [0.5, 0.5, 1]},
+            "colliders": [{"type": "Sphere", "center": [0, 0, 0.3], "radius": 0.1, "friction": 0.3}],
+            "entities": [
+                {
+                    "name": "c",
+                    "material": {"type": "PBD.Cloth", "rho": 0.3},
+                    "morph": {
+                        "type": "Rectangle",
+                        "center": [0, 0, 0.45],
+                        "size": [0.4, 0.4],
+                        "resolution": 10,
+                    },
+                }
+            ],
+        }
+    )
     a, b = PBDSolver(scene, []), PBDSolver(scene, [])
     a.build()
     b.build()

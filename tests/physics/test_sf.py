@@ -29,8 +29,13 @@ def run(scene: Path, out: Path, *sets: str) -> dict:
 
 def test_plume_divergence_below_tolerance_every_substep_and_grid_output(tmp_path):
     out = tmp_path / "plume"
-    info = run(ROOT / "configs" / "examples" / "sf_plume_2d.yaml", out, "sim.duration=1.0",
-               "solvers.sf.resolution=64", "output.every=10")
+    info = run(
+        ROOT / "configs" / "examples" / "sf_plume_2d.yaml",
+        out,
+        "sim.duration=1.0",
+        "solvers.sf.resolution=64",
+        "output.every=10",
+    )
     sf = info["solvers"]["sf"]
     tol = sf["tolerance"]
     res = sf["per_substep"]["residual"]
@@ -57,8 +62,13 @@ def test_stratified_tank_at_rest_keeps_its_smoke_in_place(tmp_path):
     advecting carried the smoke by the unprojected, sinking velocity: 0.48 of the interface cells'
     smoke gone in 2 s.)"""
     out = tmp_path / "rest"
-    run(ROOT / "configs" / "validation" / "sf_rest.yaml", out, "solvers.sf.resolution=32", "sim.duration=2.0",
-        "output.every=100")
+    run(
+        ROOT / "configs" / "validation" / "sf_rest.yaml",
+        out,
+        "solvers.sf.resolution=32",
+        "sim.duration=2.0",
+        "output.every=100",
+    )
     with h5py.File(out / "sim.h5", "r") as f:
         d = f["entities/tank/density"][...]
         v = f["entities/tank/velocity"][...]
@@ -71,8 +81,15 @@ def test_run_stops_at_steady_state(tmp_path):
     """solvers.sf.steady_tolerance ends a run once the flow stops changing: the coarse cavity settles
     long before the 40 s cap; the last frame is written, and run.json says why it stopped."""
     out = tmp_path / "cav"
-    info = run(ROOT / "configs" / "validation" / "sf_cavity_fast.yaml", out, "solvers.sf.resolution=16",
-               "sim.dt=0.08", "sim.duration=40.0", "output.every=25", "solvers.sf.steady_tolerance=1.0e-3")
+    info = run(
+        ROOT / "configs" / "validation" / "sf_cavity_fast.yaml",
+        out,
+        "solvers.sf.resolution=16",
+        "sim.dt=0.08",
+        "sim.duration=40.0",
+        "output.every=25",
+        "solvers.sf.steady_tolerance=1.0e-3",
+    )
     stop = info["stopped_steady"]
     assert info["status"] == "done" and stop["change_rate"] <= 1.0e-3 and 4.0 < stop["time"] < 40.0
     assert info["sim_time"] == pytest.approx(stop["time"])
@@ -90,16 +107,38 @@ def test_symmetric_plume_stays_symmetric_3d(tmp_path):
     """A jet on the axis of a square box with a centred collider: the flow must stay mirror-symmetric
     in x and y (to round-off and the red-black ordering of the smoother)."""
     scene = tmp_path / "sym.yaml"
-    scene.write_text(yaml.safe_dump({
-        "version": 1, "sim": {"dim": 3, "dt": 0.02, "substeps": 1, "steps": 40},
-        "domain": {"lower": [-0.5, -0.5, 0.0], "upper": [0.5, 0.5, 1.0], "boundary": {"type": "slip"},
-                   "faces": {"z+": {"type": "open"}}},
-        "colliders": [{"type": "Box", "lower": [-0.2, -0.2, 0.5], "upper": [0.2, 0.2, 0.6]}],
-        "solvers": {"sf": {"resolution": 32}},
-        "entities": [{"name": "smoke", "material": {"type": "SF.Smoke", "thermal_expansion": 0.00341},
-                      "jets": [{"position": [0.0, 0.0, 0.1], "radius": 0.08, "velocity": [0, 0, 1.0],
-                                "density_rate": 5.0, "temperature_rate": 200.0}]}],
-        "output": {"every": 40, "formats": ["hdf5"], "fields": ["velocity", "density"]}}))
+    scene.write_text(
+        yaml.safe_dump(
+            {
+                "version": 1,
+                "sim": {"dim": 3, "dt": 0.02, "substeps": 1, "steps": 40},
+                "domain": {
+                    "lower": [-0.5, -0.5, 0.0],
+                    "upper": [0.5, 0.5, 1.0],
+                    "boundary": {"type": "slip"},
+                    "faces": {"z+": {"type": "open"}},
+                },
+                "colliders": [{"type": "Box", "lower": [-0.2, -0.2, 0.5], "upper": [0.2, 0.2, 0.6]}],
+                "solvers": {"sf": {"resolution": 32}},
+                "entities": [
+                    {
+                        "name": "smoke",
+                        "material": {"type": "SF.Smoke", "thermal_expansion": 0.00341},
+                        "jets": [
+                            {
+                                "position": [0.0, 0.0, 0.1],
+                                "radius": 0.08,
+                                "velocity": [0, 0, 1.0],
+                                "density_rate": 5.0,
+                                "temperature_rate": 200.0,
+                            }
+                        ],
+                    }
+                ],
+                "output": {"every": 40, "formats": ["hdf5"], "fields": ["velocity", "density"]},
+            }
+        )
+    )
     run(scene, tmp_path / "out")
     with h5py.File(tmp_path / "out" / "sim.h5", "r") as f:
         d = f["entities/smoke/density"][-1]  # (z, y, x)

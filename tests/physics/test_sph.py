@@ -134,10 +134,18 @@ def two_liquids(solver, a, b, **sph):
         "domain": {"lower": [0, 0], "upper": [1, 1]},
         "solvers": {"sph": {"particle_size": 0.01, "pressure_solver": solver, **sph}},
         "entities": [
-            {"name": "a", "material": {"type": "SPH.Liquid", **a},
-             "morph": {"type": "Box", "lower": [0.35, 0.4], "upper": [0.5, 0.6]}, "velocity": [0.3, 0.05]},
-            {"name": "b", "material": {"type": "SPH.Liquid", **b},
-             "morph": {"type": "Box", "lower": [0.5, 0.4], "upper": [0.65, 0.6]}, "velocity": [-0.3, 0.0]},
+            {
+                "name": "a",
+                "material": {"type": "SPH.Liquid", **a},
+                "morph": {"type": "Box", "lower": [0.35, 0.4], "upper": [0.5, 0.6]},
+                "velocity": [0.3, 0.05],
+            },
+            {
+                "name": "b",
+                "material": {"type": "SPH.Liquid", **b},
+                "morph": {"type": "Box", "lower": [0.5, 0.4], "upper": [0.65, 0.6]},
+                "velocity": [-0.3, 0.0],
+            },
         ],
     }
 
@@ -172,8 +180,11 @@ def oil_on_water(solver, water_top, oil_top):
     """The 2D tank with oil (800) from water_top to oil_top on water (1000) below water_top."""
     d = tank(solver)
     d["entities"] = [
-        {"name": name, "material": {"type": "SPH.Liquid", "rho": rho, "mu": 0.05},
-         "morph": {"type": "Box", "lower": [0.0, lo], "upper": [0.2, hi]}}
+        {
+            "name": name,
+            "material": {"type": "SPH.Liquid", "rho": rho, "mu": 0.05},
+            "morph": {"type": "Box", "lower": [0.0, lo], "upper": [0.2, hi]},
+        }
         for name, rho, lo, hi in (("water", 1000.0, 0.0, water_top), ("oil", 800.0, water_top, oil_top))
     ]
     return d
@@ -187,6 +198,7 @@ def test_two_liquids_layered_start_at_rest_density(ti_f32):
     s, _ = make(d)
     water = s.entity_arrays("water", ["position", "density"])
     oil = s.entity_arrays("oil", ["position", "density"])
+
     def near(e):  # two rows each side of the interface
         return np.abs(e["position"][:, 1] - 0.05) < 0.011
 
@@ -379,8 +391,13 @@ def closed_box(n=24, **sph):
         "sim": {"dim": 2, "dt": 1e-3, "substeps": 1, "gravity": [0.0, 0.0]},
         "domain": {"lower": [0, 0], "upper": [1, 1]},
         "solvers": {
-            "sph": {"particle_size": 1.0 / n, "support_factor": 3.0, "pressure_solver": "DFSPH",
-                    "clamp_pressure": False, **sph}
+            "sph": {
+                "particle_size": 1.0 / n,
+                "support_factor": 3.0,
+                "pressure_solver": "DFSPH",
+                "clamp_pressure": False,
+                **sph,
+            }
         },
         "entities": [
             {
@@ -430,7 +447,10 @@ def test_gradient_correction_conserves_momentum_and_converges(ti_f32):
     momentum is conserved in a swirl that pushes on no wall (closed box, f32 round-off), and its CG solves,
     whose operator stays symmetric (D = G^T), stop at their tolerances."""
     d = closed_box(gradient_correction=True)
-    d["entities"][0]["velocity_field"] = ["sin(6.2832 * x) * cos(6.2832 * y)", "-cos(6.2832 * x) * sin(6.2832 * y)"]
+    d["entities"][0]["velocity_field"] = [
+        "sin(6.2832 * x) * cos(6.2832 * y)",
+        "-cos(6.2832 * x) * sin(6.2832 * y)",
+    ]
     s, _ = make(d)
     m = s.mass.to_numpy()
     for _ in range(20):
@@ -598,8 +618,10 @@ def _overlap_scene(mode=None, solver="DFSPH", collider=((0.05, 0.03), (0.15, 0.0
     return d
 
 
-@pytest.mark.parametrize(("mode", "solver", "removes"), [(None, "DFSPH", True), ("push_out", "DFSPH", False),
-                                                         (None, "WCSPH", False), ("remove", "WCSPH", True)])
+@pytest.mark.parametrize(
+    ("mode", "solver", "removes"),
+    [(None, "DFSPH", True), ("push_out", "DFSPH", False), (None, "WCSPH", False), ("remove", "WCSPH", True)],
+)
 def test_particles_sampled_inside_a_collider(ti_f32, mode, solver, removes):
     """inside_colliders: DFSPH's default removes the particles whose centre lies inside a collider (a warning
     and run.json say how many, and their mass); push_out (WCSPH's default) keeps them all, moved onto the
@@ -626,7 +648,9 @@ def test_particles_sampled_inside_a_collider(ti_f32, mode, solver, removes):
         s.build()
         xs = s.x.to_numpy()
         e = 1e-6
-        assert not ((xs[:, 0] > 0.05 + e) & (xs[:, 0] < 0.15 - e) & (xs[:, 1] > 0.03 + e) & (xs[:, 1] < 0.06 - e)).any()
+        assert not (
+            (xs[:, 0] > 0.05 + e) & (xs[:, 0] < 0.15 - e) & (xs[:, 1] > 0.03 + e) & (xs[:, 1] < 0.06 - e)
+        ).any()
 
 
 def test_every_particle_inside_a_collider_is_a_scene_error():

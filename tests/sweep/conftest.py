@@ -36,4 +36,6 @@ def make_sweep(tmp_path):
 
 def pytest_configure(config):
     # also registered in pyproject.toml; here so that --strict-markers accepts it either way
-    config.addinivalue_line("markers", "slurm: needs the Slurm binaries; starts a one-node cluster (pytest -m slurm)")
+    config.addinivalue_line(
+        "markers", "slurm: needs the Slurm binaries; starts a one-node cluster (pytest -m slurm)"
+    )

@@ -28,11 +28,14 @@ def main(argv):
     while i < len(args):
         a = args[i]
         if a == "-o":
-            out = Path(args[i + 1]); i += 2
+            out = Path(args[i + 1])
+            i += 2
         elif a == "--set":
-            sets.append(args[i + 1]); i += 2
+            sets.append(args[i + 1])
+            i += 2
         elif a == "--resume":
-            resume = True; i += 1
+            resume = True
+            i += 1
         else:
             i += 1
     try:
@@ -57,14 +60,30 @@ def main(argv):
     threads = os.environ.get("SLURM_CPUS_PER_TASK") or os.environ.get("SIMCLI_THREADS") or ""
     with open(out / "trace.txt", "a") as f:
         f.write(f"start {step} {threads}\n")
-    info = {"status": "running", "exit_code": None, "pid": os.getpid(), "host": os.uname().nodename,
-            "overrides": sets, "resumed": resume, "steps_done": step, "sim_time": step * dt, "particles": 10,
-            "backend": "fake", "timings": {"stepping_s": 0.0}, "throughput": {"steps_per_s": 1.0},
-            "peak_memory_mb": 1.0}
+    info = {
+        "status": "running",
+        "exit_code": None,
+        "pid": os.getpid(),
+        "host": os.uname().nodename,
+        "overrides": sets,
+        "resumed": resume,
+        "steps_done": step,
+        "sim_time": step * dt,
+        "particles": 10,
+        "backend": "fake",
+        "timings": {"stepping_s": 0.0},
+        "throughput": {"steps_per_s": 1.0},
+        "peak_memory_mb": 1.0,
+    }
 
     def write(status, code):
-        info.update(status=status, exit_code=code, steps_done=step, sim_time=step * dt,
-                    updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+        info.update(
+            status=status,
+            exit_code=code,
+            steps_done=step,
+            sim_time=step * dt,
+            updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        )
         tmp = out / "run.json.tmp"
         tmp.write_text(json.dumps(info))
         os.replace(tmp, out / "run.json")

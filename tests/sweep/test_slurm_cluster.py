@@ -32,8 +32,11 @@ _missing = [b for b in BINARIES if shutil.which(b) is None]
 pytestmark = [
     pytest.mark.slurm,
     pytest.mark.slow,  # about a minute: kept out of the default suite; run it with -m slurm
-    pytest.mark.skipif(bool(_missing), reason=f"Slurm binaries missing ({', '.join(_missing)}): "
-                       "apt-get install -y slurmctld slurmd slurm-client"),
+    pytest.mark.skipif(
+        bool(_missing),
+        reason=f"Slurm binaries missing ({', '.join(_missing)}): "
+        "apt-get install -y slurmctld slurmd slurm-client",
+    ),
     pytest.mark.skipif(os.geteuid() != 0, reason="starting slurmd needs root"),
     pytest.mark.timeout(300),
 ]
@@ -114,7 +117,9 @@ PartitionName=debug Nodes={host} Default=YES MaxTime=INFINITE State=UP
         pids.append(int((d / "slurmd.pid").read_text()))
 
         def idle():
-            r = subprocess.run(["sinfo", "-h", "-o", "%T"], env=env, capture_output=True, text=True, check=False)
+            r = subprocess.run(
+                ["sinfo", "-h", "-o", "%T"], env=env, capture_output=True, text=True, check=False
+            )
             return r.returncode == 0 and r.stdout.strip() == "idle"
 
         try:
@@ -129,6 +134,7 @@ PartitionName=debug Nodes={host} Default=YES MaxTime=INFINITE State=UP
 
 def _stop(env: dict, pids: list[int]) -> None:
     """Cancel every job, let the steps end, shut the daemons down; SIGKILL what is left."""
+
     def run(*cmd):
         return subprocess.run(cmd, env=env, capture_output=True, text=True, check=False, timeout=30)
 
@@ -153,8 +159,15 @@ def _stop(env: dict, pids: list[int]) -> None:
 
 
 def _sim(args, env, cwd, **kw):
-    return subprocess.run([sys.executable, "-m", "simcli", *args], env=env, cwd=cwd, capture_output=True,
-                          text=True, check=False, **kw)
+    return subprocess.run(
+        [sys.executable, "-m", "simcli", *args],
+        env=env,
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        check=False,
+        **kw,
+    )
 
 
 def _read(p: Path) -> dict | None:
@@ -189,8 +202,11 @@ output: out/study
     victim = 3
     out = tmp_path / "out" / "study"
 
-    r = _sim(["sweep", "submit", str(sweep), "--cpus-per-task", "1", "--max-parallel", "4", "--time", "10"],
-             env, tmp_path)
+    r = _sim(
+        ["sweep", "submit", str(sweep), "--cpus-per-task", "1", "--max-parallel", "4", "--time", "10"],
+        env,
+        tmp_path,
+    )
     assert r.returncode == 0, r.stderr
     job = r.stdout.strip()
     assert job.isdigit(), r.stdout
@@ -203,8 +219,13 @@ output: out/study
     run_json = out / runs[victim]["name"] / "run.json"
     _wait(lambda: (_read(run_json) or {}).get("status") == "running", 90, "the long task to start stepping")
     time.sleep(1.5)
-    r = subprocess.run(["scancel", "--signal=USR1", "--batch", f"{job}_{victim}"], env=env, capture_output=True,
-                       text=True, check=False)
+    r = subprocess.run(
+        ["scancel", "--signal=USR1", "--batch", f"{job}_{victim}"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert r.returncode == 0, r.stderr
 
     # it checkpoints, exits 75 and requeues itself
@@ -261,16 +282,27 @@ output: out/study
 
     # the victim's log (appended across the requeue) tells the story
     log = (out / "_sweep" / "logs" / f"simcli-study_{job}_{victim}.out").read_text()
-    for needle in ("attempt 1", "SIGUSR1 received: checkpoint written", "interrupted (exit 75)",
-                   "requeueing it to resume", "attempt 2", "resuming from ckpt_", "done (exit 0)"):
+    for needle in (
+        "attempt 1",
+        "SIGUSR1 received: checkpoint written",
+        "interrupted (exit 75)",
+        "requeueing it to resume",
+        "attempt 2",
+        "resuming from ckpt_",
+        "done (exit 0)",
+    ):
         assert needle in log, f"{needle!r} not in log:\n{log}"
-    show = subprocess.run(["scontrol", "show", "job", f"{job}_{victim}"], env=env, capture_output=True,
-                          text=True, check=False).stdout
+    show = subprocess.run(
+        ["scontrol", "show", "job", f"{job}_{victim}"], env=env, capture_output=True, text=True, check=False
+    ).stdout
     assert "Restarts=1" in show, show
 
     # results in one table
-    r = _sim(["sweep", "collect", str(sweep), "-m", "measure.com.box.1", "-m", "measure.max_speed.box.max"],
-             env, tmp_path)
+    r = _sim(
+        ["sweep", "collect", str(sweep), "-m", "measure.com.box.1", "-m", "measure.max_speed.box.max"],
+        env,
+        tmp_path,
+    )
     assert r.returncode == 0, r.stderr
     with open(out / "results.csv") as f:
         rows = list(csv.DictReader(f))

@@ -21,11 +21,24 @@ GOLDEN = HERE / "golden" / "sweep.sbatch"
 
 
 def _golden_text() -> str:
-    opts = SbatchOptions(partition="gpu", time="02:00:00", cpus_per_task=8, gpus_per_task=1, max_parallel=4,
-                         mem="16G", extra=["--constraint=a100"])
-    return sbatch_script(sweep_path=Path("/data/study/sweeps/jelly.yaml"), workdir=Path("/data/study"),
-                         python="/opt/simcli/.venv/bin/python", log_dir=Path("/data/study/out/jelly/_sweep/logs"),
-                         job_name="simcli-jelly", indices=list(range(8)), opts=opts)
+    opts = SbatchOptions(
+        partition="gpu",
+        time="02:00:00",
+        cpus_per_task=8,
+        gpus_per_task=1,
+        max_parallel=4,
+        mem="16G",
+        extra=["--constraint=a100"],
+    )
+    return sbatch_script(
+        sweep_path=Path("/data/study/sweeps/jelly.yaml"),
+        workdir=Path("/data/study"),
+        python="/opt/simcli/.venv/bin/python",
+        log_dir=Path("/data/study/out/jelly/_sweep/logs"),
+        job_name="simcli-jelly",
+        indices=list(range(8)),
+        opts=opts,
+    )
 
 
 def test_sbatch_script_matches_golden_file():
@@ -37,17 +50,32 @@ def test_sbatch_script_matches_golden_file():
 
 def test_sbatch_script_essentials():
     text = _golden_text()
-    for line in ("#SBATCH --array=0-7%4", "#SBATCH --signal=B:USR1@120", "#SBATCH --requeue",
-                 "#SBATCH --open-mode=append", "#SBATCH --cpus-per-task=8", "#SBATCH --gpus-per-task=1",
-                 "#SBATCH --partition=gpu", "#SBATCH --time=02:00:00",
-                 "#SBATCH --output=/data/study/out/jelly/_sweep/logs/%x_%A_%a.out",
-                 'threads="${SLURM_CPUS_PER_TASK:-1}"', 'scontrol requeue "$task"'):
+    for line in (
+        "#SBATCH --array=0-7%4",
+        "#SBATCH --signal=B:USR1@120",
+        "#SBATCH --requeue",
+        "#SBATCH --open-mode=append",
+        "#SBATCH --cpus-per-task=8",
+        "#SBATCH --gpus-per-task=1",
+        "#SBATCH --partition=gpu",
+        "#SBATCH --time=02:00:00",
+        "#SBATCH --output=/data/study/out/jelly/_sweep/logs/%x_%A_%a.out",
+        'threads="${SLURM_CPUS_PER_TASK:-1}"',
+        'scontrol requeue "$task"',
+    ):
         assert line in text.splitlines() or line in text, line
     r = subprocess.run(["bash", "-n"], input=text, text=True, capture_output=True, check=False)
     assert r.returncode == 0, r.stderr
     # optional lines are left out when not asked for
-    bare = sbatch_script(sweep_path=Path("/s.yaml"), workdir=Path("/"), python="python", log_dir=Path("/l"),
-                         job_name="j", indices=[0, 1, 2, 5], opts=SbatchOptions())
+    bare = sbatch_script(
+        sweep_path=Path("/s.yaml"),
+        workdir=Path("/"),
+        python="python",
+        log_dir=Path("/l"),
+        job_name="j",
+        indices=[0, 1, 2, 5],
+        opts=SbatchOptions(),
+    )
     assert "#SBATCH --array=0-2,5\n" in bare
     assert "--partition" not in bare and "--time" not in bare and "--gpus-per-task" not in bare
 
@@ -72,20 +100,36 @@ def test_script_forwards_usr1_and_requeues_itself(tmp_path, make_sweep, fake_sim
     checkpoints and exits 75; the script then runs `scontrol requeue JOB_TASK`. The requeued
     start resumes from the checkpoint and finishes."""
     monkeypatch.setenv("FAKE_SIM_STEP_S", "0.02")
-    sweep = make_sweep("base: tiny.yaml\noutput: out\ngrid: {sim.steps: [400, 5]}\nname: \"s{sim.steps}\"\n")
+    sweep = make_sweep('base: tiny.yaml\noutput: out\ngrid: {sim.steps: [400, 5]}\nname: "s{sim.steps}"\n')
     bindir = tmp_path / "bin"
     bindir.mkdir()
     calls = tmp_path / "scontrol_calls.txt"
-    (bindir / "scontrol").write_text(f"#!/bin/sh\necho \"$@\" >> {calls}\n")
+    (bindir / "scontrol").write_text(f'#!/bin/sh\necho "$@" >> {calls}\n')
     (bindir / "scontrol").chmod(0o755)
     script = tmp_path / "job.sbatch"
-    script.write_text(sbatch_script(sweep_path=sweep, workdir=tmp_path, python=sys.executable,
-                                    log_dir=tmp_path / "logs", job_name="t", indices=[0, 1], opts=SbatchOptions()))
-    env = dict(os.environ, PATH=f"{bindir}{os.pathsep}{os.environ['PATH']}", SLURM_ARRAY_JOB_ID="77",
-               SLURM_ARRAY_TASK_ID="0", SLURM_JOB_ID="78", SLURM_CPUS_PER_TASK="3")
+    script.write_text(
+        sbatch_script(
+            sweep_path=sweep,
+            workdir=tmp_path,
+            python=sys.executable,
+            log_dir=tmp_path / "logs",
+            job_name="t",
+            indices=[0, 1],
+            opts=SbatchOptions(),
+        )
+    )
+    env = dict(
+        os.environ,
+        PATH=f"{bindir}{os.pathsep}{os.environ['PATH']}",
+        SLURM_ARRAY_JOB_ID="77",
+        SLURM_ARRAY_TASK_ID="0",
+        SLURM_JOB_ID="78",
+        SLURM_CPUS_PER_TASK="3",
+    )
     out = tmp_path / "out" / "s400"
-    p = subprocess.Popen(["bash", str(script)], env=env, cwd="/", stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                         text=True)
+    p = subprocess.Popen(
+        ["bash", str(script)], env=env, cwd="/", stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     assert _wait_for(lambda: (out / "run.json").exists() and '"running"' in (out / "run.json").read_text())
     time.sleep(0.2)
     p.send_signal(signal.SIGUSR1)
@@ -98,8 +142,9 @@ def test_script_forwards_usr1_and_requeues_itself(tmp_path, make_sweep, fake_sim
     assert len(ckpts) == 1
     # the requeued element starts the same script again: it resumes and finishes
     env.update(SLURM_RESTART_COUNT="1", FAKE_SIM_STEP_S="0.001")
-    r = subprocess.run(["bash", str(script)], env=env, cwd="/", capture_output=True, text=True, timeout=60,
-                       check=False)
+    r = subprocess.run(
+        ["bash", str(script)], env=env, cwd="/", capture_output=True, text=True, timeout=60, check=False
+    )
     assert r.returncode == 0, r.stderr
     trace = (out / "trace.txt").read_text().split("\n")
     # threads come from SLURM_CPUS_PER_TASK; the second start resumes at the checkpoint's step

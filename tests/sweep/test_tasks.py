@@ -78,8 +78,11 @@ def test_signal_checkpoints_then_rerun_resumes(sweep, tmp_path, monkeypatch, sig
     p_sweep = sweep(steps=2000)
     monkeypatch.setenv("FAKE_SIM_STEP_S", "0.01")
     out = tmp_path / "out" / "n2000"
-    p = subprocess.Popen([sys.executable, "-m", "simcli", "sweep", "run", str(p_sweep), "--task", "0"],
-                         stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "simcli", "sweep", "run", str(p_sweep), "--task", "0"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     assert _wait_for(lambda: (out / "run.json").exists() and _rj(out)["status"] == "running")
     time.sleep(0.1)
     p.send_signal(sig)  # to the driver: it forwards to the simulation
@@ -124,7 +127,9 @@ def test_checkpoint_of_another_scene_is_not_resumed(sweep, tmp_path, capfd):
     (out / "checkpoints").mkdir()
     (out / "checkpoints" / "ckpt_00000004.npz").write_bytes(b"x")
     (out / "run.json").write_text(json.dumps({"status": "interrupted", "exit_code": 75, "steps_done": 4}))
-    (out / TASK_FILE).write_text(json.dumps({"params": {"sim.steps": 8}, "fingerprint": "from-an-older-base"}))
+    (out / TASK_FILE).write_text(
+        json.dumps({"params": {"sim.steps": 8}, "fingerprint": "from-an-older-base"})
+    )
     assert run_task(ls, 0) == 0
     assert "starting over: its checkpoints belong to another version of the scene" in capfd.readouterr().err
     assert _trace(out) == ["start 0 "]
@@ -180,9 +185,11 @@ def test_run_local_status_and_collect(sweep, tmp_path):
     import h5py
     import numpy as np
 
-    p = sweep(text="base: tiny.yaml\noutput: out\nname: \"s{sim.steps}_E{entities.0.material.E}\"\n"
-                   "grid: {sim.steps: [4, 6]}\nzip: {entities.0.material.E: [1.0e4, 2.0e4]}\n"
-                   "metrics: [throughput.steps_per_s]\n")
+    p = sweep(
+        text='base: tiny.yaml\noutput: out\nname: "s{sim.steps}_E{entities.0.material.E}"\n'
+        "grid: {sim.steps: [4, 6]}\nzip: {entities.0.material.E: [1.0e4, 2.0e4]}\n"
+        "metrics: [throughput.steps_per_s]\n"
+    )
     r = CliRunner().invoke(cli, ["sweep", "run-local", str(p), "-j", "2", "--tasks", "0-2"])
     assert r.exit_code == 0, r.output
     assert "summary: 3 done" in r.stderr
@@ -200,8 +207,20 @@ def test_run_local_status_and_collect(sweep, tmp_path):
         g = f.create_group("entities/box")
         g["position"] = np.array([[[0.0, 0.0], [1.0, 1.0]], [[0.0, 1.0], [2.0, 1.0]]])
         g["velocity"] = np.array([[[0.0, 0.0], [6.0, 8.0]], [[3.0, 4.0], [0.0, 1.0]]])
-    r = CliRunner().invoke(cli, ["sweep", "collect", str(p), "-m", "measure.com.box.0", "-m",
-                                 "measure.max_speed.box.max", "-m", "measure.max_speed.box"])
+    r = CliRunner().invoke(
+        cli,
+        [
+            "sweep",
+            "collect",
+            str(p),
+            "-m",
+            "measure.com.box.0",
+            "-m",
+            "measure.max_speed.box.max",
+            "-m",
+            "measure.max_speed.box",
+        ],
+    )
     assert r.exit_code == 0, r.output
     with open(tmp_path / "out" / "results.csv") as f:
         rows = list(csv.DictReader(f))
@@ -216,7 +235,9 @@ def test_run_local_status_and_collect(sweep, tmp_path):
     r = CliRunner().invoke(cli, ["sweep", "collect", str(p), "-o", "-", "-m", "measure.com.nobody.0"])
     assert "metric 'measure.com.nobody.0' has no value in any run (KeyError" in r.stderr
     r = CliRunner().invoke(cli, ["sweep", "collect", str(p), "-o", "-"])
-    assert r.stdout.splitlines()[0].startswith("index,name,state,exit_code,sim.steps,entities.0.material.E,steps_done")
+    assert r.stdout.splitlines()[0].startswith(
+        "index,name,state,exit_code,sim.steps,entities.0.material.E,steps_done"
+    )
 
 
 def test_run_local_reports_failures(sweep, monkeypatch):
@@ -230,8 +251,11 @@ def test_run_local_reports_failures(sweep, monkeypatch):
 def test_run_local_ctrl_c_interrupts_tasks_and_a_rerun_resumes(sweep, tmp_path, monkeypatch):
     p = sweep(steps=3000)
     monkeypatch.setenv("FAKE_SIM_STEP_S", "0.01")
-    proc = subprocess.Popen([sys.executable, "-m", "simcli", "sweep", "run-local", str(p), "-j", "1"],
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "simcli", "sweep", "run-local", str(p), "-j", "1"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     out = tmp_path / "out" / "n3000"
     assert _wait_for(lambda: (out / "run.json").exists() and _rj(out)["status"] == "running")
     time.sleep(0.1)

@@ -35,8 +35,13 @@ def state(step: int) -> dict[str, np.ndarray]:
 
 
 def meta(step: int) -> dict:
-    return {"frame": step // 10, "time": step * 1e-3, "substeps_hist": [10, 12], "scene_name": "t",
-            "np_scalar": np.float32(0.5)}
+    return {
+        "frame": step // 10,
+        "time": step * 1e-3,
+        "substeps_hist": [10, 12],
+        "scene_name": "t",
+        "np_scalar": np.float32(0.5),
+    }
 
 
 def test_roundtrip(tmp_path):

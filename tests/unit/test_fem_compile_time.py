@@ -49,7 +49,9 @@ print("RESULT " + json.dumps(dict(compile_s=compile_s, err=err, pd_same=pd_same)
 def test_project_sym3_compiles_quickly_and_clamps(tmp_path):
     script = tmp_path / "proj.py"  # Taichi needs kernels' source in a file
     script.write_text(SCRIPT)
-    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, check=False)
+    r = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=120, check=False
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     res = json.loads(next(ln for ln in r.stdout.splitlines() if ln.startswith("RESULT "))[7:])
     assert res["err"] < 1e-9

@@ -15,19 +15,28 @@ SCENE = {
     "sim": {"dim": 3, "dt": 1e-3, "steps": 1, "gravity": [0, 0, 0]},
     "domain": {"lower": [-1, -1, -1], "upper": [1, 1, 1]},
     "solvers": {"fem": {"integrator": "explicit", "resolution": 20}},
-    "entities": [{
-        "name": "m",
-        "material": {
-            "type": "FEM.Muscle", "E": 1e5, "nu": 0.3, "stiffness": 2e5, "n_groups": 2,
-            "fiber_direction": [0, 0, 2],
-            "groups": [
-                {"region": {"type": "Box", "lower": [-1, -1, -1], "upper": [0, 1, 1]},
-                 "fiber_direction": [3, 4, 0], "actuation": {"type": "sine", "amplitude": 0.5, "frequency": 2}},
-                {"actuation": {"type": "table", "times": [0, 1], "values": [0, 0.25]}},
-            ],
-        },
-        "morph": {"type": "Box", "lower": [-0.2, -0.05, -0.05], "upper": [0.2, 0.05, 0.05]},
-    }],
+    "entities": [
+        {
+            "name": "m",
+            "material": {
+                "type": "FEM.Muscle",
+                "E": 1e5,
+                "nu": 0.3,
+                "stiffness": 2e5,
+                "n_groups": 2,
+                "fiber_direction": [0, 0, 2],
+                "groups": [
+                    {
+                        "region": {"type": "Box", "lower": [-1, -1, -1], "upper": [0, 1, 1]},
+                        "fiber_direction": [3, 4, 0],
+                        "actuation": {"type": "sine", "amplitude": 0.5, "frequency": 2},
+                    },
+                    {"actuation": {"type": "table", "times": [0, 1], "values": [0, 0.25]}},
+                ],
+            },
+            "morph": {"type": "Box", "lower": [-0.2, -0.05, -0.05], "upper": [0.2, 0.05, 0.05]},
+        }
+    ],
 }
 
 
@@ -62,18 +71,26 @@ def test_elastic_body_has_no_muscle(tmp_path):
     assert not _solver(tmp_path, sc).has_muscle
 
 
-@pytest.mark.parametrize("patch, message", [
-    ({"n_groups": 3}, "groups has 2 entries but n_groups is 3"),
-    ({"fiber_direction": [0, 0, 0]}, "fiber_direction needs 3 components, not all zero"),
-    ({"fiber_direction": [1, 0]}, "fiber_direction needs 3 components, not all zero"),
-])
+@pytest.mark.parametrize(
+    "patch, message",
+    [
+        ({"n_groups": 3}, "groups has 2 entries but n_groups is 3"),
+        ({"fiber_direction": [0, 0, 0]}, "fiber_direction needs 3 components, not all zero"),
+        ({"fiber_direction": [1, 0]}, "fiber_direction needs 3 components, not all zero"),
+    ],
+)
 def test_bad_muscle_is_an_invalid_scene(tmp_path, patch, message):
     sc = yaml.safe_load(yaml.safe_dump(SCENE))
     sc["entities"][0]["material"].update(patch)
     p = tmp_path / "bad.yaml"
     p.write_text(yaml.safe_dump(sc))
-    r = subprocess.run([sys.executable, "-m", "simcli", "validate", str(p)], check=False, capture_output=True, text=True,
-                       timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "validate", str(p)],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 65 and message in r.stderr, r.stderr
 
 
@@ -91,15 +108,27 @@ entities:
 """
 
 
-def _validate(tmp_path, res=20, morph="{type: Box, lower: [-0.5, -0.5, -0.5], upper: [0.5, 0.5, 0.5]}", dim=3):
+def _validate(
+    tmp_path, res=20, morph="{type: Box, lower: [-0.5, -0.5, -0.5], upper: [0.5, 0.5, 0.5]}", dim=3
+):
     text = CHECK_SCENE.replace("RES", str(res)).replace("MORPH", morph)
     if dim == 2:
-        text = (text.replace("dim: 3", "dim: 2").replace("[-1, -1, -1]", "[-1, -1]").replace("[1, 1, 1]", "[1, 1]")
-                .replace("[-0.5, -0.5, -0.5]", "[-0.5, -0.5]").replace("[0.5, 0.5, 0.5]", "[0.5, 0.5]"))
+        text = (
+            text.replace("dim: 3", "dim: 2")
+            .replace("[-1, -1, -1]", "[-1, -1]")
+            .replace("[1, 1, 1]", "[1, 1]")
+            .replace("[-0.5, -0.5, -0.5]", "[-0.5, -0.5]")
+            .replace("[0.5, 0.5, 0.5]", "[0.5, 0.5]")
+        )
     p = tmp_path / "s.yaml"
     p.write_text(text)
-    return subprocess.run([sys.executable, "-m", "simcli", "validate", str(p)], check=False, capture_output=True, text=True,
-                          timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "simcli", "validate", str(p)],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def test_fem_scene_checks(tmp_path):

@@ -39,11 +39,27 @@ def entities(n: int = 50) -> list[EntityMeta]:
         EntityMeta("body", "tets", 5, 3, {"position": (3, "m"), "velocity": (3, "m/s")}, cells=TETS),
         EntityMeta("cloth", "triangles", 5, 3, {"position": (3, "m")}, cells=TRIS),
         EntityMeta("rope", "lines", 4, 3, {"position": (3, "m"), "tension": (1, "N")}, cells=SEGS),
-        EntityMeta("smoke", "grid", 4 * 3 * 2, 3, {"density": (1, "kg/m^3"), "velocity": (3, "m/s")},
-                   grid_shape=(4, 3, 2), origin=(-0.5, -0.25, 0.0), spacing=(0.25, 0.25, 0.5)),
+        EntityMeta(
+            "smoke",
+            "grid",
+            4 * 3 * 2,
+            3,
+            {"density": (1, "kg/m^3"), "velocity": (3, "m/s")},
+            grid_shape=(4, 3, 2),
+            origin=(-0.5, -0.25, 0.0),
+            spacing=(0.25, 0.25, 0.5),
+        ),
         EntityMeta("sand2d", "particles", 7, 2, {"position": (2, "m"), "velocity": (2, "m/s")}),
-        EntityMeta("flow2d", "grid", 12, 2, {"pressure": (1, "Pa"), "velocity": (2, "m/s")},
-                   grid_shape=(4, 3), origin=(0.0, 0.0), spacing=(0.5, 0.5)),
+        EntityMeta(
+            "flow2d",
+            "grid",
+            12,
+            2,
+            {"pressure": (1, "Pa"), "velocity": (2, "m/s")},
+            grid_shape=(4, 3),
+            origin=(0.0, 0.0),
+            spacing=(0.5, 0.5),
+        ),
     ]
 
 
@@ -64,8 +80,12 @@ def frame_data(ents: list[EntityMeta], fr: int) -> dict:
 def write_run(out: Path, frames, formats=("hdf5", "vtk"), ents=None, resume_frame=None) -> FrameSink:
     ents = ents or entities()
     sink = FrameSink(out, list(formats))
-    sink.open(ents, "version: 1\nname: t\n", {"name": "t", "dt": DT, "dim": 3, "extra": {"a": [1, 2]}},
-              resume_frame=resume_frame)
+    sink.open(
+        ents,
+        "version: 1\nname: t\n",
+        {"name": "t", "dt": DT, "dim": 3, "extra": {"a": [1, 2]}},
+        resume_frame=resume_frame,
+    )
     for fr in frames:
         sink.write_frame(fr, fr * 5, fr * DT, frame_data(ents, fr))
     sink.close()
@@ -356,8 +376,11 @@ def test_vtk_files_roundtrip(tmp_path):
     cell_type = {"jelly": "vertex", "body": "tetra", "cloth": "triangle", "rope": "line", "sand2d": "vertex"}
     for name, ctype in cell_type.items():
         entries = pvd_files(tmp_path / "vtk" / f"{name}.pvd")
-        assert entries == [(0.0, f"{name}/{name}_000000.vtu"), (DT, f"{name}/{name}_000001.vtu"),
-                           (2 * DT, f"{name}/{name}_000002.vtu")]
+        assert entries == [
+            (0.0, f"{name}/{name}_000000.vtu"),
+            (DT, f"{name}/{name}_000001.vtu"),
+            (2 * DT, f"{name}/{name}_000002.vtu"),
+        ]
         text = (tmp_path / "vtk" / entries[-1][1]).read_bytes()
         assert b'compressor="vtkZLibDataCompressor"' in text and b'encoding="raw"' in text
         m = meshio.read(tmp_path / "vtk" / entries[-1][1])
@@ -398,10 +421,12 @@ def test_vtk_files_open_in_vtk(tmp_path):
     assert img.GetDimensions() == (5, 4, 3) and img.GetNumberOfCells() == 24
     assert img.GetOrigin() == pytest.approx((-0.5, -0.25, 0.0))
     assert img.GetSpacing() == pytest.approx((0.25, 0.25, 0.5))
-    np.testing.assert_array_equal(vtk_to_numpy(img.GetCellData().GetArray("density")),
-                                  want["smoke"]["density"].reshape(-1))
-    np.testing.assert_array_equal(vtk_to_numpy(img.GetCellData().GetArray("velocity")),
-                                  want["smoke"]["velocity"].reshape(-1, 3))
+    np.testing.assert_array_equal(
+        vtk_to_numpy(img.GetCellData().GetArray("density")), want["smoke"]["density"].reshape(-1)
+    )
+    np.testing.assert_array_equal(
+        vtk_to_numpy(img.GetCellData().GetArray("velocity")), want["smoke"]["velocity"].reshape(-1, 3)
+    )
     r = vtk.vtkXMLImageDataReader()
     r.SetFileName(str(tmp_path / "vtk/flow2d/flow2d_000001.vti"))
     r.Update()
@@ -437,8 +462,10 @@ def test_xdmf_opens_in_vtk(tmp_path):
     for fr in (2, 0, 1):  # last first; then back: nothing may be served from a stale cache
         r.UpdateTimeStep(steps[fr])
         mb = r.GetOutputDataObject(0)
-        blocks = {mb.GetMetaData(i).Get(vtk.vtkCompositeDataSet.NAME()): mb.GetBlock(i)
-                  for i in range(mb.GetNumberOfBlocks())}
+        blocks = {
+            mb.GetMetaData(i).Get(vtk.vtkCompositeDataSet.NAME()): mb.GetBlock(i)
+            for i in range(mb.GetNumberOfBlocks())
+        }
         assert set(blocks) == {e.name for e in ents}
         want = frame_data(ents, fr)
         for e in ents:
@@ -450,8 +477,10 @@ def test_xdmf_opens_in_vtk(tmp_path):
                 assert b.GetSpacing()[: e.dim] == pytest.approx(e.spacing)
                 for fname, arr in want[e.name].items():
                     got = vtk_to_numpy(b.GetCellData().GetArray(fname))
-                    np.testing.assert_array_equal(got[..., : e.dim] if arr.ndim > e.dim else got,
-                                                  arr.reshape(got.shape[0], -1).squeeze())
+                    np.testing.assert_array_equal(
+                        got[..., : e.dim] if arr.ndim > e.dim else got,
+                        arr.reshape(got.shape[0], -1).squeeze(),
+                    )
                 continue
             assert b.GetNumberOfPoints() == e.n
             ncells = e.n if e.kind == "particles" else len(e.cells)

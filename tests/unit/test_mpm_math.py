@@ -233,19 +233,33 @@ def transfer_solver(ti_f32):
     from simcli.solvers.base import Body
     from simcli.solvers.mpm.solver import MPMSolver
 
-    scene = Scene.model_validate({
-        "sim": {"dim": 3, "gravity": [0.0, 0.0, 0.0]},
-        "domain": {"lower": [0, 0, 0], "upper": [0.5, 0.5, 0.5]},
-        "solvers": {"mpm": {"grid_density": 32}},
-        "entities": [{"name": "b", "material": {"type": "MPM.Elastic", "E": 1e5, "nu": 0.3, "rho": 800},
-                      "morph": {"type": "Box", "lower": [0.15, 0.15, 0.15], "upper": [0.35, 0.35, 0.35]}}],
-    })
+    scene = Scene.model_validate(
+        {
+            "sim": {"dim": 3, "gravity": [0.0, 0.0, 0.0]},
+            "domain": {"lower": [0, 0, 0], "upper": [0.5, 0.5, 0.5]},
+            "solvers": {"mpm": {"grid_density": 32}},
+            "entities": [
+                {
+                    "name": "b",
+                    "material": {"type": "MPM.Elastic", "E": 1e5, "nu": 0.3, "rho": 800},
+                    "morph": {"type": "Box", "lower": [0.15, 0.15, 0.15], "upper": [0.35, 0.35, 0.35]},
+                }
+            ],
+        }
+    )
     x = _lattice([0.15] * 3, [0.35] * 3, 0.02)
     rng = np.random.default_rng(6)
     x = x + rng.uniform(-0.004, 0.004, size=x.shape)  # off the lattice: all weights in play
     n = len(x)
-    body = Body("b", scene.entities[0], x, np.zeros_like(x), np.full(n, 0.008 / n), rng.uniform(0.5, 1.5, n) * 6.4 / n,
-                np.zeros(n, bool))
+    body = Body(
+        "b",
+        scene.entities[0],
+        x,
+        np.zeros_like(x),
+        np.full(n, 0.008 / n),
+        rng.uniform(0.5, 1.5, n) * 6.4 / n,
+        np.zeros(n, bool),
+    )
     solver = MPMSolver(scene, [body])
     solver.build()
     return solver, body
@@ -259,9 +273,9 @@ def _grid_totals(solver):
     mom = np.zeros(solver.dim)
     for t in range(solver.T):
         lo, hi = bb[t, 0], bb[t, 1]
-        sub = g[t, lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]].astype(np.float64)
+        sub = g[t, lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]].astype(np.float64)
         mass += sub[..., solver.dim].sum()
-        mom += sub[..., :solver.dim].reshape(-1, solver.dim).sum(axis=0)
+        mom += sub[..., : solver.dim].reshape(-1, solver.dim).sum(axis=0)
     return mass, mom
 
 

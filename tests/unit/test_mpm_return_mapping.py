@@ -38,8 +38,17 @@ def mat(**kw):
 
     kw.setdefault("E", E)
     kw.setdefault("nu", NU)
-    s = Scene.model_validate({"entities": [{"name": "a", "material": kw,
-                                            "morph": {"type": "Sphere", "center": [0, 0, 0.5], "radius": 0.1}}]})
+    s = Scene.model_validate(
+        {
+            "entities": [
+                {
+                    "name": "a",
+                    "material": kw,
+                    "morph": {"type": "Sphere", "center": [0, 0, 0.5], "radius": 0.1},
+                }
+            ]
+        }
+    )
     return s.entities[0].material
 
 
@@ -59,8 +68,15 @@ class Harness:
         law.allocate_materials([material])
         self.C = ti.Matrix.field(dim, dim, ti.f32, shape=n)
         body = SimpleNamespace(name="a", n=n, x=np.zeros((n, dim)))  # muscle groups are assigned per body
-        fake = SimpleNamespace(mid=ti.field(ti.i32, shape=n), C=self.C, n=n, bodies=[body], body_mid=[0],
-                               offsets=np.array([0, n]), materials=[material])
+        fake = SimpleNamespace(
+            mid=ti.field(ti.i32, shape=n),
+            C=self.C,
+            n=n,
+            bodies=[body],
+            body_mid=[0],
+            offsets=np.array([0, n]),
+            materials=[material],
+        )
         law.bind(fake)
         law.init_state()
         self.law = law
@@ -187,7 +203,9 @@ def test_von_mises_pure_shear_saturates_at_yield_over_sqrt3(vm3):
     shear = np.abs(t[:, 0, 1])
     yield_at = SY / math.sqrt(3)
     elastic = 2 * MU * gam < 0.99 * yield_at
-    assert np.allclose(shear[elastic], 2 * MU * gam[elastic], rtol=1e-4, atol=1e-4 * SY)  # 2 mu gamma (Hencky)
+    assert np.allclose(
+        shear[elastic], 2 * MU * gam[elastic], rtol=1e-4, atol=1e-4 * SY
+    )  # 2 mu gamma (Hencky)
     assert np.allclose(shear[~elastic & (2 * MU * gam > 1.01 * yield_at)], yield_at, rtol=1e-4)
     assert np.abs(t[:, 0, 0]).max() < 1e-4 * SY and np.abs(t[:, 2, 2]).max() < 1e-4 * SY
 
@@ -195,8 +213,9 @@ def test_von_mises_pure_shear_saturates_at_yield_over_sqrt3(vm3):
 def test_von_mises_never_exceeds_the_yield_surface_and_keeps_volume(vm3):
     h = vm3
     rng = np.random.default_rng(3)
-    F = np.stack([random_rotation(rng) @ np.diag(rng.uniform(0.9, 1.1, 3)) @ random_rotation(rng)
-                  for _ in range(h.n)])
+    F = np.stack(
+        [random_rotation(rng) @ np.diag(rng.uniform(0.9, 1.1, 3)) @ random_rotation(rng) for _ in range(h.n)]
+    )
     Fo, tau = h.run(F)
     Je = h.Je.to_numpy().astype(np.float64)
     vm = von_mises(tau / Je[:, None, None])
@@ -237,8 +256,11 @@ def test_von_mises_2d_is_plane_strain(ti_f32):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_clamp_keeps_singular_values_in_range_and_jp_je_equals_j(ti_f32, kind, dim):
     tc, ts, xi = 2.5e-2, 7.5e-3, 10.0
-    m = (mat(type="MPM.ElastoPlastic", use_von_mises=False, yield_lower=tc, yield_higher=ts) if kind == "clamp"
-         else mat(type="MPM.Snow", yield_lower=tc, yield_higher=ts, hardening=xi))
+    m = (
+        mat(type="MPM.ElastoPlastic", use_von_mises=False, yield_lower=tc, yield_higher=ts)
+        if kind == "clamp"
+        else mat(type="MPM.Snow", yield_lower=tc, yield_higher=ts, hardening=xi)
+    )
     h = Harness(m, dim=dim, n=32)
     rng = np.random.default_rng(4)
     FE = np.broadcast_to(np.eye(dim), (h.n, dim, dim)).copy()
@@ -284,8 +306,12 @@ def test_sand_ends_on_or_inside_the_cone(ti_f32, cohesion):
     h = Harness(m, dim=3, n=64)
     rng = np.random.default_rng(5)
     # compressive and tensile trial strains with large shear
-    F = np.stack([random_rotation(rng) @ np.diag(rng.uniform(0.95, 1.03, 3)) @ random_rotation(rng)
-                  for _ in range(h.n)])
+    F = np.stack(
+        [
+            random_rotation(rng) @ np.diag(rng.uniform(0.95, 1.03, 3)) @ random_rotation(rng)
+            for _ in range(h.n)
+        ]
+    )
     Fo, tau = h.run(F)
     apex = cohesion / math.tan(math.radians(30.0))
     f = dp_yield(tau, m.alpha, apex)
@@ -341,8 +367,12 @@ def test_sand_without_volume_correction_forgets_the_separation(ti_f32):
 def test_liquid_keeps_only_the_volume(ti_f32, dim):
     h = Harness(mat(type="MPM.Liquid"), dim=dim, n=16)
     rng = np.random.default_rng(6)
-    F = np.stack([random_rotation(rng, dim) @ np.diag(rng.uniform(0.8, 1.2, dim)) @ random_rotation(rng, dim)
-                  for _ in range(h.n)])
+    F = np.stack(
+        [
+            random_rotation(rng, dim) @ np.diag(rng.uniform(0.8, 1.2, dim)) @ random_rotation(rng, dim)
+            for _ in range(h.n)
+        ]
+    )
     Fo, tau = h.run(F)
     J = np.linalg.det(F)
     assert np.allclose(Fo, J[:, None, None] ** (1 / dim) * np.eye(dim), rtol=1e-5, atol=1e-6)
@@ -365,8 +395,12 @@ def test_viscous_liquid_stress_is_2_mu_dev_D(ti_f32):
 @pytest.mark.parametrize("model", ["neohooken", "corotation"])
 def test_muscle_active_stress_along_the_fibre(ti_f32, model):
     f0 = np.array([1.0, 2.0, 2.0]) / 3.0
-    m = mat(type="MPM.Muscle", model=model, fiber_direction=f0.tolist(),
-            groups=[{"actuation": {"type": "constant", "value": 0.1}}])
+    m = mat(
+        type="MPM.Muscle",
+        model=model,
+        fiber_direction=f0.tolist(),
+        groups=[{"actuation": {"type": "constant", "value": 0.1}}],
+    )
     h = Harness(m, dim=3, n=8)
     h.law.host_update(0.0)
     rng = np.random.default_rng(8)

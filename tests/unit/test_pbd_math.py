@@ -57,11 +57,14 @@ def test_rest_angle_of_a_folded_sheet(fold_deg):
 
 
 def test_rectangle_mesh_counts_and_area():
-    m = RectangleShape(type="Rectangle", center=[0.1, 0.2, 0.5], size=[2.0, 1.0], resolution=[10, 5],
-                       normal=[0, 1, 0])
+    m = RectangleShape(
+        type="Rectangle", center=[0.1, 0.2, 0.5], size=[2.0, 1.0], resolution=[10, 5], normal=[0, 1, 0]
+    )
     x, tris = rectangle_mesh(m)
     assert x.shape == (66, 3) and tris.shape == (100, 3)
-    area = 0.5 * np.linalg.norm(np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]), axis=1)
+    area = 0.5 * np.linalg.norm(
+        np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]), axis=1
+    )
     assert area.sum() == pytest.approx(2.0)
     assert np.allclose(x[:, 1], 0.2)  # in the plane of its normal
     assert len(unique_edges(tris)) == 10 * 6 + 11 * 5 + 50  # rows, columns, one diagonal per cell
@@ -81,7 +84,7 @@ def test_colouring_separates_constraints_sharing_a_vertex():
         order, off = colour(cons, len(x))
         assert sorted(order.tolist()) == list(range(len(cons)))
         for c in range(len(off) - 1):
-            block = cons[order[off[c]:off[c + 1]]].reshape(-1)
+            block = cons[order[off[c] : off[c + 1]]].reshape(-1)
             assert len(np.unique(block)) == block.size  # no vertex twice in one colour
         assert len(off) - 1 <= 2 * cons.shape[1] * 4  # a handful of colours, not one per constraint
 
@@ -95,14 +98,27 @@ def test_single_distance_constraint_xpbd_update(ti_f32):
 
     compliance, dt = 1e-3, 1e-2
     rho = 2.0 / (np.pi * 0.05**2)
-    scene = Scene.model_validate({
-        "sim": {"dt": dt, "substeps": 1, "gravity": [0, 0, 0]},
-        "domain": {"lower": [-2, -2, -2], "upper": [2, 2, 2]},
-        "solvers": {"pbd": {"stretch_iterations": 1, "collisions": False}},
-        "entities": [{"name": "s", "material": {"type": "PBD.Elastic", "rho": rho, "stretch_compliance": compliance,
-                                                "bending_compliance": None, "initial_stretch": [1.5, 1, 1]},
-                      "morph": {"type": "Line", "points": [[0, 0, 0], [1, 0, 0]], "radius": 0.05},
-                      "fixed": {"type": "Sphere", "center": [0, 0, 0], "radius": 0.01}}]})
+    scene = Scene.model_validate(
+        {
+            "sim": {"dt": dt, "substeps": 1, "gravity": [0, 0, 0]},
+            "domain": {"lower": [-2, -2, -2], "upper": [2, 2, 2]},
+            "solvers": {"pbd": {"stretch_iterations": 1, "collisions": False}},
+            "entities": [
+                {
+                    "name": "s",
+                    "material": {
+                        "type": "PBD.Elastic",
+                        "rho": rho,
+                        "stretch_compliance": compliance,
+                        "bending_compliance": None,
+                        "initial_stretch": [1.5, 1, 1],
+                    },
+                    "morph": {"type": "Line", "points": [[0, 0, 0], [1, 0, 0]], "radius": 0.05},
+                    "fixed": {"type": "Sphere", "center": [0, 0, 0], "radius": 0.01},
+                }
+            ],
+        }
+    )
     s = PBDSolver(scene, [])
     s.build()
     assert s.inv_mass.tolist() == pytest.approx([0.0, 1.0])

@@ -30,9 +30,12 @@ from simcli.solvers.sf.grid import (
 
 
 def scene(**kw) -> Scene:
-    d = {"sim": {"dim": 2, "gravity": [0.0, -9.81]}, "domain": {"lower": [0, 0], "upper": [1, 1]},
-         "solvers": {"sf": {"resolution": 8}},
-         "entities": [{"name": "fluid", "material": {"type": "SF.Smoke"}}]}
+    d = {
+        "sim": {"dim": 2, "gravity": [0.0, -9.81]},
+        "domain": {"lower": [0, 0], "upper": [1, 1]},
+        "solvers": {"sf": {"resolution": 8}},
+        "entities": [{"name": "fluid", "material": {"type": "SF.Smoke"}}],
+    }
     for k, v in kw.items():
         d[k] = v
     return Scene.model_validate(d)
@@ -52,9 +55,14 @@ def test_resolution_is_cells_along_the_longest_axis():
 
 
 def test_orbit_jet_turns_its_vectors_with_it():
-    jet = Jet.model_validate({"position": [0.8, 0.5, 0.5], "radius": 0.05, "force": [-1.0, 0.0, 0.0],
-                              "path": {"type": "orbit", "center": [0.5, 0.5, 0.5], "axis": "y",
-                                       "angular_velocity": 0.5}})
+    jet = Jet.model_validate(
+        {
+            "position": [0.8, 0.5, 0.5],
+            "radius": 0.05,
+            "force": [-1.0, 0.0, 0.0],
+            "path": {"type": "orbit", "center": [0.5, 0.5, 0.5], "axis": "y", "angular_velocity": 0.5},
+        }
+    )
     for t in (0.0, 1.0, 3.7):
         p, _, f, on = jet.state(t, 3)
         r = p - np.array([0.5, 0.5, 0.5])
@@ -66,9 +74,20 @@ def test_orbit_jet_turns_its_vectors_with_it():
 
 
 def test_waypoint_jet_and_time_window():
-    jet = Jet.model_validate({"radius": 0.1, "density_rate": 1.0, "start": 1.0, "stop": 2.0,
-                              "path": {"type": "waypoints", "times": [0, 1, 3], "points": [[0, 0], [1, 0], [1, 2]],
-                                       "periodic": True}})
+    jet = Jet.model_validate(
+        {
+            "radius": 0.1,
+            "density_rate": 1.0,
+            "start": 1.0,
+            "stop": 2.0,
+            "path": {
+                "type": "waypoints",
+                "times": [0, 1, 3],
+                "points": [[0, 0], [1, 0], [1, 2]],
+                "periodic": True,
+            },
+        }
+    )
     assert np.allclose(jet.state(0.5, 2)[0], [0.5, 0.0]) and jet.state(0.5, 2)[3] == 0.0
     assert np.allclose(jet.state(2.0, 2)[0], [1.0, 1.0]) and jet.state(1.5, 2)[3] == 1.0
     assert np.allclose(jet.state(3.5, 2)[0], [0.5, 0.0])  # periodic
@@ -81,9 +100,18 @@ def test_morph_is_optional_only_for_sf():
     with pytest.raises(ValueError, match="morph is required"):
         Scene.model_validate({"entities": [{"name": "b", "material": {"type": "MPM.Elastic"}}]})
     with pytest.raises(ValueError, match="jets are for SF.Smoke"):
-        Scene.model_validate({"entities": [{"name": "b", "material": {"type": "MPM.Elastic"},
-                                            "morph": {"type": "Sphere", "center": [0, 0, 0.5], "radius": 0.1},
-                                            "jets": [{"position": [0, 0, 0.5], "radius": 0.1}]}]})
+        Scene.model_validate(
+            {
+                "entities": [
+                    {
+                        "name": "b",
+                        "material": {"type": "MPM.Elastic"},
+                        "morph": {"type": "Sphere", "center": [0, 0, 0.5], "radius": 0.1},
+                        "jets": [{"position": [0, 0, 0.5], "radius": 0.1}],
+                    }
+                ]
+            }
+        )
 
 
 def _write(tmp_path: Path, d: dict) -> Path:
@@ -99,23 +127,45 @@ def _errors(tmp_path: Path, d: dict) -> str:
 
 
 def test_scene_checks(tmp_path):
-    base = {"sim": {"dim": 2}, "domain": {"lower": [0, 0], "upper": [1, 1]},
-            "entities": [{"name": "fluid", "material": {"type": "SF.Smoke"}}]}
+    base = {
+        "sim": {"dim": 2},
+        "domain": {"lower": [0, 0], "upper": [1, 1]},
+        "entities": [{"name": "fluid", "material": {"type": "SF.Smoke"}}],
+    }
     d = dict(base, domain={"lower": [0, 0], "upper": [1, 1], "faces": {"x-": {"type": "periodic"}}})
     assert "periodic faces come in pairs" in _errors(tmp_path, d)
-    d = dict(base, domain={"lower": [0, 0], "upper": [1, 1], "boundary": {"type": "periodic"}},
-             solvers={"sf": {"resolution": 9}})
+    d = dict(
+        base,
+        domain={"lower": [0, 0], "upper": [1, 1], "boundary": {"type": "periodic"}},
+        solvers={"sf": {"resolution": 9}},
+    )
     assert "even number of cells" in _errors(tmp_path, d)
     d = dict(base, solvers={"sf": {"resolution": 40000}})
     assert "scene too large" in _errors(tmp_path, d) and "solvers.sf.resolution" in _errors(tmp_path, d)
     d = dict(base, entities=base["entities"] * 2)
     assert "one SF.Smoke entity" in _errors(tmp_path, d)
-    d = dict(base, entities=[{"name": "fluid", "material": {"type": "SF.Smoke"},
-                              "jets": [{"position": [0.5, 0.5, 0.5], "radius": 0.1}]}])
+    d = dict(
+        base,
+        entities=[
+            {
+                "name": "fluid",
+                "material": {"type": "SF.Smoke"},
+                "jets": [{"position": [0.5, 0.5, 0.5], "radius": 0.1}],
+            }
+        ],
+    )
     assert "jets.0.position: expected 2 components" in _errors(tmp_path, d)
-    mpm = {"sim": {"dim": 2}, "domain": {"lower": [0, 0], "upper": [1, 1], "faces": {"y+": {"type": "open"}}},
-           "entities": [{"name": "b", "material": {"type": "MPM.Elastic"},
-                         "morph": {"type": "Box", "lower": [0.4, 0.4], "upper": [0.6, 0.6]}}]}
+    mpm = {
+        "sim": {"dim": 2},
+        "domain": {"lower": [0, 0], "upper": [1, 1], "faces": {"y+": {"type": "open"}}},
+        "entities": [
+            {
+                "name": "b",
+                "material": {"type": "MPM.Elastic"},
+                "morph": {"type": "Box", "lower": [0.4, 0.4], "upper": [0.6, 0.6]},
+            }
+        ],
+    }
     assert "'open' faces are for grid fluids (SF) only" in _errors(tmp_path, mpm)
     ok = dict(base, domain={"lower": [0, 0], "upper": [1, 1], "faces": {"y+": {"type": "open"}}})
     load_scene(_write(tmp_path, ok))
@@ -132,9 +182,15 @@ def test_memory_estimate_grows_with_the_grid():
 
 
 def test_face_kinds_walls_lid_collider_open_periodic():
-    s = scene(domain={"lower": [0, 0], "upper": [1, 1], "boundary": {"type": "sticky"},
-                      "faces": {"y+": {"type": "sticky", "velocity": [1.0, 0.0]}, "x-": {"type": "open"}}},
-              colliders=[{"type": "Box", "lower": [0.5, 0.5], "upper": [0.8, 0.8]}])
+    s = scene(
+        domain={
+            "lower": [0, 0],
+            "upper": [1, 1],
+            "boundary": {"type": "sticky"},
+            "faces": {"y+": {"type": "sticky", "velocity": [1.0, 0.0]}, "x-": {"type": "open"}},
+        },
+        colliders=[{"type": "Box", "lower": [0.5, 0.5], "upper": [0.8, 0.8]}],
+    )
     L = layout_of(s)
     K0 = L.kinds[0][1:-1, 1:-1]  # u faces: (9, 8) valid
     K1 = L.kinds[1][1:-1, 1:-1]  # v faces: (8, 9)
@@ -182,10 +238,19 @@ def _matrix(L, d):
 
 
 def test_viscosity_operator_is_symmetric_positive_definite():
-    s = scene(domain={"lower": [0, 0], "upper": [1, 1], "boundary": {"type": "sticky"},
-                      "faces": {"y+": {"type": "sticky", "velocity": [1.0, 0.0]}, "x+": {"type": "open"},
-                                "x-": {"type": "slip"}}},
-              colliders=[{"type": "Sphere", "center": [0.5, 0.4], "radius": 0.15}])
+    s = scene(
+        domain={
+            "lower": [0, 0],
+            "upper": [1, 1],
+            "boundary": {"type": "sticky"},
+            "faces": {
+                "y+": {"type": "sticky", "velocity": [1.0, 0.0]},
+                "x+": {"type": "open"},
+                "x-": {"type": "slip"},
+            },
+        },
+        colliders=[{"type": "Sphere", "center": [0.5, 0.4], "radius": 0.15}],
+    )
     L = layout_of(s)
     for d in range(2):
         M, _, _ = _matrix(L, d)

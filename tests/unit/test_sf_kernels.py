@@ -17,8 +17,12 @@ from simcli.scene.models import Scene
 def make(**kw):
     from simcli.solvers.sf.solver import SFSolver
 
-    d = {"sim": {"dim": 2, "gravity": [0.0, 0.0]}, "domain": {"lower": [0, 0], "upper": [1, 1]},
-         "solvers": {"sf": {"resolution": 32}}, "entities": [{"name": "fluid", "material": {"type": "SF.Smoke"}}]}
+    d = {
+        "sim": {"dim": 2, "gravity": [0.0, 0.0]},
+        "domain": {"lower": [0, 0], "upper": [1, 1]},
+        "solvers": {"sf": {"resolution": 32}},
+        "entities": [{"name": "fluid", "material": {"type": "SF.Smoke"}}],
+    }
     d.update(kw)
     s = SFSolver(Scene.model_validate(d), [])
     s.build()
@@ -47,22 +51,42 @@ def set_scalars(s, density, temperature):
 # lid, open face, slip walls, a collider and a buoyant jet: every boundary kind and source in 2D
 @pytest.fixture(scope="module")
 def busy(ti_f32):
-    return make(domain={"lower": [0, 0], "upper": [1.5, 1], "boundary": {"type": "slip"},
-                        "faces": {"y+": {"type": "sticky", "velocity": [1.0, 0.0]}, "x+": {"type": "open"}}},
-                colliders=[{"type": "Sphere", "center": [0.6, 0.45], "radius": 0.2}],
-                sim={"dim": 2, "gravity": [0.0, -9.81]},
-                solvers={"sf": {"resolution": 48, "tolerance": 1e-6}},
-                entities=[{"name": "fluid", "material": {"type": "SF.Smoke", "buoyancy": -0.5},
-                           "jets": [{"position": [0.25, 0.3], "radius": 0.1, "density_rate": 2.0,
-                                     "temperature_rate": 50.0, "velocity": [0.0, 0.5]}]}])
+    return make(
+        domain={
+            "lower": [0, 0],
+            "upper": [1.5, 1],
+            "boundary": {"type": "slip"},
+            "faces": {"y+": {"type": "sticky", "velocity": [1.0, 0.0]}, "x+": {"type": "open"}},
+        },
+        colliders=[{"type": "Sphere", "center": [0.6, 0.45], "radius": 0.2}],
+        sim={"dim": 2, "gravity": [0.0, -9.81]},
+        solvers={"sf": {"resolution": 48, "tolerance": 1e-6}},
+        entities=[
+            {
+                "name": "fluid",
+                "material": {"type": "SF.Smoke", "buoyancy": -0.5},
+                "jets": [
+                    {
+                        "position": [0.25, 0.3],
+                        "radius": 0.1,
+                        "density_rate": 2.0,
+                        "temperature_rate": 50.0,
+                        "velocity": [0.0, 0.5],
+                    }
+                ],
+            }
+        ],
+    )
 
 
 @pytest.fixture(scope="module")
 def periodic_sl(ti_f32):
     """Periodic, semi-Lagrangian, viscous."""
-    return make(domain={"lower": [0, 0], "upper": [1, 1], "boundary": {"type": "periodic"}},
-                solvers={"sf": {"resolution": 32, "advection": "semi_lagrangian", "viscosity_tolerance": 1e-7}},
-                entities=[{"name": "fluid", "material": {"type": "SF.Smoke", "viscosity": 0.01}}])
+    return make(
+        domain={"lower": [0, 0], "upper": [1, 1], "boundary": {"type": "periodic"}},
+        solvers={"sf": {"resolution": 32, "advection": "semi_lagrangian", "viscosity_tolerance": 1e-7}},
+        entities=[{"name": "fluid", "material": {"type": "SF.Smoke", "viscosity": 0.01}}],
+    )
 
 
 def check_projected(s, dt, tol):
@@ -88,21 +112,34 @@ def test_projection_divergence_below_tolerance_mgpcg(busy):
 
 
 def test_projection_divergence_below_tolerance_jacobi(ti_f32):
-    s = make(domain={"lower": [0, 0], "upper": [1, 1], "boundary": {"type": "slip"},
-                     "faces": {"y+": {"type": "open"}}},
-             solvers={"sf": {"resolution": 16, "pressure_solver": "jacobi", "tolerance": 1e-4,
-                             "max_iterations": 20000}})
+    s = make(
+        domain={
+            "lower": [0, 0],
+            "upper": [1, 1],
+            "boundary": {"type": "slip"},
+            "faces": {"y+": {"type": "open"}},
+        },
+        solvers={
+            "sf": {"resolution": 16, "pressure_solver": "jacobi", "tolerance": 1e-4, "max_iterations": 20000}
+        },
+    )
     random_velocity(s, np.random.default_rng(5))
     its, _ = check_projected(s, 0.01, 1e-4)
     assert its % 10 == 0  # tested every check_every sweeps
 
 
 def test_projection_3d_periodic_open_collider(ti_f32):
-    s = make(sim={"dim": 3, "gravity": [0, 0, 0]},
-             domain={"lower": [0, 0, 0], "upper": [1, 1, 1], "boundary": {"type": "slip"},
-                     "faces": {"x-": {"type": "periodic"}, "x+": {"type": "periodic"}, "z+": {"type": "open"}}},
-             colliders=[{"type": "Box", "lower": [0.3, 0.3, 0.3], "upper": [0.6, 0.5, 0.7]}],
-             solvers={"sf": {"resolution": 16, "tolerance": 1e-6}})
+    s = make(
+        sim={"dim": 3, "gravity": [0, 0, 0]},
+        domain={
+            "lower": [0, 0, 0],
+            "upper": [1, 1, 1],
+            "boundary": {"type": "slip"},
+            "faces": {"x-": {"type": "periodic"}, "x+": {"type": "periodic"}, "z+": {"type": "open"}},
+        },
+        colliders=[{"type": "Box", "lower": [0.3, 0.3, 0.3], "upper": [0.6, 0.5, 0.7]}],
+        solvers={"sf": {"resolution": 16, "tolerance": 1e-6}},
+    )
     random_velocity(s, np.random.default_rng(2))
     its, _ = check_projected(s, 0.01, 1e-6)
     assert its <= 30
@@ -151,8 +188,10 @@ def _translate(s):
 
 def test_advection_maccormack_beats_semi_lagrangian(periodic_sl):
     err_sl = _translate(periodic_sl)
-    mc = make(domain={"lower": [0, 0], "upper": [1, 1], "boundary": {"type": "periodic"}},
-              solvers={"sf": {"resolution": 32, "advection": "maccormack"}})
+    mc = make(
+        domain={"lower": [0, 0], "upper": [1, 1], "boundary": {"type": "periodic"}},
+        solvers={"sf": {"resolution": 32, "advection": "maccormack"}},
+    )
     err_mc = _translate(mc)
     assert err_sl < 0.25 and err_mc < 0.08 and err_mc < 0.5 * err_sl, (err_sl, err_mc)
 

@@ -54,7 +54,9 @@ def test_gradient_is_derivative(dim):
     for a in range(dim):
         e = np.zeros(dim)
         e[a] = eps
-        fd = (cubic_W(np.linalg.norm(x + e, axis=1), h, dim) - cubic_W(np.linalg.norm(x - e, axis=1), h, dim)) / (2 * eps)
+        fd = (
+            cubic_W(np.linalg.norm(x + e, axis=1), h, dim) - cubic_W(np.linalg.norm(x - e, axis=1), h, dim)
+        ) / (2 * eps)
         assert np.allclose(g[:, a], fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
 
 
@@ -91,7 +93,9 @@ def test_taichi_kernels_match_numpy(ti_f32, dim):
     assert np.allclose(ws.to_numpy(), w_ref, rtol=1e-4, atol=1e-5 * w_ref.max())
     g_ref = cubic_gradW(p64, h, dim)
     assert np.allclose(gs.to_numpy(), g_ref, rtol=1e-4, atol=1e-5 * np.abs(g_ref).max())
-    assert np.allclose(ws2.to_numpy(), ws.to_numpy(), rtol=1e-6) and np.allclose(gs2.to_numpy(), gs.to_numpy(), rtol=1e-6)
+    assert np.allclose(ws2.to_numpy(), ws.to_numpy(), rtol=1e-6) and np.allclose(
+        gs2.to_numpy(), gs.to_numpy(), rtol=1e-6
+    )
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -129,7 +133,9 @@ def test_wall_particles_are_the_padded_lattice_outside_the_domain(dim):
     vel = {n: np.full(dim, 0.1 * k) for k, n in enumerate(names)}
     bp = wall_particles(lo, hi, ps, dim, faces, vel)
     axes = [_axis_coords(lo[a], hi[a], ps, 2) for a in range(dim)]
-    mesh = lambda k: np.stack([g.ravel() for g in np.meshgrid(*[ax[k] for ax in axes], indexing="ij")], axis=1)
+    mesh = lambda k: np.stack(
+        [g.ravel() for g in np.meshgrid(*[ax[k] for ax in axes], indexing="ij")], axis=1
+    )
     x, sp, side = mesh(0), np.prod(mesh(1), axis=1), mesh(2)
     out = np.any(side != 0, axis=1)
     assert np.array_equal(bp.x, x[out]) and np.array_equal(bp.volume, sp[out])
@@ -160,8 +166,11 @@ def test_box_collider_lattice_fits_the_box(width):
 
     near, far = wall_density([0.2 - 0.5 * ps, 0.05]), wall_density([0.2 + width + 0.5 * ps, 0.05])
     assert far == pytest.approx(near, rel=1e-6)
-    aligned = collider_particles(SimpleNamespace(kind="Box", a=[0.2, 0.0], b=[0.3, 0.1], contact="slip"),
-                                 [0.0, 0.0], [0.6, 0.5], ps, 2)
-    ref = (aligned.volume / lattice_sum(2, 2) * cubic_W(np.linalg.norm(aligned.x - [0.1975, 0.05], axis=1), h, 2)).sum()
+    aligned = collider_particles(
+        SimpleNamespace(kind="Box", a=[0.2, 0.0], b=[0.3, 0.1], contact="slip"), [0.0, 0.0], [0.6, 0.5], ps, 2
+    )
+    ref = (
+        aligned.volume / lattice_sum(2, 2) * cubic_W(np.linalg.norm(aligned.x - [0.1975, 0.05], axis=1), h, 2)
+    ).sum()
     assert near == pytest.approx(ref, rel=0.02)
     assert np.all(bp.x[:, 0] < 0.2 + width) and np.all(bp.x[:, 0] > 0.2)

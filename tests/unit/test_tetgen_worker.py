@@ -31,7 +31,9 @@ def test_closed_surface_is_tetrahedralised_in_the_child():
 def test_self_intersecting_surface_is_an_invalid_scene(tmp_path):
     v, t = _icosphere()
     shifted = v + np.array([0.6, 0.0, 0.0])  # a second sphere overlapping the first, in one surface
-    meshio.write(tmp_path / "two.obj", meshio.Mesh(np.vstack([v, shifted]), [("triangle", np.vstack([t, t + len(v)]))]))
+    meshio.write(
+        tmp_path / "two.obj", meshio.Mesh(np.vstack([v, shifted]), [("triangle", np.vstack([t, t + len(v)]))])
+    )
     (tmp_path / "s.yaml").write_text("""\
 version: 1
 sim: {dim: 3, dt: 2.0e-3, steps: 2}
@@ -41,8 +43,13 @@ entities:
     material: {type: FEM.Elastic, E: 1.0e5}
     morph: {type: Mesh, file: two.obj, scale: 0.1, translate: [0, 0, 0.3]}
 """)
-    r = subprocess.run([sys.executable, "-m", "simcli", "run", str(tmp_path / "s.yaml"), "-o", str(tmp_path / "o")],
-                       capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "run", str(tmp_path / "s.yaml"), "-o", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
     assert not list(tmp_path.glob("_skipped.*"))  # TetGen's own files stay out of the working directory
     if r.returncode == 0:
         pytest.skip("this TetGen build meshed the overlapping surface instead of failing")

@@ -19,7 +19,9 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _case(tmp_path, text: str, scene: str = "s.yaml") -> Case:
-    (tmp_path / scene).write_text("version: 1\nsim: {dim: 2, substeps: 4}\nsolvers: {mpm: {grid_density: 32}}\n")
+    (tmp_path / scene).write_text(
+        "version: 1\nsim: {dim: 2, substeps: 4}\nsolvers: {mpm: {grid_density: 32}}\n"
+    )
     p = tmp_path / "c.case.yaml"
     p.write_text(f"scene: {scene}\n" + text)
     return load_case(p)
@@ -34,24 +36,33 @@ def test_discover_finds_every_case_file():
 
 
 def test_analytic_reference_and_metrics(tmp_path):
-    c = _case(tmp_path, "measure: {quantity: com}\nreference: {analytic: 'a - b * t', constants: {a: 1, b: 2}}\n"
-                        "error: {metric: max_abs}\ntolerance: 0.1\n")
+    c = _case(
+        tmp_path,
+        "measure: {quantity: com}\nreference: {analytic: 'a - b * t', constants: {a: 1, b: 2}}\n"
+        "error: {metric: max_abs}\ntolerance: 0.1\n",
+    )
     t = np.linspace(0, 1, 11)
     e = compute_error(c, t, 1 - 2 * t + 0.05)
     assert e["error"] == pytest.approx(0.05)
 
 
 def test_midrange_of_an_oscillation_is_the_static_value(tmp_path):
-    c = _case(tmp_path, "measure: {quantity: com}\nreference: {value: -2.0}\n"
-                        "error: {metric: midrange_rel, window: [0.5, 2.0]}\ntolerance: 0.01\n")
+    c = _case(
+        tmp_path,
+        "measure: {quantity: com}\nreference: {value: -2.0}\n"
+        "error: {metric: midrange_rel, window: [0.5, 2.0]}\ntolerance: 0.01\n",
+    )
     t = np.linspace(0, 2, 2001)
     z = -2.0 * (1 - np.cos(2 * math.pi * 1.37 * t))  # released from rest, any period
     assert compute_error(c, t, z)["error"] < 1e-3
 
 
 def test_period_mean_of_an_oscillation_with_a_higher_mode(tmp_path):
-    c = _case(tmp_path, "measure: {quantity: com}\nreference: {value: -2.0}\n"
-                        "error: {metric: period_mean_rel, window: [0.0, 0.6]}\ntolerance: 0.01\n")
+    c = _case(
+        tmp_path,
+        "measure: {quantity: com}\nreference: {value: -2.0}\n"
+        "error: {metric: period_mean_rel, window: [0.0, 0.6]}\ntolerance: 0.01\n",
+    )
     t = np.linspace(0, 0.6, 601)
     z = -2.0 * (1 - np.cos(2 * math.pi * t / 0.196)) + 0.1 * np.sin(2 * math.pi * t / 0.031)
     assert compute_error(c, t, z)["error"] < 5e-3
@@ -60,17 +71,23 @@ def test_period_mean_of_an_oscillation_with_a_higher_mode(tmp_path):
 def test_table_reference_from_shared(tmp_path):
     tab = read_table(shared_dir() / "reference" / "martin_moyce_1952_n2_2_front.csv")
     assert tab.shape[1] >= 2 and len(tab) > 5
-    c = _case(tmp_path, "measure: {quantity: percentile}\n"
-                        "reference: {table: '${SHARED}/reference/martin_moyce_1952_n2_2_front.csv'}\n"
-                        "error: {metric: max_rel}\ntolerance: 0.1\n")
+    c = _case(
+        tmp_path,
+        "measure: {quantity: percentile}\n"
+        "reference: {table: '${SHARED}/reference/martin_moyce_1952_n2_2_front.csv'}\n"
+        "error: {metric: max_rel}\ntolerance: 0.1\n",
+    )
     t = tab[:, 0]  # measured at the table's own times: interpolation is exact
     e = compute_error(c, t, tab[:, 1] * 1.05)
     assert e["error"] == pytest.approx(0.05, rel=1e-6)
 
 
 def test_refinement_levels_scale_the_keys(tmp_path):
-    c = _case(tmp_path, "measure: {quantity: com}\nreference: {value: 0}\ntolerance: 1\n"
-                        "refine: {solvers.mpm.grid_density: 2, sim.substeps: 2}\n")
+    c = _case(
+        tmp_path,
+        "measure: {quantity: com}\nreference: {value: 0}\ntolerance: 1\n"
+        "refine: {solvers.mpm.grid_density: 2, sim.substeps: 2}\n",
+    )
     assert level_overrides(c, 0) == []
     assert level_overrides(c, 2) == ["solvers.mpm.grid_density=128.0", "sim.substeps=16"]
 
@@ -84,8 +101,10 @@ def test_bad_case_file_is_reported_with_position(tmp_path):
 
 
 def test_report_table_has_every_result():
-    rs = [Result("a", 0, "gd=32", 0.1, 0.05, None, 1.0, 0.5, 0.2, 100, 1e6, 10, 0),
-          Result("a", 1, "gd=64", 0.02, 0.05, True, 2.0, 1.5, 0.2, 800, 1e6, 20, 0, order=2.32)]
+    rs = [
+        Result("a", 0, "gd=32", 0.1, 0.05, None, 1.0, 0.5, 0.2, 100, 1e6, 10, 0),
+        Result("a", 1, "gd=64", 0.02, 0.05, True, 2.0, 1.5, 0.2, 800, 1e6, 20, 0, order=2.32),
+    ]
     md = markdown_table(rs)
     assert "| a | 1 | gd=64 | 0.02 | 0.05 | pass | 2.32 |" in md and "(coarser level)" in md
 
@@ -94,8 +113,21 @@ def test_report_table_has_every_result():
 @pytest.mark.timeout(1800)
 def test_verify_fast_set_passes_end_to_end(tmp_path):
     """`simcli verify` (the fast set) as CI runs it: every case passes, the report is written."""
-    r = subprocess.run([sys.executable, "-m", "simcli", "verify", "-o", str(tmp_path), "--report",
-                        str(tmp_path / "VALIDATION.md")], capture_output=True, text=True, timeout=1700)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "simcli",
+            "verify",
+            "-o",
+            str(tmp_path),
+            "--report",
+            str(tmp_path / "VALIDATION.md"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=1700,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     text = (tmp_path / "VALIDATION.md").read_text()
     assert "free_fall" in text and "FAIL" not in text

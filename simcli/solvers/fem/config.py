@@ -30,41 +30,55 @@ class FEMOptions(_Options):
         "with Newton's method, PCG (3x3 block-Jacobi) linear solves and Armijo back-tracking.",
     )
     resolution: float = Field(
-        20.0, gt=0,
+        20.0,
+        gt=0,
         description="Box morphs: cells per metre of the structured tetrahedral subdivision (each cell is split "
         "into 6 tetrahedra); at least one cell per axis.",
     )
     max_volume: float | None = Field(
-        None, gt=0,
+        None,
+        gt=0,
         description="Sphere, Cylinder and surface Mesh morphs: largest tetrahedron volume [m^3] of the "
         "tetrahedralisation (default: about resolution^-3 / 6, i.e. Box-like element sizes).",
     )
     min_dihedral: float = Field(
-        10.0, ge=0, lt=70,
+        10.0,
+        ge=0,
+        lt=70,
         description="Sphere, Cylinder and surface Mesh morphs: smallest dihedral angle [deg] the tetrahedraliser "
         "aims for (TetGen's -q quality bound).",
     )
     surface_resolution: float | None = Field(
-        None, gt=0,
+        None,
+        gt=0,
         description="Sphere and Cylinder morphs: triangles' edge length per metre on the surface before "
         "tetrahedralisation (default: resolution).",
     )
     newton_tol: float = Field(
-        1.0e-4, gt=0,
+        1.0e-4,
+        gt=0,
         description="Implicit: Newton stops when the residual (incremental-potential gradient, free vertices) "
         "has fallen below newton_tol times its value at the start of the substep, or below newton_atol.",
     )
     newton_atol: float = Field(
-        1.0e-2, gt=0,
+        1.0e-2,
+        gt=0,
         description="Implicit: absolute Newton stop [m/s^2]: largest residual force per vertex mass (1e-2 is "
         "1e-3 g). Newton also stops when the line search finds no decrease (round-off reached; counted).",
     )
     newton_max_iter: int = Field(
-        50, ge=1, description="Implicit: safety cap on Newton iterations per substep (hitting it is reported).")
+        50,
+        ge=1,
+        description="Implicit: safety cap on Newton iterations per substep (hitting it is reported).",
+    )
     pcg_tol: float = Field(
-        1.0e-4, gt=0, description="Implicit: PCG stops at this relative residual ||r|| / ||b|| [-].")
+        1.0e-4, gt=0, description="Implicit: PCG stops at this relative residual ||r|| / ||b|| [-]."
+    )
     pcg_max_iter: int = Field(
-        1000, ge=1, description="Implicit: safety cap on PCG iterations per Newton step (hitting it is reported).")
+        1000,
+        ge=1,
+        description="Implicit: safety cap on PCG iterations per Newton step (hitting it is reported).",
+    )
     preconditioner: Literal["block_jacobi", "rotated_rest"] = Field(
         "rotated_rest",
         description="Implicit: PCG preconditioner. block_jacobi: the exact 3x3 diagonal blocks of the projected "
@@ -72,28 +86,38 @@ class FEMOptions(_Options):
         "small-strain stiffness's diagonal blocks turned by each element's rotation R (F = R S), plus the mass "
         "and contact terms: much cheaper to build, a little weaker far from rest.",
     )
-    line_search: bool = Field(True, description="Implicit: Armijo back-tracking line search on the incremental "
-                              "potential (c = 1e-4, halving, at most 20 halvings).")
+    line_search: bool = Field(
+        True,
+        description="Implicit: Armijo back-tracking line search on the incremental "
+        "potential (c = 1e-4, halving, at most 20 halvings).",
+    )
     damping: float = Field(
-        0.0, ge=0,
+        0.0,
+        ge=0,
         description="Stiffness-proportional (Rayleigh beta) damping [s]: viscous stress beta (2 mu sym(L) + "
         "lambda tr(L) I), L the spatial velocity gradient and mu, lambda the material's Lame parameters, i.e. "
         "beta times the small-strain stiffness. Rigid motion, free fall and rigid rotation are not damped. "
         "Both integrators (implicit: L from the substep's displacement and F at its start).",
     )
     mass_damping: float = Field(
-        0.0, ge=0,
+        0.0,
+        ge=0,
         description="Mass-proportional (Rayleigh alpha) damping [1/s]: force -alpha m v on every vertex. Unlike "
         "damping it also slows rigid motion and free fall (terminal speed g / alpha). Both integrators; a mode "
         "of angular frequency w gets the damping ratio (alpha / w + damping x w) / 2.",
     )
     contact_stiffness: float = Field(
-        1.0e3, gt=0,
+        1.0e3,
+        gt=0,
         description="Implicit: floor, wall and collider contact is a penalty in the incremental potential of "
         "stiffness contact_stiffness x vertex mass / substep^2 [-] (penetration about g substep^2 / this).",
     )
-    cfl: float = Field(0.4, gt=0, le=1, description="Explicit, substeps: auto: substep = cfl x smallest element "
-                       "height / P-wave speed [-].")
+    cfl: float = Field(
+        0.4,
+        gt=0,
+        le=1,
+        description="Explicit, substeps: auto: substep = cfl x smallest element height / P-wave speed [-].",
+    )
 
 
 class FEMBoundaryCondition(_Options):
@@ -106,11 +130,13 @@ class FEMBoundaryCondition(_Options):
         "default all.",
     )
     velocity: Vec | None = Field(
-        None, description="Prescribed velocity [m/s] of the held components: the vertices move on the path "
+        None,
+        description="Prescribed velocity [m/s] of the held components: the vertices move on the path "
         "x0 + velocity t (default: held in place).",
     )
     traction: Vec | None = Field(
-        None, description="Instead of holding: a dead-load surface traction [Pa] (force per initial area) on "
+        None,
+        description="Instead of holding: a dead-load surface traction [Pa] (force per initial area) on "
         "the boundary faces whose vertices all lie in the region.",
     )
 
@@ -129,11 +155,13 @@ class _FEMSolid(_Solid):
         "parameters reparameterised to match linear elasticity at small strain; robust to inversion).",
     )
     angular_velocity: Vec | None = Field(
-        None, description="Initial angular velocity [rad/s] about the body's centroid, added to the entity's "
+        None,
+        description="Initial angular velocity [rad/s] about the body's centroid, added to the entity's "
         "velocity (a spinning body).",
     )
     initial_stretch: Vec | None = Field(
-        None, description="Start deformed: initial vertex positions scaled by these factors [-] per axis about "
+        None,
+        description="Start deformed: initial vertex positions scaled by these factors [-] per axis about "
         "the body's centroid, the rest shape unchanged (a negative factor starts the body inverted, 0.01 "
         "squashed flat).",
     )
@@ -157,14 +185,18 @@ class FEMMuscle(MuscleGroups, _FEMSolid):
 
     type: Literal["FEM.Muscle"]
     stiffness: float | None = Field(
-        None, gt=0, description="Active stress per unit activation [Pa] (default E, as in Genesis). Positive "
+        None,
+        gt=0,
+        description="Active stress per unit activation [Pa] (default E, as in Genesis). Positive "
         "activation is tension along the fibre: the muscle contracts.",
     )
     n_groups: int = Field(1, ge=1, le=64, description="Number of independently actuated groups.")
     fiber_direction: Vec | None = Field(
-        None, description="Default fibre direction [-] of every group, in the rest shape (default z).")
+        None, description="Default fibre direction [-] of every group, in the rest shape (default z)."
+    )
     groups: list[MuscleGroup] = Field(
-        default_factory=list, description="One entry per group (n_groups of them): region (an element belongs "
+        default_factory=list,
+        description="One entry per group (n_groups of them): region (an element belongs "
         "to the first group whose region holds its rest centroid; a group without a region takes every "
         "element no earlier group took), fibre direction and actuation signal (constant, sine or table). "
         "Empty: one group holding the whole body, no actuation.",

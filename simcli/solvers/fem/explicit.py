@@ -40,7 +40,10 @@ class ExplicitIntegrator:
                     J = ti.max(F.determinant(), 1e-3)
                     L = Fdot @ C.transpose() / J
                     k = mid[e]
-                    sig = beta * (mat_mu[k] * (L + L.transpose()) + mat_lam[k] * L.trace() * ti.Matrix.identity(float, 3))
+                    sig = beta * (
+                        mat_mu[k] * (L + L.transpose())
+                        + mat_lam[k] * L.trace() * ti.Matrix.identity(float, 3)
+                    )
                     P += sig @ C
                 scatter(e, -vol[e] * P @ B[e].transpose())
             for i in range(n):

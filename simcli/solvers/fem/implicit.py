@@ -86,11 +86,35 @@ class ImplicitIntegrator:
         n, m = s.n, s.m
         x, v, xr, free, vfix, fext, mass = s.x, s.v, s.xr, s.free_f, s.vfix_f, s.fext_f, s.mass_f
         vol, B, gravity = s.vol_f, s.B_f, s.gravity
-        deformation, law_call, law_hessian, scatter, gather = (s.deformation, s.law_call, s.law_hessian,
-                                                               s.scatter_columns, s.gather)
-        xn, xhat, g, d, r, z, p, q, Pinv = self.xn, self.xhat, self.g, self.d, self.r, self.z, self.p, self.q, self.Pinv
-        hU, hV, hS, hls, hlt, db, cn, ck, red = (self.hU, self.hV, self.hS, self.hls, self.hlt, self.db, self.cn,
-                                                self.ck, self.red)
+        deformation, law_call, law_hessian, scatter, gather = (
+            s.deformation,
+            s.law_call,
+            s.law_hessian,
+            s.scatter_columns,
+            s.gather,
+        )
+        xn, xhat, g, d, r, z, p, q, Pinv = (
+            self.xn,
+            self.xhat,
+            self.g,
+            self.d,
+            self.r,
+            self.z,
+            self.p,
+            self.q,
+            self.Pinv,
+        )
+        hU, hV, hS, hls, hlt, db, cn, ck, red = (
+            self.hU,
+            self.hV,
+            self.hS,
+            self.hls,
+            self.hlt,
+            self.db,
+            self.cn,
+            self.ck,
+            self.red,
+        )
         nearest = make_nearest(s.scene)
         kc = float(self.opts.contact_stiffness)
         ray_a, ray_b = self.alpha, self.beta
@@ -142,7 +166,9 @@ class ImplicitIntegrator:
             for e in range(m):
                 t4 = tet[e]
                 x0 = x[t4[0]] + d[t4[0]]
-                Ds = ti.Matrix.cols([x[t4[1]] + d[t4[1]] - x0, x[t4[2]] + d[t4[2]] - x0, x[t4[3]] + d[t4[3]] - x0])
+                Ds = ti.Matrix.cols(
+                    [x[t4[1]] + d[t4[1]] - x0, x[t4[2]] + d[t4[2]] - x0, x[t4[3]] + d[t4[3]] - x0]
+                )
                 ti.atomic_min(dmin[None], (Ds @ B[e]).determinant())
             return dmin[None]
 
@@ -333,8 +359,18 @@ class ImplicitIntegrator:
                         vi[c] = vfix[i][c]
                 v[i] = vi
 
-        self.k = dict(begin=begin, predictor_min_det=predictor_min_det, assemble=assemble, hessian=hessian, pcg_init=pcg_init, matvec=matvec, pcg_update=pcg_update,
-                      energy=energy, apply=apply, finish=finish)
+        self.k = dict(
+            begin=begin,
+            predictor_min_det=predictor_min_det,
+            assemble=assemble,
+            hessian=hessian,
+            pcg_init=pcg_init,
+            matvec=matvec,
+            pcg_update=pcg_update,
+            energy=energy,
+            apply=apply,
+            finish=finish,
+        )
 
     def _compile(self) -> None:
         """Compile the kernels a Newton step needs now, at build, rather than inside the first substep that
@@ -372,7 +408,11 @@ class ImplicitIntegrator:
                 print("newton", newton_it, res, acc, file=sys.stderr)
             if res0 is None:
                 res0 = res
-            if acc <= max(o.newton_atol, self.acc_floor_h2 / (dt * dt)) or res <= o.newton_tol * res0 or res == 0.0:
+            if (
+                acc <= max(o.newton_atol, self.acc_floor_h2 / (dt * dt))
+                or res <= o.newton_tol * res0
+                or res == 0.0
+            ):
                 break
             if newton_it >= o.newton_max_iter:
                 st["newton_capped"] += 1

@@ -89,13 +89,17 @@ def validate(mesh: TetMesh, name: str) -> TetMesh:
     degenerate = np.abs(6.0 * vol) <= DEGENERATE_REL * lmax**3
     if degenerate.any():
         idx = np.nonzero(degenerate)[0]
-        raise MeshError(f"{name}: {idx.size} degenerate tetrahedra (zero volume), first at index "
-                        f"{int(idx[0])}: {idx[:10].tolist()}")
+        raise MeshError(
+            f"{name}: {idx.size} degenerate tetrahedra (zero volume), first at index "
+            f"{int(idx[0])}: {idx[:10].tolist()}"
+        )
     inverted = vol < 0
     if inverted.any():
         idx = np.nonzero(inverted)[0]
-        raise MeshError(f"{name}: {idx.size} inverted tetrahedra (negative volume), first at index "
-                        f"{int(idx[0])}: {idx[:10].tolist()}; fix the vertex order of the input mesh")
+        raise MeshError(
+            f"{name}: {idx.size} inverted tetrahedra (negative volume), first at index "
+            f"{int(idx[0])}: {idx[:10].tolist()}; fix the vertex order of the input mesh"
+        )
     used = np.zeros(x.shape[0], dtype=bool)
     used[t.reshape(-1)] = True
     if not used.all():
@@ -123,11 +127,47 @@ def boundary_faces(tets: np.ndarray, x: np.ndarray) -> np.ndarray:
 def _sphere_surface(center, radius, h):
     """Icosphere subdivided until its edges are about h."""
     t = (1 + 5**0.5) / 2
-    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
-                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], dtype=np.float64)
-    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
-                  [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
-                  [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    v = np.array(
+        [
+            [-1, t, 0],
+            [1, t, 0],
+            [-1, -t, 0],
+            [1, -t, 0],
+            [0, -1, t],
+            [0, 1, t],
+            [0, -1, -t],
+            [0, 1, -t],
+            [t, 0, -1],
+            [t, 0, 1],
+            [-t, 0, -1],
+            [-t, 0, 1],
+        ],
+        dtype=np.float64,
+    )
+    f = np.array(
+        [
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ]
+    )
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     while radius * 1.05 > h * 1.0 and len(f) < 200000 and _edge(v, f) * radius > h:
         v, f = _subdivide(v, f)
@@ -146,8 +186,14 @@ def _subdivide(v, f):
     m = len(v) + inv.reshape(3, -1)
     a, b, c = f[:, 0], f[:, 1], f[:, 2]
     ab, bc, ca = m[0], m[1], m[2]
-    nf = np.concatenate([np.stack([a, ab, ca], 1), np.stack([b, bc, ab], 1), np.stack([c, ca, bc], 1),
-                         np.stack([ab, bc, ca], 1)])
+    nf = np.concatenate(
+        [
+            np.stack([a, ab, ca], 1),
+            np.stack([b, bc, ab], 1),
+            np.stack([c, ca, bc], 1),
+            np.stack([ab, bc, ca], 1),
+        ]
+    )
     return np.concatenate([v, mid]), nf
 
 
@@ -190,13 +236,24 @@ def tetrahedralise(verts: np.ndarray, tris: np.ndarray, max_volume: float, min_d
         ) from None
     del tetgen  # only its presence is checked here: it runs in a child process
     check_closed(np.asarray(tris), name)
-    status, nodes, elems = run_tetgen(verts, tris, order=1, mindihedral=float(min_dihedral), minratio=1.5,
-                                      maxvolume=float(max_volume), quality=True, nobisect=False, verbose=0)
+    status, nodes, elems = run_tetgen(
+        verts,
+        tris,
+        order=1,
+        mindihedral=float(min_dihedral),
+        minratio=1.5,
+        maxvolume=float(max_volume),
+        quality=True,
+        nobisect=False,
+        verbose=0,
+    )
     if status == "crashed":
-        raise MeshError(f"{name}: TetGen crashed on this surface (exit {nodes}): it is most likely self-intersecting "
-                        "(overlapping parts, duplicate or degenerate triangles). Repair the surface (e.g. MeshLab: "
-                        "remove duplicates and self-intersections; Blender 3D-Print toolbox), or mesh it yourself "
-                        "and give the tetrahedral mesh file")
+        raise MeshError(
+            f"{name}: TetGen crashed on this surface (exit {nodes}): it is most likely self-intersecting "
+            "(overlapping parts, duplicate or degenerate triangles). Repair the surface (e.g. MeshLab: "
+            "remove duplicates and self-intersections; Blender 3D-Print toolbox), or mesh it yourself "
+            "and give the tetrahedral mesh file"
+        )
     if status == "error":
         raise MeshError(f"{name}: TetGen failed ({nodes}); the surface is probably self-intersecting")
     if len(elems) == 0:
@@ -215,7 +272,9 @@ def _read_tets(morph: MeshShape, scene_dir):
     tets = [np.asarray(b.data[:, :4], dtype=np.int64) for b in m.cells if b.type in ("tetra", "tetra10")]
     if not tets:
         return None
-    x = transform_points(np.asarray(m.points, dtype=np.float64)[:, :3], morph.scale, morph.rotate, morph.translate)
+    x = transform_points(
+        np.asarray(m.points, dtype=np.float64)[:, :3], morph.scale, morph.rotate, morph.translate
+    )
     T = np.concatenate(tets)
     if np.linalg.det(np.diag(np.broadcast_to(np.asarray(morph.scale, dtype=np.float64), (3,)))) < 0:
         T = T[:, [0, 2, 1, 3]]  # a mirroring scale flips every orientation
@@ -315,7 +374,12 @@ def check_entity(entity, dim: int, scene_dir=None) -> list[tuple[tuple, str]]:
         import importlib.util
 
         if importlib.util.find_spec("tetgen") is None:
-            return [(("morph", "type"), f"{m.type} morphs of FEM entities are tetrahedralised with TetGen, whose "
-                     "Python package 'tetgen' (pyvista/tetgen, AGPL-3.0) is not installed: pip install tetgen; "
-                     "or give a tetrahedral mesh file (.msh, .vtu, .mesh) as a Mesh morph, or use a Box morph")]
+            return [
+                (
+                    ("morph", "type"),
+                    f"{m.type} morphs of FEM entities are tetrahedralised with TetGen, whose "
+                    "Python package 'tetgen' (pyvista/tetgen, AGPL-3.0) is not installed: pip install tetgen; "
+                    "or give a tetrahedral mesh file (.msh, .vtu, .mesh) as a Mesh morph, or use a Box morph",
+                )
+            ]
     return []

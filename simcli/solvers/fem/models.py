@@ -24,7 +24,6 @@ Models (mu, lam are the Lame parameters passed at run time):
   the solver passes lam' (see ``lame_for``).
 """
 
-
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.taichi_funcs import jacobi_rotation
 
@@ -76,8 +75,17 @@ def _project_sym3(H):
     r = H
     if not (m1 > 0 and m2 > 0 and H.determinant() > 0):
         A, Q = _jacobi_eig3(H)
-        r = Q @ ti.Matrix([[ti.max(A[0, 0], 0.0), 0.0, 0.0], [0.0, ti.max(A[1, 1], 0.0), 0.0],
-                           [0.0, 0.0, ti.max(A[2, 2], 0.0)]]) @ Q.transpose()
+        r = (
+            Q
+            @ ti.Matrix(
+                [
+                    [ti.max(A[0, 0], 0.0), 0.0, 0.0],
+                    [0.0, ti.max(A[1, 1], 0.0), 0.0],
+                    [0.0, 0.0, ti.max(A[2, 2], 0.0)],
+                ]
+            )
+            @ Q.transpose()
+        )
     return r
 
 
@@ -195,10 +203,13 @@ class LinearCorotated:
         tr = s.sum() - 3.0
         g = 2.0 * mu * (s - 1.0) + lam * tr
         Hs = 2.0 * mu * ti.Matrix.identity(float, 3) + lam * ti.Matrix(
-            [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]], float)
+            [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]], float
+        )
         ls = ti.Vector([2.0 * mu, 2.0 * mu, 2.0 * mu], float)
-        lt = ti.Vector([_twist(g[0], g[1], s[0], s[1]), _twist(g[1], g[2], s[1], s[2]),
-                        _twist(g[0], g[2], s[0], s[2])], float)
+        lt = ti.Vector(
+            [_twist(g[0], g[1], s[0], s[1]), _twist(g[1], g[2], s[1], s[2]), _twist(g[0], g[2], s[0], s[2])],
+            float,
+        )
         if ti.static(project):  # Hs = 2 mu I + lam 1 1^T is positive definite (bulk modulus > 0)
             ls = ti.max(ls, 0.0)
             lt = ti.max(lt, 0.0)

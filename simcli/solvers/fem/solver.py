@@ -86,7 +86,9 @@ class FEMSolver(Solver):
         flat = T.reshape(-1)
         order = np.argsort(flat, kind="stable")
         self.adj = order.astype(np.int32)
-        self.adj_start = np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=self.n))]).astype(np.int32)
+        self.adj_start = np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=self.n))]).astype(
+            np.int32
+        )
         # velocities, fixed components, prescribed velocity, dead loads
         v = np.zeros((self.n, 3))
         free = np.ones((self.n, 3))
@@ -107,7 +109,7 @@ class FEMSolver(Solver):
             v[lo:hi][held] = 0.0
             if e.fixed_regions and not held.any():
                 self.warnings.append(f"{e.name}: fixed region holds no vertex")
-            tk = T[self.toffsets[k]:self.toffsets[k + 1]] - lo
+            tk = T[self.toffsets[k] : self.toffsets[k + 1]] - lo
             faces = None
             for bc in e.material.boundary_conditions:
                 inside = points_in_shape(bc.region, xe)
@@ -117,10 +119,13 @@ class FEMSolver(Solver):
                     sel = faces[inside[faces].all(axis=1)]
                     if len(sel) == 0:
                         self.warnings.append(f"{e.name}: traction region holds no boundary face")
-                    area = 0.5 * np.linalg.norm(np.cross(xe[sel[:, 1]] - xe[sel[:, 0]], xe[sel[:, 2]] - xe[sel[:, 0]]),
-                                                axis=1)
+                    area = 0.5 * np.linalg.norm(
+                        np.cross(xe[sel[:, 1]] - xe[sel[:, 0]], xe[sel[:, 2]] - xe[sel[:, 0]]), axis=1
+                    )
                     for a in range(3):
-                        np.add.at(fext[lo:hi], sel[:, a], (area / 3.0)[:, None] * np.asarray(bc.traction)[None, :])
+                        np.add.at(
+                            fext[lo:hi], sel[:, a], (area / 3.0)[:, None] * np.asarray(bc.traction)[None, :]
+                        )
                     continue
                 axes = ["xyz".index(c) for c in (bc.axes or ["x", "y", "z"])]
                 idx = np.nonzero(inside)[0] + lo
@@ -135,15 +140,21 @@ class FEMSolver(Solver):
             if e.material.initial_stretch is not None:
                 lo, hi = self.offsets[k], self.offsets[k + 1]
                 c = (self.mass[lo:hi, None] * x[lo:hi]).sum(0) / self.mass[lo:hi].sum()
-                self.xstart[lo:hi] = c + (x[lo:hi] - c) * np.asarray(e.material.initial_stretch, dtype=np.float64)
+                self.xstart[lo:hi] = c + (x[lo:hi] - c) * np.asarray(
+                    e.material.initial_stretch, dtype=np.float64
+                )
         # smallest element height (explicit stability) and mean edge length
         faces_area = []
-        for (i, j, k_) in ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)):
-            faces_area.append(0.5 * np.linalg.norm(np.cross(x[T[:, j]] - x[T[:, i]], x[T[:, k_]] - x[T[:, i]]), axis=1))
+        for i, j, k_ in ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)):
+            faces_area.append(
+                0.5 * np.linalg.norm(np.cross(x[T[:, j]] - x[T[:, i]], x[T[:, k_]] - x[T[:, i]]), axis=1)
+            )
         height = 3.0 * vol / np.max(np.stack(faces_area), axis=0)
         self.h_min = float(height.min())
-        self.c_p = max(math.sqrt((m.E * (1 - m.nu) / ((1 + m.nu) * (1 - 2 * m.nu))) / m.rho * _active_factor(m))
-                       for m in self.materials)
+        self.c_p = max(
+            math.sqrt((m.E * (1 - m.nu) / ((1 + m.nu) * (1 - 2 * m.nu))) / m.rho * _active_factor(m))
+            for m in self.materials
+        )
         self._prepare_muscles()
         self.edge = float(np.mean(np.linalg.norm(x[T[:, 1]] - x[T[:, 0]], axis=1)))
         self.extent = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
@@ -155,8 +166,9 @@ class FEMSolver(Solver):
         mu = np.array([self.materials[k].mu for k in self.mid])
         lam = np.array([self.materials[k].lam for k in self.mid])
         g2 = np.einsum("eai,eai->ea", G, G)
-        blocks = (mu[:, None, None, None] * g2[:, :, None, None] * np.eye(3)
-                  + (mu + lam)[:, None, None, None] * np.einsum("eai,eaj->eaij", G, G))
+        blocks = mu[:, None, None, None] * g2[:, :, None, None] * np.eye(3) + (mu + lam)[
+            :, None, None, None
+        ] * np.einsum("eai,eaj->eaij", G, G)
         return (self.vol0[:, None, None, None] * blocks).reshape(-1, 3, 3)
 
     def _prepare_muscles(self) -> None:
@@ -176,7 +188,9 @@ class FEMSolver(Solver):
             taken = np.zeros(hi - lo, bool)
             default = mat.fiber_direction if mat.fiber_direction is not None else [0.0, 0.0, 1.0]
             for grp in mat.group_list():
-                d = np.asarray(grp.fiber_direction if grp.fiber_direction is not None else default, np.float64)
+                d = np.asarray(
+                    grp.fiber_direction if grp.fiber_direction is not None else default, np.float64
+                )
                 sel = ~taken & (points_in_regions(grp.regions, cen) if grp.regions else True)
                 self.el_group[lo:hi][sel] = len(self.signals)
                 self.el_fiber[lo:hi][sel] = d / np.linalg.norm(d)
@@ -284,8 +298,15 @@ class FEMSolver(Solver):
     def _make_common(self) -> None:
         laws = [LAWS[k] for k in self.models]
         nl = len(laws)
-        x, tet, B, mid, mat_mu, mat_lam, mat_law = (self.x, self.tet_f, self.B_f, self.mid_f, self.mat_mu,
-                                                    self.mat_lam, self.mat_law)
+        x, tet, B, mid, mat_mu, mat_lam, mat_law = (
+            self.x,
+            self.tet_f,
+            self.B_f,
+            self.mid_f,
+            self.mat_mu,
+            self.mat_lam,
+            self.mat_law,
+        )
 
         @ti.func
         def deformation(e, xf: ti.template()):
@@ -412,8 +433,13 @@ class FEMSolver(Solver):
                 t = self.tet_f[e]
                 a, b, c, d = x[t[0]], x[t[1]], x[t[2]], x[t[3]]
                 V = ti.abs((b - a).dot((c - a).cross(d - a))) / 6.0
-                A = ti.max(ti.max((c - b).cross(d - b).norm(), (c - a).cross(d - a).norm()),
-                           ti.max((b - a).cross(d - a).norm(), (b - a).cross(c - a).norm())) * 0.5
+                A = (
+                    ti.max(
+                        ti.max((c - b).cross(d - b).norm(), (c - a).cross(d - a).norm()),
+                        ti.max((b - a).cross(d - a).norm(), (b - a).cross(c - a).norm()),
+                    )
+                    * 0.5
+                )
                 ti.atomic_min(hmin_cur[None], 3.0 * V / ti.max(A, 1e-30))
 
         self._frame_stats, self._outputs, self._min_height = frame_stats, outputs, min_height
@@ -428,8 +454,9 @@ class FEMSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        return frame_stats_per_body([e.name for e in self.entities], self.stat_speed.to_numpy(),
-                                    self.stat_bad.to_numpy())
+        return frame_stats_per_body(
+            [e.name for e in self.entities], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
+        )
 
     def stable_dt(self) -> float:
         """Explicit: cfl x (smallest current element height, at least a quarter of the rest one) / (P-wave
@@ -453,7 +480,7 @@ class FEMSolver(Solver):
 
     def entity_cells(self, name: str):
         k = self._index[name]
-        return self.tets[self.toffsets[k]:self.toffsets[k + 1]] - self.offsets[k]
+        return self.tets[self.toffsets[k] : self.toffsets[k + 1]] - self.offsets[k]
 
     def entity_size(self, name: str) -> int:
         k = self._index[name]
@@ -466,8 +493,15 @@ class FEMSolver(Solver):
         return ["position", "velocity", "displacement", "von_mises", "J"]
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
-        return {"position": (3, "m"), "velocity": (3, "m/s"), "displacement": (3, "m"), "von_mises": (1, "Pa"),
-                "J": (1, "1"), "von_mises_nodal": (1, "Pa"), "J_nodal": (1, "1")}
+        return {
+            "position": (3, "m"),
+            "velocity": (3, "m/s"),
+            "displacement": (3, "m"),
+            "von_mises": (1, "Pa"),
+            "J": (1, "1"),
+            "von_mises_nodal": (1, "Pa"),
+            "J_nodal": (1, "1"),
+        }
 
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
         k = self._index[name]
@@ -513,15 +547,26 @@ class FEMSolver(Solver):
         return {"vertices": self.n, "tets": self.m}
 
     def info(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"integrator": self.opts.integrator, "models": list(self.models), "vertices": self.n,
-                             "tets": self.m, "mass_lumping": "1/4 of each adjacent tet",
-                             "smallest_element_height_m": self.h_min, "warnings": self.warnings}
+        d: dict[str, Any] = {
+            "integrator": self.opts.integrator,
+            "models": list(self.models),
+            "vertices": self.n,
+            "tets": self.m,
+            "mass_lumping": "1/4 of each adjacent tet",
+            "smallest_element_height_m": self.h_min,
+            "warnings": self.warnings,
+        }
         s = self.stats
         if self.implicit and s["newton"]:
             nw, pc = np.asarray(s["newton"]), np.asarray(s["pcg"])
-            d.update(newton_iterations_per_step={"mean": float(nw.mean()), "max": int(nw.max())},
-                     pcg_iterations_per_step={"mean": float(pc.mean()), "max": int(pc.max())},
-                     pcg_iterations_per_newton=float(pc.sum() / max(1, nw.sum())),
-                     line_search_halvings=s["ls_halvings"], newton_capped=s["newton_capped"],
-                     pcg_capped=s["pcg_capped"], newton_stagnated=s.get("stagnated", 0), steps_measured=len(nw))
+            d.update(
+                newton_iterations_per_step={"mean": float(nw.mean()), "max": int(nw.max())},
+                pcg_iterations_per_step={"mean": float(pc.mean()), "max": int(pc.max())},
+                pcg_iterations_per_newton=float(pc.sum() / max(1, nw.sum())),
+                line_search_halvings=s["ls_halvings"],
+                newton_capped=s["newton_capped"],
+                pcg_capped=s["pcg_capped"],
+                newton_stagnated=s.get("stagnated", 0),
+                steps_measured=len(nw),
+            )
         return d

@@ -18,7 +18,6 @@ axis) and per face (its contact kind). What is data: collider geometry, friction
 and wall velocities (fields, changeable between substeps without recompiling).
 """
 
-
 from typing import Any
 
 import numpy as np
@@ -47,8 +46,9 @@ class GridBoundary:
     and last node of the domain along each axis (nodes at or beyond them are wall nodes).
     """
 
-    def __init__(self, scene: Any, dim: int, dtype: Any, origin: np.ndarray, dx: float,
-                 lo_node: tuple, hi_node: tuple) -> None:
+    def __init__(
+        self, scene: Any, dim: int, dtype: Any, origin: np.ndarray, dx: float, lo_node: tuple, hi_node: tuple
+    ) -> None:
         self.dim = dim
         self.dtype = dtype
         self.origin = tuple(float(o) for o in origin)
@@ -103,8 +103,9 @@ class GridBoundary:
         elif ti.static(self.colliders[k].kind == "Box"):
             phi, n = sdf_box(x, self.col_a[k], self.col_b[k])
         elif ti.static(self.colliders[k].kind == "Cylinder"):
-            phi, n = sdf_cylinder(x, self.col_a[k], self.col_radius[k], self.col_half_height[k],
-                                  self.colliders[k].axis)
+            phi, n = sdf_cylinder(
+                x, self.col_a[k], self.col_radius[k], self.col_half_height[k], self.colliders[k].axis
+            )
         return phi, n
 
     @ti.func
@@ -134,5 +135,7 @@ class GridBoundary:
                 on_wall = I[self.walls[k].axis] >= self.hi_node[self.walls[k].axis]
             if on_wall:
                 n = ti.Vector.unit(self.dim, self.walls[k].axis, self.dtype) * (-self.walls[k].side)
-                v = contact_velocity(v, n, self.wall_velocity[k], self.walls[k].contact, self.wall_friction[k])
+                v = contact_velocity(
+                    v, n, self.wall_velocity[k], self.walls[k].contact, self.wall_friction[k]
+                )
         return v

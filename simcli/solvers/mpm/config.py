@@ -25,7 +25,9 @@ class _Options(BaseModel):
 
 
 class MPMOptions(_Options):
-    grid_density: float = Field(64.0, gt=0, description="Grid cells per metre [1/m]; cell size dx = 1/grid_density.")
+    grid_density: float = Field(
+        64.0, gt=0, description="Grid cells per metre [1/m]; cell size dx = 1/grid_density."
+    )
     particle_size: float | None = Field(
         None,
         gt=0,
@@ -87,12 +89,17 @@ class MPMElastoPlastic(_Solid):
         1.0e4, gt=0, description="Von Mises yield stress [Pa] (uniaxial Cauchy stress at yield)."
     )
     yield_lower: float = Field(
-        2.5e-2, ge=0, lt=1, description="Critical compression theta_c [-]: singular values >= 1 - yield_lower "
-        "(use_von_mises: false only)."
+        2.5e-2,
+        ge=0,
+        lt=1,
+        description="Critical compression theta_c [-]: singular values >= 1 - yield_lower "
+        "(use_von_mises: false only).",
     )
     yield_higher: float = Field(
-        4.5e-3, ge=0, description="Critical stretch theta_s [-]: singular values <= 1 + yield_higher "
-        "(use_von_mises: false only)."
+        4.5e-3,
+        ge=0,
+        description="Critical stretch theta_s [-]: singular values <= 1 + yield_higher "
+        "(use_von_mises: false only).",
     )
 
 
@@ -100,17 +107,25 @@ class MPMSand(_Solid):
     """Granular material: Drucker-Prager plasticity on the Hencky strain (Klar et al. 2016)."""
 
     type: Literal["MPM.Sand"]
-    E: float = Field(1.0e6, gt=0, description="Young's modulus [Pa] of the grain skeleton (Genesis's default 1e6).")
+    E: float = Field(
+        1.0e6, gt=0, description="Young's modulus [Pa] of the grain skeleton (Genesis's default 1e6)."
+    )
     friction_angle: float = Field(
-        45.0, gt=0, lt=90, description="Internal friction angle phi [deg] (Genesis's default 45; dry sand 30-35)."
+        45.0,
+        gt=0,
+        lt=90,
+        description="Internal friction angle phi [deg] (Genesis's default 45; dry sand 30-35).",
     )
     cohesion: float = Field(
-        0.0, ge=0, description="Cohesion c [Pa] (Mohr-Coulomb): the cone's apex moves to the tensile mean "
-        "stress c / tan(phi). 0 = cohesionless sand."
+        0.0,
+        ge=0,
+        description="Cohesion c [Pa] (Mohr-Coulomb): the cone's apex moves to the tensile mean "
+        "stress c / tan(phi). 0 = cohesionless sand.",
     )
     volume_correction: bool = Field(
-        True, description="Keep the volume gained when grains separate and give it back on compression "
-        "(Tampubolon et al. 2017, sec. 4.3.2), so piles do not lose volume."
+        True,
+        description="Keep the volume gained when grains separate and give it back on compression "
+        "(Tampubolon et al. 2017, sec. 4.3.2), so piles do not lose volume.",
     )
     cone: Literal["plane_strain", "compression"] = Field(
         "plane_strain",
@@ -136,18 +151,28 @@ class MPMSnow(_Solid):
     """Snow (Stomakhin et al. 2013): clamped singular values, hardening exp(xi (1 - J_p))."""
 
     type: Literal["MPM.Snow"]
-    E: float = Field(1.0e6, gt=0, description="Young's modulus [Pa] (Genesis's default 1e6; Stomakhin et al. "
-                     "2013 use 1.4e5).")
+    E: float = Field(
+        1.0e6,
+        gt=0,
+        description="Young's modulus [Pa] (Genesis's default 1e6; Stomakhin et al. 2013 use 1.4e5).",
+    )
     yield_lower: float = Field(
-        2.5e-2, ge=0, lt=1, description="Critical compression theta_c [-]: singular values >= 1 - yield_lower."
+        2.5e-2,
+        ge=0,
+        lt=1,
+        description="Critical compression theta_c [-]: singular values >= 1 - yield_lower.",
     )
     yield_higher: float = Field(
-        4.5e-3, ge=0, description="Critical stretch theta_s [-]: singular values <= 1 + yield_higher "
-        "(Stomakhin et al. use 7.5e-3)."
+        4.5e-3,
+        ge=0,
+        description="Critical stretch theta_s [-]: singular values <= 1 + yield_higher "
+        "(Stomakhin et al. use 7.5e-3).",
     )
     hardening: float = Field(
-        10.0, ge=0, description="Hardening coefficient xi [-]: mu and lambda are scaled by exp(xi (1 - J_p)), "
-        "J_p the plastic volume ratio (Stomakhin et al. 2013: 10; Genesis hard-codes 10)."
+        10.0,
+        ge=0,
+        description="Hardening coefficient xi [-]: mu and lambda are scaled by exp(xi (1 - J_p)), "
+        "J_p the plastic volume ratio (Stomakhin et al. 2013: 10; Genesis hard-codes 10).",
     )
 
 
@@ -159,9 +184,11 @@ class MPMLiquid(_Material):
 
     type: Literal["MPM.Liquid"]
     E: float = Field(
-        1.0e6, gt=0, description="Young's modulus [Pa] (Genesis's parametrisation): with nu it sets the bulk "
+        1.0e6,
+        gt=0,
+        description="Young's modulus [Pa] (Genesis's parametrisation): with nu it sets the bulk "
         "modulus lambda = E nu / ((1 + nu)(1 - 2 nu)) of the equation of state p = lambda (1 - J); "
-        "speed of sound sqrt(lambda / rho)."
+        "speed of sound sqrt(lambda / rho).",
     )
     nu: float = Field(0.2, gt=-1.0, lt=0.5, description="Poisson's ratio [-]; only sets lambda with E.")
     rho: float = Field(1000.0, gt=0, description="Rest density [kg/m^3].")
@@ -244,11 +271,13 @@ Signal = Annotated[ConstantSignal | SineSignal | TableSignal, Field(discriminato
 
 class MuscleGroup(_Signal):
     region: Region | list[Region] | None = Field(
-        None, description="Where this group's particles are (initial positions). A particle belongs to the first "
-        "group whose region holds it; a group without a region takes every particle no earlier group took."
+        None,
+        description="Where this group's particles are (initial positions). A particle belongs to the first "
+        "group whose region holds it; a group without a region takes every particle no earlier group took.",
     )
     fiber_direction: Vec | None = Field(
-        None, description="Fibre direction in the initial configuration [-] (normalised; default the material's)."
+        None,
+        description="Fibre direction in the initial configuration [-] (normalised; default the material's).",
     )
     actuation: Signal = Field(
         default_factory=lambda: ConstantSignal(type="constant", value=0.0),
@@ -310,16 +339,20 @@ class MPMMuscle(MuscleGroups, _Solid):
         "neohooken", description="Passive elastic model (Genesis's default for muscle: neohooken)."
     )
     stiffness: float | None = Field(
-        None, gt=0, description="Active stress per unit activation [Pa] (default E, as in Genesis). Positive "
-        "activation is tension along the fibre: the muscle contracts."
+        None,
+        gt=0,
+        description="Active stress per unit activation [Pa] (default E, as in Genesis). Positive "
+        "activation is tension along the fibre: the muscle contracts.",
     )
     n_groups: int = Field(1, ge=1, le=64, description="Number of independently actuated groups.")
     fiber_direction: Vec | None = Field(
-        None, description="Default fibre direction [-] of every group (default the last axis: z in 3D, y in 2D)."
+        None,
+        description="Default fibre direction [-] of every group (default the last axis: z in 3D, y in 2D).",
     )
     groups: list[MuscleGroup] = Field(
-        default_factory=list, description="One entry per group (n_groups of them): region, fibre direction and "
-        "actuation signal. Empty: one group holding the whole body, no actuation."
+        default_factory=list,
+        description="One entry per group (n_groups of them): region, fibre direction and "
+        "actuation signal. Empty: one group holding the whole body, no actuation.",
     )
 
     @model_validator(mode="after")

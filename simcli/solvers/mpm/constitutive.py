@@ -23,7 +23,6 @@ registry :data:`LAWS` at the end of this module lists them all. The solver compi
 laws of the materials present (``ti.static`` unrolling).
 """
 
-
 from typing import Any, ClassVar
 
 import numpy as np
@@ -41,22 +40,26 @@ with stdout_to_stderr():
 def quat_to_mat(q):
     """Rotation matrix of the unit quaternion q = (w, x, y, z)."""
     w, x, y, z = q[0], q[1], q[2], q[3]
-    return ti.Matrix([
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-    ])
+    return ti.Matrix(
+        [
+            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+            [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+            [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+        ]
+    )
 
 
 @ti.func
 def quat_mul(a, b):
     """Hamilton product a*b of quaternions (w, x, y, z)."""
-    return ti.Vector([
-        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
-    ])
+    return ti.Vector(
+        [
+            a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+            a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+            a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+            a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+        ]
+    )
 
 
 @ti.func
@@ -104,11 +107,16 @@ def extract_rotation(A, q, max_iter: ti.template(), tol):
             c11 = h00 * h22 - h02 * h02
             c12 = h01 * h02 - h00 * h12
             c22 = h00 * h11 - h01 * h01
-            omega = ti.Vector([
-                c00 * g[0] + c01 * g[1] + c02 * g[2],
-                c01 * g[0] + c11 * g[1] + c12 * g[2],
-                c02 * g[0] + c12 * g[1] + c22 * g[2],
-            ]) / det
+            omega = (
+                ti.Vector(
+                    [
+                        c00 * g[0] + c01 * g[1] + c02 * g[2],
+                        c01 * g[0] + c11 * g[1] + c12 * g[2],
+                        c02 * g[0] + c12 * g[1] + c22 * g[2],
+                    ]
+                )
+                / det
+            )
         w = omega.norm()
         if w < tol:
             break
@@ -293,7 +301,9 @@ class CorotatedLaw(ConstitutiveLaw):
     @ti.func
     def kirchhoff(self, p, F, J, mu, lam, update: ti.template()):
         R = self.rotation(p, F, update)
-        return 2.0 * mu * (F - R) @ F.transpose() + ti.Matrix.identity(self.dtype, self.dim) * (lam * (J - 1.0) * J)
+        return 2.0 * mu * (F - R) @ F.transpose() + ti.Matrix.identity(self.dtype, self.dim) * (
+            lam * (J - 1.0) * J
+        )
 
     @ti.func
     def tau_zz(self, p, F, J, mu, lam):
@@ -372,8 +382,18 @@ def _registry() -> dict[str, type[ConstitutiveLaw]]:
 
     return {
         law.key: law
-        for law in (CorotatedLaw, NeoHookeanLaw, VonMisesLaw, ClampLaw, SandLaw, SnowLaw, LiquidLaw,
-                    ViscousLiquidLaw, MuscleCorotatedLaw, MuscleNeoHookeanLaw)
+        for law in (
+            CorotatedLaw,
+            NeoHookeanLaw,
+            VonMisesLaw,
+            ClampLaw,
+            SandLaw,
+            SnowLaw,
+            LiquidLaw,
+            ViscousLiquidLaw,
+            MuscleCorotatedLaw,
+            MuscleNeoHookeanLaw,
+        )
     }
 
 

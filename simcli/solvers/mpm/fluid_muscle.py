@@ -14,7 +14,6 @@
   activations come from the scene's signals and are uploaded before each substep.
 """
 
-
 from typing import Any, ClassVar
 
 import numpy as np
@@ -141,16 +140,30 @@ class _MuscleHost:
                 continue
             default = m.fiber_direction if m.fiber_direction is not None else [0.0] * (dim - 1) + [1.0]
             if len(default) != dim:
-                raise SceneError([(f"entity '{b.name}': material.fiber_direction: needs {dim} components "
-                                   f"for dim {dim} (got {len(default)})")])
+                raise SceneError(
+                    [
+                        (
+                            f"entity '{b.name}': material.fiber_direction: needs {dim} components "
+                            f"for dim {dim} (got {len(default)})"
+                        )
+                    ]
+                )
             taken = np.zeros(b.n, bool)
             gb = np.full(b.n, -1, np.int32)
             fb = np.zeros((b.n, dim))
             for j, grp in enumerate(m.group_list()):
-                d = np.asarray(grp.fiber_direction if grp.fiber_direction is not None else default, np.float64)
+                d = np.asarray(
+                    grp.fiber_direction if grp.fiber_direction is not None else default, np.float64
+                )
                 if d.shape != (dim,):
-                    raise SceneError([(f"entity '{b.name}': material.groups.{j}.fiber_direction: needs {dim} "
-                                       f"components for dim {dim} (got {d.size})")])
+                    raise SceneError(
+                        [
+                            (
+                                f"entity '{b.name}': material.groups.{j}.fiber_direction: needs {dim} "
+                                f"components for dim {dim} (got {d.size})"
+                            )
+                        ]
+                    )
                 regions = grp.regions
                 sel = ~taken & (points_in_regions(regions, b.x) if regions else True)
                 gb[sel] = self.group_offset[k] + j
@@ -208,7 +221,9 @@ class MuscleCorotatedLaw(_MuscleHost, CorotatedLaw):
     @ti.func
     def kirchhoff(self, p, F, J, mu, lam, update: ti.template()):
         R = self.rotation(p, F, update)
-        tau = 2.0 * mu * (F - R) @ F.transpose() + ti.Matrix.identity(self.dtype, self.dim) * (lam * (J - 1.0) * J)
+        tau = 2.0 * mu * (F - R) @ F.transpose() + ti.Matrix.identity(self.dtype, self.dim) * (
+            lam * (J - 1.0) * J
+        )
         g = self.group[p]
         if g >= 0:
             a = F @ self.fiber[p]

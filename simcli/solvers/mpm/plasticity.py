@@ -35,7 +35,6 @@ yields at the same stresses as a 3D one. The clamp laws (clamp, snow) clamp the 
 singular values only (as Stomakhin et al. in 2D); their out-of-plane stress is lambda J (J - 1).
 """
 
-
 import math
 from typing import Any, ClassVar
 

@@ -37,7 +37,6 @@ Design choices (measured on a 2-core CPU, see benchmarks/mpm_micro.py):
 * Particle state is struct-of-arrays (one field per quantity).
 """
 
-
 import math
 from typing import Any
 
@@ -64,7 +63,17 @@ CHUNK_STRIDE = 512  # Taichi's smallest CPU range-for task (see module docstring
 MAX_PRIVATE_GRID_BYTES = 1 << 30  # memory allowed for the per-thread grid copies of P2G
 WAVE_SAFETY = 0.5  # dt <= WAVE_SAFETY * dx / c_p, c_p the P-wave speed (B1 runs at 0.47)
 
-OUTPUT_FIELDS = ("position", "velocity", "J", "stress", "pressure", "Jp", "elastic_energy", "mass", "material_id")
+OUTPUT_FIELDS = (
+    "position",
+    "velocity",
+    "J",
+    "stress",
+    "pressure",
+    "Jp",
+    "elastic_energy",
+    "mass",
+    "material_id",
+)
 # the fields the per-frame `outputs` kernel computes together
 DERIVED_FIELDS = ("J", "stress", "pressure", "Jp", "elastic_energy")
 
@@ -242,10 +251,14 @@ class MPMSolver(Solver):
         self.C.from_numpy(np.zeros((self.n, self.dim, self.dim), npf))
         self.mass.from_numpy(np.concatenate([b.mass for b in self.bodies]).astype(npf))
         self.vol.from_numpy(np.concatenate([b.volume for b in self.bodies]).astype(npf))
-        self.mid.from_numpy(np.concatenate([np.full(b.n, m, np.int32) for b, m in zip(self.bodies, self.body_mid)]))
+        self.mid.from_numpy(
+            np.concatenate([np.full(b.n, m, np.int32) for b, m in zip(self.bodies, self.body_mid)])
+        )
         if self.fixed is not None:
             self.fixed.from_numpy(np.concatenate([b.fixed for b in self.bodies]).astype(np.uint8))
-        self.chunk_start.from_numpy((np.arange(self.T + 1, dtype=np.int64) * self.n // self.T).astype(np.int32))
+        self.chunk_start.from_numpy(
+            (np.arange(self.T + 1, dtype=np.int64) * self.n // self.T).astype(np.int32)
+        )
         self.body_offsets.from_numpy(self.offsets.astype(np.int32))
         self.set_gravity(self.scene.sim.gravity_vec)
         self.mat_mu.from_numpy(np.array([elastic_moduli(m)[0] for m in self.materials], npf))
@@ -265,8 +278,23 @@ class MPMSolver(Solver):
     def _make_kernels(self) -> None:
         dim, f, n, T = self.dim, self.f, self.n, self.T
         gdim, chunked, has_fixed = self.gdim, self.chunked, self.has_fixed
-        x, v, C, F, mass, vol, mid, fixed = self.x, self.v, self.C, self.F, self.mass, self.vol, self.mid, self.fixed
-        grid, grid_v, bbox, bbox_all, chunk_start = self.grid, self.grid_v, self.bbox, self.bbox_all, self.chunk_start
+        x, v, C, F, mass, vol, mid, fixed = (
+            self.x,
+            self.v,
+            self.C,
+            self.F,
+            self.mass,
+            self.vol,
+            self.mid,
+            self.fixed,
+        )
+        grid, grid_v, bbox, bbox_all, chunk_start = (
+            self.grid,
+            self.grid_v,
+            self.bbox,
+            self.bbox_all,
+            self.chunk_start,
+        )
         gravity, mat_mu, mat_lam, mat_law_id = self.gravity, self.mat_mu, self.mat_lam, self.mat_law_id
         laws, boundary = self.laws, self.boundary
         n_laws = len(laws)
@@ -367,7 +395,8 @@ class MPMSolver(Solver):
                             c = node_value(qij + A[2] * k, wij * w[k][2], m, fm)
                             if ti.static(chunked):
                                 grid[t, base[0] + i, base[1] + j, base[2] + k] = (
-                                    grid[t, base[0] + i, base[1] + j, base[2] + k] + c)
+                                    grid[t, base[0] + i, base[1] + j, base[2] + k] + c
+                                )
                             else:
                                 grid[0, base[0] + i, base[1] + j, base[2] + k] += c
 
@@ -415,8 +444,9 @@ class MPMSolver(Solver):
                     for k in ti.static(range(n_laws)):
                         if ti.static(laws[k].plastic):  # noqa: SIM102 - compile-time, then run-time test
                             if ti.static(n_laws == 1) or mat_law_id[m] == k:
-                                Fp = laws[k].return_mapping(p, ti.Matrix.identity(f, dim) + Hp, m, mat_mu[m],
-                                                            mat_lam[m])
+                                Fp = laws[k].return_mapping(
+                                    p, ti.Matrix.identity(f, dim) + Hp, m, mat_mu[m], mat_lam[m]
+                                )
                                 Hp = Fp - ti.Matrix.identity(f, dim)
                 F[p] = Hp
                 xp = x[p] + dt * new_v
@@ -663,7 +693,9 @@ class MPMSolver(Solver):
                         d0 = s[0, 0] - mean
                         d1 = s[1, 1] - mean
                         d2 = szz - mean
-                        vm = ti.sqrt(1.5 * (d0 * d0 + d1 * d1 + d2 * d2 + s[0, 1] * s[0, 1] + s[1, 0] * s[1, 0]))
+                        vm = ti.sqrt(
+                            1.5 * (d0 * d0 + d1 * d1 + d2 * d2 + s[0, 1] * s[0, 1] + s[1, 0] * s[1, 0])
+                        )
                         pressure = -mean
                     jp = law_call_scalar(p, "plastic_J")
                     out_J[p] = law_scalar2(p, J, "total_J")  # total volume ratio J = J_p J_E
@@ -701,8 +733,9 @@ class MPMSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        return frame_stats_per_body([b.name for b in self.bodies], self.stat_speed.to_numpy(),
-                                    self.stat_bad.to_numpy())
+        return frame_stats_per_body(
+            [b.name for b in self.bodies], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
+        )
 
     def stable_dt(self) -> float:
         """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p, viscosity limit) [s]; one reduction
@@ -755,16 +788,26 @@ class MPMSolver(Solver):
         # and F = I + H in float64 for readers
         H = self.F.to_numpy()
         F = np.eye(self.dim) + H.astype(np.float64)
-        state = {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "C": self.C.to_numpy(), "F": F, "H": H,
-                 "time": np.array([self.time])}
+        state = {
+            "x": self.x.to_numpy(),
+            "v": self.v.to_numpy(),
+            "C": self.C.to_numpy(),
+            "F": F,
+            "H": H,
+            "time": np.array([self.time]),
+        }
         for law in self.laws:
             state.update(law.get_state())
         return state
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         npf = self.npf
-        shapes = {"x": (self.n, self.dim), "v": (self.n, self.dim), "C": (self.n, self.dim, self.dim),
-                  "H": (self.n, self.dim, self.dim)}
+        shapes = {
+            "x": (self.n, self.dim),
+            "v": (self.n, self.dim),
+            "C": (self.n, self.dim, self.dim),
+            "H": (self.n, self.dim, self.dim),
+        }
         # H as saved, unless only F is given or F was changed after get_state
         F = np.asarray(state["F"], dtype=np.float64)
         H = state.get("H")
@@ -784,9 +827,17 @@ class MPMSolver(Solver):
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
         d = self.dim
-        return {"position": (d, "m"), "velocity": (d, "m/s"), "J": (1, "1"), "stress": (1, "Pa"),
-                "pressure": (1, "Pa"), "Jp": (1, "1"), "elastic_energy": (1, "J"), "mass": (1, "kg"),
-                "material_id": (1, "1")}
+        return {
+            "position": (d, "m"),
+            "velocity": (d, "m/s"),
+            "J": (1, "1"),
+            "stress": (1, "Pa"),
+            "pressure": (1, "Pa"),
+            "Jp": (1, "1"),
+            "elastic_energy": (1, "J"),
+            "mass": (1, "kg"),
+            "material_id": (1, "1"),
+        }
 
     # ------------------------------------------------------------------ counts
 

@@ -24,53 +24,86 @@ class _Options(BaseModel):
 
 class PBDOptions(_Options):
     particle_size: float = Field(
-        0.01, gt=0,
+        0.01,
+        gt=0,
         description="Particle diameter [m]: the contact thickness of cloth vertices against colliders and walls "
         "(half of it on each side of the sheet).",
     )
     stretch_iterations: int = Field(
-        4, ge=1, description="Gauss-Seidel sweeps over the stretch (distance) constraints per substep (Genesis: "
-        "max_stretch_solver_iterations).")
+        4,
+        ge=1,
+        description="Gauss-Seidel sweeps over the stretch (distance) constraints per substep (Genesis: "
+        "max_stretch_solver_iterations).",
+    )
     bending_iterations: int = Field(
-        1, ge=1, description="Gauss-Seidel sweeps over the bending constraints per substep (Genesis: "
-        "max_bending_solver_iterations).")
+        1,
+        ge=1,
+        description="Gauss-Seidel sweeps over the bending constraints per substep (Genesis: "
+        "max_bending_solver_iterations).",
+    )
     density_iterations: int = Field(
-        4, ge=1, description="PBD.Liquid: density-constraint iterations per substep (Genesis: "
-        "max_density_solver_iterations).")
+        4,
+        ge=1,
+        description="PBD.Liquid: density-constraint iterations per substep (Genesis: "
+        "max_density_solver_iterations).",
+    )
     liquid_walls: bool = Field(
-        True, description="PBD.Liquid: the domain walls count in the density as the particle lattice mirrored "
+        True,
+        description="PBD.Liquid: the domain walls count in the density as the particle lattice mirrored "
         "behind them (without it a particle next to a wall misses neighbours and the liquid packs against "
-        "the walls).")
+        "the walls).",
+    )
     tet_resolution: float = Field(
-        20.0, gt=0, description="PBD.Elastic soft bodies: cells per metre of the tetrahedralisation (as FEM's "
-        "resolution: Box morphs split each cell into 6 tets; other solids get tets of about that size).")
+        20.0,
+        gt=0,
+        description="PBD.Elastic soft bodies: cells per metre of the tetrahedralisation (as FEM's "
+        "resolution: Box morphs split each cell into 6 tets; other solids get tets of about that size).",
+    )
     collisions: bool = Field(
-        True, description="Particle-particle contact between PBD vertices and particles (cloth self-collision, bodies against "
+        True,
+        description="Particle-particle contact between PBD vertices and particles (cloth self-collision, bodies against "
         "each other) at a distance of the two radii (particle_size for cloth), with Coulomb friction; vertices "
-        "of one body closer than that in the rest shape are exempt.")
+        "of one body closer than that in the rest shape are exempt.",
+    )
 
 
 class _PBDBase(_Material):
-    static_friction: float = Field(0.15, ge=0, description="Static Coulomb friction coefficient [-] of "
-                                   "particle-particle contact (the larger of the two vertices' applies).")
-    kinetic_friction: float = Field(0.15, ge=0, description="Kinetic Coulomb friction coefficient [-] of "
-                                    "particle-particle contact.")
+    static_friction: float = Field(
+        0.15,
+        ge=0,
+        description="Static Coulomb friction coefficient [-] of "
+        "particle-particle contact (the larger of the two vertices' applies).",
+    )
+    kinetic_friction: float = Field(
+        0.15, ge=0, description="Kinetic Coulomb friction coefficient [-] of particle-particle contact."
+    )
     air_resistance: float = Field(
-        0.0, ge=0, description="Linear air drag rate [1/s]: each substep velocities are multiplied by "
-        "exp(-air_resistance dt). (Genesis's air_resistance is a force coefficient [N s/m] per particle.)")
+        0.0,
+        ge=0,
+        description="Linear air drag rate [1/s]: each substep velocities are multiplied by "
+        "exp(-air_resistance dt). (Genesis's air_resistance is a force coefficient [N s/m] per particle.)",
+    )
 
 
 class _PBDMaterial(_PBDBase):
     fixed_velocity: Vec | None = Field(
-        None, description="Velocity [m/s] of the vertices held by `fixed`: they move on the path x0 + "
-        "fixed_velocity t instead of staying put (default: pinned).")
+        None,
+        description="Velocity [m/s] of the vertices held by `fixed`: they move on the path x0 + "
+        "fixed_velocity t instead of staying put (default: pinned).",
+    )
     stretch_compliance: float = Field(
-        1.0e-7, ge=0, description="XPBD compliance of the stretch (distance) constraints [m/N]: the inverse of "
-        "an edge's spring stiffness; 0 = inextensible.")
+        1.0e-7,
+        ge=0,
+        description="XPBD compliance of the stretch (distance) constraints [m/N]: the inverse of "
+        "an edge's spring stiffness; 0 = inextensible.",
+    )
     bending_compliance: float | None = Field(
-        1.0e-5, ge=0, description="XPBD compliance of the bending constraints: [1/(N m)] for cloth (dihedral "
+        1.0e-5,
+        ge=0,
+        description="XPBD compliance of the bending constraints: [1/(N m)] for cloth (dihedral "
         "angle in rad), [m/N] for rods (distance between every other vertex); null: no bending constraints "
-        "(a chain).")
+        "(a chain).",
+    )
 
 
 class PBDCloth(_PBDMaterial):
@@ -78,8 +111,11 @@ class PBDCloth(_PBDMaterial):
     (rest angle from the rest mesh)."""
 
     type: Literal["PBD.Cloth"]
-    rho: float = Field(4.0, gt=0, description="Surface density [kg/m^2]; vertex mass = rho x a third of the "
-                       "area of its triangles.")
+    rho: float = Field(
+        4.0,
+        gt=0,
+        description="Surface density [kg/m^2]; vertex mass = rho x a third of the area of its triangles.",
+    )
 
 
 class PBDElastic(_PBDMaterial):
@@ -89,15 +125,24 @@ class PBDElastic(_PBDMaterial):
     per tet."""
 
     type: Literal["PBD.Elastic"]
-    rho: float = Field(1000.0, gt=0, description="Density [kg/m^3]; a rod's mass is rho x pi radius^2 x length, "
-                       "shared equally by its vertices; a soft body's vertex gets a quarter of each adjacent "
-                       "tet's mass.")
+    rho: float = Field(
+        1000.0,
+        gt=0,
+        description="Density [kg/m^3]; a rod's mass is rho x pi radius^2 x length, "
+        "shared equally by its vertices; a soft body's vertex gets a quarter of each adjacent "
+        "tet's mass.",
+    )
     volume_compliance: float = Field(
-        0.0, ge=0, description="Soft bodies: XPBD compliance of the tet volume constraints C = V - V0 [m^5/N] "
-        "(energy C^2 / (2 compliance)); 0 = incompressible.")
+        0.0,
+        ge=0,
+        description="Soft bodies: XPBD compliance of the tet volume constraints C = V - V0 [m^5/N] "
+        "(energy C^2 / (2 compliance)); 0 = incompressible.",
+    )
     initial_stretch: Vec | None = Field(
-        None, description="Start deformed: initial vertex positions scaled by these factors [-] per axis about "
-        "the body's centroid, the rest shape unchanged (a stretched spring released).")
+        None,
+        description="Start deformed: initial vertex positions scaled by these factors [-] per axis about "
+        "the body's centroid, the rest shape unchanged (a stretched spring released).",
+    )
 
 
 class PBDParticle(_PBDBase):
@@ -105,8 +150,9 @@ class PBDParticle(_PBDBase):
     solvers.pbd.particle_size; contact with each other, walls and colliders, with Coulomb friction."""
 
     type: Literal["PBD.Particle"]
-    rho: float = Field(1000.0, gt=0, description="Density [kg/m^3]; particle mass = rho x morph volume / "
-                       "particle count.")
+    rho: float = Field(
+        1000.0, gt=0, description="Density [kg/m^3]; particle mass = rho x morph volume / particle count."
+    )
 
 
 class PBDLiquid(_PBDBase):
@@ -114,29 +160,47 @@ class PBDLiquid(_PBDBase):
     term, XSPH viscosity. The morph is filled with a lattice of spacing solvers.pbd.particle_size."""
 
     type: Literal["PBD.Liquid"]
-    rho: float = Field(1000.0, gt=0, description="Density [kg/m^3]; particle mass = rho x morph volume / "
-                       "particle count (Genesis sets each particle's mass to rho). The rest density of the "
-                       "constraint is the kernel sum of the initial lattice, so the block starts at rest.")
+    rho: float = Field(
+        1000.0,
+        gt=0,
+        description="Density [kg/m^3]; particle mass = rho x morph volume / "
+        "particle count (Genesis sets each particle's mass to rho). The rest density of the "
+        "constraint is the kernel sum of the initial lattice, so the block starts at rest.",
+    )
     density_relaxation: float = Field(
-        0.2, gt=0, description="Constraint force mixing eps of the density constraint, relative to an interior "
-        "particle's sum |grad C|^2 [-] (Macklin and Mueller's eps; larger = softer, more stable).")
+        0.2,
+        gt=0,
+        description="Constraint force mixing eps of the density constraint, relative to an interior "
+        "particle's sum |grad C|^2 [-] (Macklin and Mueller's eps; larger = softer, more stable).",
+    )
     viscosity_relaxation: float = Field(
-        0.01, ge=0, description="XSPH viscosity coefficient c [-]: v_i += c sum_j V_j (v_j - v_i) W_ij.")
+        0.01, ge=0, description="XSPH viscosity coefficient c [-]: v_i += c sum_j V_j (v_j - v_i) W_ij."
+    )
     vorticity_confinement: float = Field(
-        0.0, ge=0, description="Vorticity confinement epsilon [m/s] (Macklin and Mueller's eq. 16): acceleration "
-        "epsilon (N x omega), N the unit gradient of |omega|; 0 = off.")
+        0.0,
+        ge=0,
+        description="Vorticity confinement epsilon [m/s] (Macklin and Mueller's eq. 16): acceleration "
+        "epsilon (N x omega), N the unit gradient of |omega|; 0 = off.",
+    )
     artificial_pressure: float = Field(
-        1.0e-4, ge=0, description="k of the artificial pressure s_corr = -k (W(r) / W(0.2 h))^4 / S0 [-] "
+        1.0e-4,
+        ge=0,
+        description="k of the artificial pressure s_corr = -k (W(r) / W(0.2 h))^4 / S0 [-] "
         "(Macklin and Mueller's eq. 13, here relative to an interior particle's sum |grad C|^2 S0). It is a "
         "position offset per iteration, so its velocity grows as 1 / substep: Macklin's k = 0.1 (for a 1/60 s "
-        "step) blows a 0.2 ms-substep column apart.")
+        "step) blows a 0.2 ms-substep column apart.",
+    )
 
 
 # Every PBD material type; the scene's material union is built from these.
 MATERIALS = (PBDCloth, PBDElastic, PBDParticle, PBDLiquid)
 
-MORPHS = {"PBD.Cloth": ("Rectangle", "Mesh"), "PBD.Elastic": ("Line", "Box", "Sphere", "Cylinder", "Mesh"),
-          "PBD.Particle": ("Box", "Sphere", "Cylinder", "Mesh"), "PBD.Liquid": ("Box", "Sphere", "Cylinder", "Mesh")}
+MORPHS = {
+    "PBD.Cloth": ("Rectangle", "Mesh"),
+    "PBD.Elastic": ("Line", "Box", "Sphere", "Cylinder", "Mesh"),
+    "PBD.Particle": ("Box", "Sphere", "Cylinder", "Mesh"),
+    "PBD.Liquid": ("Box", "Sphere", "Cylinder", "Mesh"),
+}
 
 
 def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple, str]]:
@@ -147,11 +211,18 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
         return [(("material", "type"), f"{e.material.type} entities need a 3D scene (sim.dim: 3)")]
     allowed = MORPHS.get(e.material.type, ())
     if m.type not in allowed:
-        what = {"PBD.Cloth": "cloth is a Rectangle or a triangle Mesh", "PBD.Elastic": "rods are Line morphs, "
-                "soft bodies solids", "PBD.Particle": "a solid shape filled with particles",
-                "PBD.Liquid": "a solid shape filled with particles"}.get(e.material.type,
-                                                                                              "")
-        return [(("morph", "type"), f"{e.material.type} takes {' or '.join(allowed)} morphs ({what}); got {m.type}")]
+        what = {
+            "PBD.Cloth": "cloth is a Rectangle or a triangle Mesh",
+            "PBD.Elastic": "rods are Line morphs, soft bodies solids",
+            "PBD.Particle": "a solid shape filled with particles",
+            "PBD.Liquid": "a solid shape filled with particles",
+        }.get(e.material.type, "")
+        return [
+            (
+                ("morph", "type"),
+                f"{e.material.type} takes {' or '.join(allowed)} morphs ({what}); got {m.type}",
+            )
+        ]
     for j, r in enumerate(e.fixed_regions):
         rpath = ("fixed",) + ((j,) if isinstance(e.fixed, list) else ())
         for f in ("lower", "upper", "center", "size"):
@@ -166,14 +237,19 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
         out.append((("morph", "center"), f"expected 3 components for dim 3 (got {len(m.center)})"))
     if m.type == "Line":
         if len(m.points[0]) != 3:
-            out.append((("morph", "points"), f"expected 3 components per point for dim 3 (got {len(m.points[0])})"))
+            out.append(
+                (("morph", "points"), f"expected 3 components per point for dim 3 (got {len(m.points[0])})")
+            )
         elif _polyline_length(m.points) <= 0:
             out.append((("morph", "points"), "the polyline has zero length"))
     fv = getattr(e.material, "fixed_velocity", None)
     if fv is not None and len(fv) != 3:
         out.append((("material", "fixed_velocity"), f"expected 3 components (got {len(fv)})"))
-    if e.material.type == "PBD.Elastic" and e.material.initial_stretch is not None \
-            and len(e.material.initial_stretch) != 3:
+    if (
+        e.material.type == "PBD.Elastic"
+        and e.material.initial_stretch is not None
+        and len(e.material.initial_stretch) != 3
+    ):
         out.append((("material", "initial_stretch"), "expected 3 factors (x, y, z)"))
     if out:
         return out
@@ -186,8 +262,15 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
     if lo is not None:
         bad = [a for a in range(3) if x[:, a].min() < lo[a] - 1e-9 or x[:, a].max() > hi[a] + 1e-9]
         if bad:
-            out.append((("morph",), (f"entity '{e.name}' extends outside the domain along "
-                                     f"{', '.join('xyz'[a] for a in bad)}; move it or enlarge domain")))
+            out.append(
+                (
+                    ("morph",),
+                    (
+                        f"entity '{e.name}' extends outside the domain along "
+                        f"{', '.join('xyz'[a] for a in bad)}; move it or enlarge domain"
+                    ),
+                )
+            )
     return out
 
 

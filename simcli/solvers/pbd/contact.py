@@ -50,7 +50,9 @@ class ParticleContact:
                                 d = x[i] - x[j]
                                 dist = d.norm()
                                 target = rad[i] + rad[j]
-                                near_at_rest = body[i] == body[j] and (x0[i] - x0[j]).norm() <= target * 1.0001
+                                near_at_rest = (
+                                    body[i] == body[j] and (x0[i] - x0[j]).norm() <= target * 1.0001
+                                )
                                 if dist < target and dist > 1e-12 and not near_at_rest:
                                     nrm = d / dist
                                     share = w[i] / (w[i] + w[j])

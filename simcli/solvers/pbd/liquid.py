@@ -17,7 +17,6 @@ volume / count), S0 the same particle's sum |grad C|^2: eps = density_relaxation
 dimensionless. Liquid particles see only liquid neighbours (no two-way coupling with cloth or solids).
 """
 
-
 import math
 
 import numpy as np
@@ -62,10 +61,16 @@ def wall_tables(spacing: float, h: float, mass: float):
     half = mass * poly6(r, h).sum(axis=(1, 2))
     # quarter-space behind an edge: layers behind both walls x the lattice along the edge
     A = d[:, None] + behind[None, :]  # distance behind a wall of each layer, (d, k)
-    r2 = (A[:, None, :, None, None] ** 2 + A[None, :, None, :, None] ** 2 + g[None, None, None, None, :] ** 2)
+    r2 = A[:, None, :, None, None] ** 2 + A[None, :, None, :, None] ** 2 + g[None, None, None, None, :] ** 2
     quarter = mass * poly6(np.sqrt(r2), h).sum(axis=(2, 3, 4))  # (d1, d2)
-    return (d, half, np.gradient(half, d), quarter, np.gradient(quarter, d, axis=0),
-            np.gradient(quarter, d, axis=1))
+    return (
+        d,
+        half,
+        np.gradient(half, d),
+        quarter,
+        np.gradient(quarter, d, axis=0),
+        np.gradient(quarter, d, axis=1),
+    )
 
 
 def lattice_constants(spacing: float, h: float) -> tuple[float, float]:
@@ -166,12 +171,24 @@ class PBFLiquid:
                         if dist[q1] < h and dist[q2] < h:
                             i, t = coord(dist[q1])
                             j, u = coord(dist[q2])
-                            wq = ((1 - t) * (1 - u) * w_q[i, j] + t * (1 - u) * w_q[i + 1, j]
-                                  + (1 - t) * u * w_q[i, j + 1] + t * u * w_q[i + 1, j + 1])
-                            d1 = ((1 - t) * (1 - u) * w_dq1[i, j] + t * (1 - u) * w_dq1[i + 1, j]
-                                  + (1 - t) * u * w_dq1[i, j + 1] + t * u * w_dq1[i + 1, j + 1])
-                            d2 = ((1 - t) * (1 - u) * w_dq2[i, j] + t * (1 - u) * w_dq2[i + 1, j]
-                                  + (1 - t) * u * w_dq2[i, j + 1] + t * u * w_dq2[i + 1, j + 1])
+                            wq = (
+                                (1 - t) * (1 - u) * w_q[i, j]
+                                + t * (1 - u) * w_q[i + 1, j]
+                                + (1 - t) * u * w_q[i, j + 1]
+                                + t * u * w_q[i + 1, j + 1]
+                            )
+                            d1 = (
+                                (1 - t) * (1 - u) * w_dq1[i, j]
+                                + t * (1 - u) * w_dq1[i + 1, j]
+                                + (1 - t) * u * w_dq1[i, j + 1]
+                                + t * u * w_dq1[i + 1, j + 1]
+                            )
+                            d2 = (
+                                (1 - t) * (1 - u) * w_dq2[i, j]
+                                + t * (1 - u) * w_dq2[i + 1, j]
+                                + (1 - t) * u * w_dq2[i, j + 1]
+                                + t * u * w_dq2[i + 1, j + 1]
+                            )
                             rw -= wq
                             gw[q1 // 2] -= sgn[q1] * d1 / rho0
                             gw[q2 // 2] -= sgn[q2] * d2 / rho0

@@ -39,8 +39,10 @@ def pbd_support_force(f, entity, axis=2, **_):
     non-zero on pinned vertices only)."""
     _, g = _entity(f, entity)
     if "reaction" not in g:
-        raise KeyError("pbd_support_force needs the 'reaction' output field (output.fields: [position, "
-                       "velocity, reaction])")
+        raise KeyError(
+            "pbd_support_force needs the 'reaction' output field (output.fields: [position, "
+            "velocity, reaction])"
+        )
     r = np.asarray(g["reaction"][...], dtype=np.float64)
     return f["time"][...], r[:, :, axis].sum(axis=1)
 

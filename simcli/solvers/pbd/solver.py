@@ -49,8 +49,15 @@ class _ConstraintSet:
     """Constraints of one kind (k vertices each), ordered by colour: indices, rest values,
     compliances and multipliers as fields, colour offsets as a compile-time tuple."""
 
-    def __init__(self, name: str, arity: int, idx: np.ndarray, rest: np.ndarray, compliance: np.ndarray,
-                 n_vertices: int):
+    def __init__(
+        self,
+        name: str,
+        arity: int,
+        idx: np.ndarray,
+        rest: np.ndarray,
+        compliance: np.ndarray,
+        n_vertices: int,
+    ):
         self.name, self.arity = name, arity
         order, offsets = colour(idx, n_vertices)
         self.idx = idx[order]
@@ -156,15 +163,23 @@ class PBDSolver(Solver):
         self.meshed = meshed
         self.inv_mass = np.where(fixed, 0.0, 1.0 / np.maximum(mass, 1e-300))
         cat = np.concatenate
-        self.stretch = _ConstraintSet("stretch", 2, cat(st).astype(np.int64).reshape(-1, 2), cat(st_r), cat(st_c), n)
-        self.bend_dist = _ConstraintSet("bend_dist", 2, cat(bd).astype(np.int64).reshape(-1, 2), cat(bd_r),
-                                        cat(bd_c), n)
-        self.dihedral = _ConstraintSet("dihedral", 4, cat(dh).astype(np.int64).reshape(-1, 4), cat(dh_r),
-                                       cat(dh_c), n)
-        self.volume = _ConstraintSet("volume", 4, cat(tv).astype(np.int64).reshape(-1, 4), cat(tv_r), cat(tv_c), n)
+        self.stretch = _ConstraintSet(
+            "stretch", 2, cat(st).astype(np.int64).reshape(-1, 2), cat(st_r), cat(st_c), n
+        )
+        self.bend_dist = _ConstraintSet(
+            "bend_dist", 2, cat(bd).astype(np.int64).reshape(-1, 2), cat(bd_r), cat(bd_c), n
+        )
+        self.dihedral = _ConstraintSet(
+            "dihedral", 4, cat(dh).astype(np.int64).reshape(-1, 4), cat(dh_r), cat(dh_c), n
+        )
+        self.volume = _ConstraintSet(
+            "volume", 4, cat(tv).astype(np.int64).reshape(-1, 4), cat(tv_r), cat(tv_c), n
+        )
         self.edge = float(np.mean(self.stretch.rest)) if self.stretch.k else self.opts.particle_size
         # small bodies: every sweep of a substep in one single-threaded launch (see project_serial)
-        self.serial = self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k <= SERIAL_CONSTRAINTS
+        self.serial = (
+            self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k <= SERIAL_CONSTRAINTS
+        )
 
     # --------------------------------------------------------------------- build
     def build(self) -> None:
@@ -219,25 +234,48 @@ class PBDSolver(Solver):
             body_f = ti.field(ti.i32, shape=n)
             liquid = np.zeros(n, bool)
             for k, e in enumerate(self.entities):
-                liquid[self.offsets[k]:self.offsets[k + 1]] = e.material.type == "PBD.Liquid"
+                liquid[self.offsets[k] : self.offsets[k + 1]] = e.material.type == "PBD.Liquid"
             ids = np.where(self.meshed > 0, self.body, -1 - np.arange(n))
             ids = np.where(liquid, LIQUID_BODY + self.body, ids)
             body_f.from_numpy(ids.astype(np.int32))
             mus, muk = ti.field(f, shape=n), ti.field(f, shape=n)
             mus.from_numpy(self.mu_s.astype(npf))
             muk.from_numpy(self.mu_k.astype(npf))
-            self.contact = ParticleContact(n, f, 4.0 * float(self.radius.max()), self.x, self.xp, self.x0_f, self.w,
-                                           self.rad, body_f, mus, muk)
+            self.contact = ParticleContact(
+                n,
+                f,
+                4.0 * float(self.radius.max()),
+                self.x,
+                self.xp,
+                self.x0_f,
+                self.w,
+                self.rad,
+                body_f,
+                mus,
+                muk,
+            )
         self.liquids = []
         for k, e in enumerate(self.entities):
             if e.material.type == "PBD.Liquid":
                 from simcli.solvers.pbd.liquid import PBFLiquid
 
                 lo, hi = self.offsets[k], self.offsets[k + 1]
-                self.liquids.append(PBFLiquid(self, lo, hi, self.opts.particle_size, float(self.mass[lo]), self.opts,
-                                              (e.material.density_relaxation, e.material.viscosity_relaxation,
-                                               e.material.vorticity_confinement),
-                                              e.material.artificial_pressure))
+                self.liquids.append(
+                    PBFLiquid(
+                        self,
+                        lo,
+                        hi,
+                        self.opts.particle_size,
+                        float(self.mass[lo]),
+                        self.opts,
+                        (
+                            e.material.density_relaxation,
+                            e.material.viscosity_relaxation,
+                            e.material.vorticity_confinement,
+                        ),
+                        e.material.artificial_pressure,
+                    )
+                )
         self._make_kernels()
         self._built = True
         self.frame_check()
@@ -311,8 +349,12 @@ class PBDSolver(Solver):
                         C -= 2.0 * math.pi
                     elif C < -math.pi:
                         C += 2.0 * math.pi
-                    den = (w[q[0]] * g1.norm_sqr() + w[q[1]] * g2.norm_sqr() + w[q[2]] * g3.norm_sqr()
-                           + w[q[3]] * g4.norm_sqr())
+                    den = (
+                        w[q[0]] * g1.norm_sqr()
+                        + w[q[1]] * g2.norm_sqr()
+                        + w[q[2]] * g3.norm_sqr()
+                        + w[q[3]] * g4.norm_sqr()
+                    )
                     at = comp[k] * inv_dt2
                     if den + at > eps:
                         dl = (-C - at * lam[k]) / (den + at)
@@ -337,8 +379,12 @@ class PBDSolver(Solver):
                 g4 = (x2 - x1).cross(x3 - x1) / 6.0
                 g1 = -(g2 + g3 + g4)
                 C = (x2 - x1).dot(g2) - rest[k]
-                den = (w[q[0]] * g1.norm_sqr() + w[q[1]] * g2.norm_sqr() + w[q[2]] * g3.norm_sqr()
-                       + w[q[3]] * g4.norm_sqr())
+                den = (
+                    w[q[0]] * g1.norm_sqr()
+                    + w[q[1]] * g2.norm_sqr()
+                    + w[q[2]] * g3.norm_sqr()
+                    + w[q[3]] * g4.norm_sqr()
+                )
                 at = comp[k] * inv_dt2
                 if den + at > eps * eps * eps:
                     dl = (-C - at * lam[k]) / (den + at)
@@ -526,8 +572,9 @@ class PBDSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        return frame_stats_per_body([e.name for e in self.entities], self.stat_speed.to_numpy(),
-                                    self.stat_bad.to_numpy())
+        return frame_stats_per_body(
+            [e.name for e in self.entities], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
+        )
 
     def stable_dt(self) -> float:
         """XPBD is unconditionally stable; contact needs a vertex to move less than its radius per
@@ -560,8 +607,13 @@ class PBDSolver(Solver):
         return ["position", "velocity", "displacement"] if tets else ["position", "velocity"]
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
-        return {"position": (3, "m"), "velocity": (3, "m/s"), "reaction": (3, "N"), "displacement": (3, "m"),
-                "density": (1, "kg/m^3")}
+        return {
+            "position": (3, "m"),
+            "velocity": (3, "m/s"),
+            "reaction": (3, "N"),
+            "displacement": (3, "m"),
+            "density": (1, "kg/m^3"),
+        }
 
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
         k = self._index[name]
@@ -577,7 +629,7 @@ class PBDSolver(Solver):
             elif fld == "density":
                 a = np.zeros(self.n)
                 for liq in self.liquids:
-                    a[liq.lo:liq.hi] = liq.rho.to_numpy()
+                    a[liq.lo : liq.hi] = liq.rho.to_numpy()
             elif fld == "reaction":
                 if self.last_dt > 0:
                     self._reactions(self.last_dt)
@@ -591,8 +643,12 @@ class PBDSolver(Solver):
 
     # ----------------------------------------------------------------- state
     def get_state(self) -> dict[str, np.ndarray]:
-        return {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "time": np.array([self.time]),
-                "last_dt": np.array([self.last_dt])}
+        return {
+            "x": self.x.to_numpy(),
+            "v": self.v.to_numpy(),
+            "time": np.array([self.time]),
+            "last_dt": np.array([self.last_dt]),
+        }
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("x", self.x), ("v", self.v)):
@@ -602,18 +658,38 @@ class PBDSolver(Solver):
 
     def counts(self) -> dict[str, int]:
         free = sum(m.n for m in self.meshes if m.kind == "particles")  # PBD.Particle and PBD.Liquid
-        return {"vertices": self.n - free, "particles": free,
-                "constraints": self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k}
+        return {
+            "vertices": self.n - free,
+            "particles": free,
+            "constraints": self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k,
+        }
 
     def info(self) -> dict[str, Any]:
-        return {"method": "XPBD, Gauss-Seidel by graph colouring", "vertices": self.n,
-                "sweeps": "one single-threaded launch per substep" if self.serial else "one launch per sweep",
-                "stretch_constraints": self.stretch.k, "stretch_colours": self.stretch.colours,
-                "bending_constraints": self.bend_dist.k + self.dihedral.k,
-                "bending_colours": self.bend_dist.colours + self.dihedral.colours,
-                "stretch_iterations": self.opts.stretch_iterations,
-                "volume_constraints": self.volume.k, "volume_colours": self.volume.colours,
-                "bending_iterations": self.opts.bending_iterations, "warnings": self.warnings,
-                **({"liquid": [{"rest_density": lq.rho0, "smoothing_length": lq.h,
-                                "neighbour_overflow": int(lq.overflow[None])} for lq in self.liquids]}
-                   if self.liquids else {})}
+        return {
+            "method": "XPBD, Gauss-Seidel by graph colouring",
+            "vertices": self.n,
+            "sweeps": "one single-threaded launch per substep" if self.serial else "one launch per sweep",
+            "stretch_constraints": self.stretch.k,
+            "stretch_colours": self.stretch.colours,
+            "bending_constraints": self.bend_dist.k + self.dihedral.k,
+            "bending_colours": self.bend_dist.colours + self.dihedral.colours,
+            "stretch_iterations": self.opts.stretch_iterations,
+            "volume_constraints": self.volume.k,
+            "volume_colours": self.volume.colours,
+            "bending_iterations": self.opts.bending_iterations,
+            "warnings": self.warnings,
+            **(
+                {
+                    "liquid": [
+                        {
+                            "rest_density": lq.rho0,
+                            "smoothing_length": lq.h,
+                            "neighbour_overflow": int(lq.overflow[None]),
+                        }
+                        for lq in self.liquids
+                    ]
+                }
+                if self.liquids
+                else {}
+            ),
+        }

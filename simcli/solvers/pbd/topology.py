@@ -71,7 +71,12 @@ def rectangle_mesh(morph) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(morph.center, dtype=np.float64) + A.reshape(-1, 1) * u + B.reshape(-1, 1) * v
     i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
     i, j = i.reshape(-1), j.reshape(-1)
-    p00, p10, p01, p11 = i * (nv + 1) + j, (i + 1) * (nv + 1) + j, i * (nv + 1) + j + 1, (i + 1) * (nv + 1) + j + 1
+    p00, p10, p01, p11 = (
+        i * (nv + 1) + j,
+        (i + 1) * (nv + 1) + j,
+        i * (nv + 1) + j + 1,
+        (i + 1) * (nv + 1) + j + 1,
+    )
     flip = (i + j) % 2 == 1
     t1 = np.where(flip[:, None], np.stack([p00, p10, p01], 1), np.stack([p00, p10, p11], 1))
     t2 = np.where(flip[:, None], np.stack([p10, p11, p01], 1), np.stack([p00, p11, p01], 1))
@@ -103,8 +108,10 @@ def read_open_surface(morph, scene_dir) -> tuple[np.ndarray, np.ndarray]:
 
     path = resolve_mesh_path(morph.file, scene_dir)
     if not Path(path).is_file():
-        raise MeshFileNotFoundError(f"mesh file not found: '{morph.file}' (looked for '{path}'; relative paths "
-                                    "are relative to the scene file's folder)")
+        raise MeshFileNotFoundError(
+            f"mesh file not found: '{morph.file}' (looked for '{path}'; relative paths "
+            "are relative to the scene file's folder)"
+        )
     import warnings
 
     import meshio
@@ -227,11 +234,19 @@ def mesh_for_entity(e, scene_dir=None, opts=None) -> PBDMesh:
         x, volume, _ = sample_morph(m, opts.particle_size, 3, scene_dir)
         n = len(x)
         if n == 0:
-            raise ValueError(f"entity '{e.name}' got no particles: its morph is thinner than "
-                             "solvers.pbd.particle_size")
+            raise ValueError(
+                f"entity '{e.name}' got no particles: its morph is thinner than solvers.pbd.particle_size"
+            )
         z2 = np.zeros((0, 2), np.int64)
-        return PBDMesh(x=x, mass=np.full(n, mat.rho * volume / n), kind="particles", cells=np.zeros((0, 1)),
-                       stretch=z2, stretch_rest=np.zeros(0), meshed=False)
+        return PBDMesh(
+            x=x,
+            mass=np.full(n, mat.rho * volume / n),
+            kind="particles",
+            cells=np.zeros((0, 1)),
+            stretch=z2,
+            stretch_rest=np.zeros(0),
+            meshed=False,
+        )
     if mat.type == "PBD.Elastic" and m.type != "Line":
         from simcli.solvers.fem.config import FEMOptions
         from simcli.solvers.fem.mesh import mesh_for_entity as fem_mesh
@@ -244,20 +259,36 @@ def mesh_for_entity(e, scene_dir=None, opts=None) -> PBDMesh:
             np.add.at(mass, tets[:, a], 0.25 * mat.rho * vol)
         pairs = np.concatenate([tets[:, [a, b]] for a in range(4) for b in range(a + 1, 4)])
         edges = np.unique(np.sort(pairs, axis=1), axis=0)
-        return PBDMesh(x=x, mass=mass, kind="tets", cells=tets, stretch=edges,
-                       stretch_rest=np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1), tets=tets,
-                       tets_rest=vol)
+        return PBDMesh(
+            x=x,
+            mass=mass,
+            kind="tets",
+            cells=tets,
+            stretch=edges,
+            stretch_rest=np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1),
+            tets=tets,
+            tets_rest=vol,
+        )
     if m.type in ("Rectangle", "Mesh"):
         x, tris = rectangle_mesh(m) if m.type == "Rectangle" else read_open_surface(m, scene_dir)
-        area = 0.5 * np.linalg.norm(np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]), axis=1)
+        area = 0.5 * np.linalg.norm(
+            np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]), axis=1
+        )
         mass = np.zeros(len(x))
         for a in range(3):
             np.add.at(mass, tris[:, a], mat.rho * area / 3.0)
         edges = unique_edges(tris)
         quads = bending_quads(tris)
-        return PBDMesh(x=x, mass=mass, kind="triangles", cells=tris, stretch=edges,
-                       stretch_rest=np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1),
-                       dihedral=quads, dihedral_rest=dihedral_angles(x, quads))
+        return PBDMesh(
+            x=x,
+            mass=mass,
+            kind="triangles",
+            cells=tris,
+            stretch=edges,
+            stretch_rest=np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1),
+            dihedral=quads,
+            dihedral_rest=dihedral_angles(x, quads),
+        )
     if m.type == "Line":
         x = line_vertices(m)
         n = len(x)
@@ -265,10 +296,17 @@ def mesh_for_entity(e, scene_dir=None, opts=None) -> PBDMesh:
         length = float(np.linalg.norm(np.diff(x, axis=0), axis=1).sum())
         mass = np.full(n, mat.rho * np.pi * m.radius**2 * length / n)
         skip = np.stack([np.arange(n - 2), np.arange(2, n)], axis=1) if n > 2 else np.zeros((0, 2), np.int64)
-        return PBDMesh(x=x, mass=mass, kind="lines", cells=seg, stretch=seg,
-                       stretch_rest=np.linalg.norm(x[seg[:, 1]] - x[seg[:, 0]], axis=1),
-                       bend_dist=skip, bend_dist_rest=np.linalg.norm(x[skip[:, 1]] - x[skip[:, 0]], axis=1),
-                       radius=float(m.radius))
+        return PBDMesh(
+            x=x,
+            mass=mass,
+            kind="lines",
+            cells=seg,
+            stretch=seg,
+            stretch_rest=np.linalg.norm(x[seg[:, 1]] - x[seg[:, 0]], axis=1),
+            bend_dist=skip,
+            bend_dist_rest=np.linalg.norm(x[skip[:, 1]] - x[skip[:, 0]], axis=1),
+            radius=float(m.radius),
+        )
     raise ValueError(f"entity '{e.name}': {e.material.type} does not take {m.type} morphs")
 
 

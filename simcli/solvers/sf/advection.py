@@ -15,7 +15,6 @@ scheme (as in Genesis's smoke demo); its first stage takes the velocity from the
 point.
 """
 
-
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.sf.boundary import Boundary, make_foreach
 from simcli.solvers.sf.grid import Layout
@@ -96,7 +95,9 @@ def make_sampling(layout: Layout, f, at):
 class Advector:
     """Builds the advection kernel for a velocity (component-indexed face field) and cell scalars."""
 
-    def __init__(self, layout: Layout, f, boundary: Boundary, vel, scalars, n_scalars: int, scheme: str) -> None:
+    def __init__(
+        self, layout: Layout, f, boundary: Boundary, vel, scalars, n_scalars: int, scheme: str
+    ) -> None:
         self.layout, self.f, self.bc, self.scheme = layout, f, boundary, scheme
         dim = layout.dim
         self.vel, self.scalars, self.n_sc = vel, scalars, n_scalars
@@ -267,6 +268,7 @@ class Advector:
 
         def bfecc_final(til_v, out_v, til_s, out_s):
             """out = SL(til, dt) clamped to the range of q's samples at the same point."""
+
             def face(d):
                 @ti.func
                 def body(I):
@@ -300,6 +302,7 @@ class Advector:
 
         def copy_back(src_v, src_s):
             """Bodies: the result into the velocity (fixed faces keep their values) and the scalars."""
+
             def make(d):
                 @ti.func
                 def body(I):
@@ -320,11 +323,16 @@ class Advector:
             stages = [sl_pass(vel, A_v, sc, A_s)]
         elif scheme == "maccormack":
             lo_v, lo_s, hi_v, hi_s = tv[2], ts[2], tv[3], ts[3]
-            stages = [sl_pass(vel, A_v, sc, A_s, lo_v, hi_v, lo_s, hi_s),
-                      corrected(A_v, tv[1], A_s, ts[1], lo_v, hi_v, lo_s, hi_s)]
+            stages = [
+                sl_pass(vel, A_v, sc, A_s, lo_v, hi_v, lo_s, hi_s),
+                corrected(A_v, tv[1], A_s, ts[1], lo_v, hi_v, lo_s, hi_s),
+            ]
         else:
-            stages = [sl_pass(vel, A_v, sc, A_s), corrected(A_v, tv[1], A_s, ts[1]),
-                      bfecc_final(tv[1], A_v, ts[1], A_s)]
+            stages = [
+                sl_pass(vel, A_v, sc, A_s),
+                corrected(A_v, tv[1], A_s, ts[1]),
+                bfecc_final(tv[1], A_v, ts[1], A_s),
+            ]
         result = (tv[1], ts[1]) if scheme == "maccormack" else (A_v, A_s)
         temps = [(A_v, A_s), (tv[1], ts[1])] if len(tv) > 1 else [(A_v, A_s)]
 

@@ -17,7 +17,6 @@ a kernel loops over components at run time, so each interpolation or stencil is 
 * **Periodic faces**: face n_d of component d is face 0 (a duplicate kept in sync).
 """
 
-
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.sf.grid import SOLID_FACE, W_PERIODIC, W_STICKY, WALL_HI, WALL_LO, Layout
 
@@ -27,11 +26,13 @@ with stdout_to_stderr():
 
 def make_at(dim: int):
     if dim == 2:
+
         @ti.func
         def at(k, I):
             """Index of component (or scalar) k at grid index I."""
             return ti.Vector([k, I[0], I[1]], ti.i32)
     else:
+
         @ti.func
         def at(k, I):
             """Index of component (or scalar) k at grid index I."""
@@ -104,8 +105,14 @@ def make_foreach(rng: list):
             out[slot] += acc
 
     @ti.func
-    def foreach_sum_max(body: ti.template(), out: ti.template(), s: ti.template(), m: ti.template(),
-                        src: ti.template(), key: ti.template()):
+    def foreach_sum_max(
+        body: ti.template(),
+        out: ti.template(),
+        s: ti.template(),
+        m: ti.template(),
+        src: ti.template(),
+        key: ti.template(),
+    ):
         for i, j in ti.ndrange(*rows):
             c = src[key]
             acc = ti.cast(0.0, ti.f64)
@@ -125,8 +132,9 @@ def make_foreach(rng: list):
                 body(index(i, j, k), c)
 
     @ti.func
-    def foreach_sum_scaled(body: ti.template(), out: ti.template(), slot: ti.template(), src: ti.template(),
-                           key: ti.template()):
+    def foreach_sum_scaled(
+        body: ti.template(), out: ti.template(), slot: ti.template(), src: ti.template(), key: ti.template()
+    ):
         for i, j in ti.ndrange(*rows):
             c = src[key]
             acc = ti.cast(0.0, ti.f64)
@@ -141,6 +149,7 @@ def make_foreach_color(n: tuple):
     """``foreach_color(body, color)``: body(I) for the cells of one colour (sum of I even or odd) of a
     red-black ordering, with the inner loop stepping by 2."""
     if len(n) == 3:
+
         @ti.func
         def foreach_color(body: ti.template(), color: ti.template()):
             for i, j in ti.ndrange(n[0], n[1]):
@@ -148,12 +157,14 @@ def make_foreach_color(n: tuple):
                 for kk in range((n[2] - k0 + 1) // 2):
                     body(ti.Vector([i, j, k0 + 2 * kk]))
     else:
+
         @ti.func
         def foreach_color(body: ti.template(), color: ti.template()):
             for i in range(n[0]):
                 k0 = (i + color) & 1
                 for kk in range((n[1] - k0 + 1) // 2):
                     body(ti.Vector([i, k0 + 2 * kk]))
+
     return foreach_color
 
 
@@ -228,6 +239,7 @@ class Boundary:
 
         def set_fixed(q):
             """Bodies for ``each_face``: fixed faces of q get their prescribed values."""
+
             def make(d):
                 @ti.func
                 def body(I):

@@ -66,7 +66,9 @@ class SFOptions(_Options):
         "discretisations). 0 = off.",
     )
     max_iterations: int = Field(
-        2000, ge=1, description="Largest number of pressure iterations per substep (Jacobi sweeps or CG steps)."
+        2000,
+        ge=1,
+        description="Largest number of pressure iterations per substep (Jacobi sweeps or CG steps).",
     )
     check_every: int = Field(
         10,
@@ -75,7 +77,10 @@ class SFOptions(_Options):
         "from the device). MGPCG tests after every iteration.",
     )
     smoothing: int = Field(
-        2, ge=1, le=8, description="MGPCG: red-black Gauss-Seidel sweeps before and after each coarse correction."
+        2,
+        ge=1,
+        le=8,
+        description="MGPCG: red-black Gauss-Seidel sweeps before and after each coarse correction.",
     )
     viscosity_tolerance: float = Field(
         1.0e-6,
@@ -138,11 +143,15 @@ class SFSmoke(_Material):
         "viscosity).",
     )
     rho: float = Field(
-        1.0, gt=0, description="Density of the fluid [kg/m^3] (air 1.2); only scales the pressure output [Pa]."
+        1.0,
+        gt=0,
+        description="Density of the fluid [kg/m^3] (air 1.2); only scales the pressure output [Pa].",
     )
     decay: float = Field(0.0, ge=0, description="Exponential decay rate of the smoke density [1/s].")
     cooling: float = Field(
-        0.0, ge=0, description="Exponential relaxation rate of the temperature towards ambient_temperature [1/s]."
+        0.0,
+        ge=0,
+        description="Exponential relaxation rate of the temperature towards ambient_temperature [1/s].",
     )
     buoyancy: float = Field(
         0.0,
@@ -167,7 +176,9 @@ class SFSmoke(_Material):
         1.0, ge=0, description="Smoke density [-] inside the entity's morph at t = 0 (0 elsewhere)."
     )
     initial_temperature: float | None = Field(
-        None, gt=0, description="Temperature [K] inside the entity's morph at t = 0 (default ambient_temperature)."
+        None,
+        gt=0,
+        description="Temperature [K] inside the entity's morph at t = 0 (default ambient_temperature).",
     )
 
 
@@ -193,7 +204,9 @@ def _rotation(axis: str, angle: float, dim: int) -> np.ndarray:
 class OrbitPath(_Strict):
     type: Literal["orbit"]
     center: Vec = Field(description="Point on the rotation axis [m].")
-    axis: Literal["x", "y", "z"] = Field("z", description="Rotation axis (3D; in 2D the rotation is in the plane).")
+    axis: Literal["x", "y", "z"] = Field(
+        "z", description="Rotation axis (3D; in 2D the rotation is in the plane)."
+    )
     angular_velocity: float = Field(description="Angular velocity [rad/s] (right-handed about the axis).")
 
     def at(self, p0: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -206,7 +219,9 @@ class OrbitPath(_Strict):
 class WaypointPath(_Strict):
     type: Literal["waypoints"]
     times: Vec = Field(description="Times [s], strictly increasing.")
-    points: list[Vec] = Field(description="Jet centre [m] at each time; piecewise linear between, held outside.")
+    points: list[Vec] = Field(
+        description="Jet centre [m] at each time; piecewise linear between, held outside."
+    )
     periodic: bool = Field(False, description="Repeat the path with period times[-1] - times[0].")
 
     @model_validator(mode="after")
@@ -248,20 +263,23 @@ class Jet(_Strict):
     )
     radius: float = Field(gt=0, description="Radius of the ball the jet acts in [m] (a disk in 2D).")
     velocity: Vec | None = Field(
-        None, description="Velocity the fluid inside the jet is set to [m/s] (an inlet); on an orbit it "
-        "turns with the jet."
+        None,
+        description="Velocity the fluid inside the jet is set to [m/s] (an inlet); on an orbit it "
+        "turns with the jet.",
     )
     force: Vec | None = Field(
-        None, description="Acceleration added inside the jet [m/s^2] (Genesis's inlet impulse); on an orbit it "
-        "turns with the jet."
+        None,
+        description="Acceleration added inside the jet [m/s^2] (Genesis's inlet impulse); on an orbit it "
+        "turns with the jet.",
     )
     density_rate: float = Field(0.0, ge=0, description="Smoke density added per second inside the jet [1/s].")
     temperature_rate: float = Field(0.0, description="Temperature added per second inside the jet [K/s].")
     start: float = Field(0.0, ge=0, description="The jet acts from this time [s].")
     stop: float | None = Field(None, gt=0, description="... until this time [s] (default: the whole run).")
     path: JetPath | None = Field(
-        None, description="Motion of the centre: 'orbit' about an axis (starting at `position`) or "
-        "'waypoints' (times and points, piecewise linear). None: fixed at `position`."
+        None,
+        description="Motion of the centre: 'orbit' about an axis (starting at `position`) or "
+        "'waypoints' (times and points, piecewise linear). None: fixed at `position`.",
     )
 
     @model_validator(mode="after")
@@ -273,8 +291,12 @@ class Jet(_Strict):
         return self
 
     def vectors(self) -> dict[str, Vec | None]:
-        return {"position": self.position, "velocity": self.velocity, "force": self.force,
-                "path.center": getattr(self.path, "center", None)}
+        return {
+            "position": self.position,
+            "velocity": self.velocity,
+            "force": self.force,
+            "path.center": getattr(self.path, "center", None),
+        }
 
     def state(self, t: float, dim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """(centre [m], velocity [m/s], force [m/s^2], on: 1.0 or 0.0) at time t, host side."""
@@ -315,7 +337,9 @@ def estimate_bytes(opts: SFOptions, mat: SFSmoke | None, n: list[int], precision
         per_cell += (3 if dim == 3 else 1) + dim
     # MGPCG keeps phi in f64
     per_cell += (8 // fp - 1) if opts.pressure_solver == "mgpcg" else 0
-    device = per_face * faces * fp + per_cell * cells * fp + (dim + 1) * faces  # + face kinds, cell flags (u8)
+    device = (
+        per_face * faces * fp + per_cell * cells * fp + (dim + 1) * faces
+    )  # + face kinds, cell flags (u8)
     # host: the build's float64 layout arrays, or a frame's output copies (velocity, pressure, scalars and
     # divergence in float64 plus their float32 copies), whichever is larger; and Taichi's runtime
     host = max(3 * dim, 2 * dim + 6) * cells * 8 + (256 << 20)

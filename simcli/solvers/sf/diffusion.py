@@ -15,7 +15,6 @@ All components are solved as one block-diagonal system (one CG loop, one converg
 iteration), stopping when ||r||_2 <= viscosity_tolerance ||b||_2.
 """
 
-
 import math
 
 import numpy as np
@@ -27,9 +26,11 @@ from simcli.solvers.sf.grid import Layout, viscosity_operator
 with stdout_to_stderr():
     import taichi as ti
 
+
 class Diffusion:
-    def __init__(self, layout: Layout, f, bc: Boundary, vel, nu: float, tolerance: float,
-                 max_iterations: int = 500) -> None:
+    def __init__(
+        self, layout: Layout, f, bc: Boundary, vel, nu: float, tolerance: float, max_iterations: int = 500
+    ) -> None:
         self.layout, self.f, self.bc, self.vel = layout, f, bc, vel
         self.nu, self.tol, self.maxit = float(nu), float(tolerance), int(max_iterations)
         dim = layout.dim
@@ -162,7 +163,13 @@ class Diffusion:
         def ghosts():
             bc.fill_face_ghosts(vel)
 
-        self._start, self._apply, self._update, self._direction, self._ghosts = start, apply, update, direction, ghosts
+        self._start, self._apply, self._update, self._direction, self._ghosts = (
+            start,
+            apply,
+            update,
+            direction,
+            ghosts,
+        )
 
     def solve(self, dt: float) -> tuple[int, float]:
         """Diffuse the velocity in place. Returns (iterations, ||r|| / ||b||)."""

@@ -137,8 +137,10 @@ def _sdf(c, x: np.ndarray) -> np.ndarray:
     if t == "Cylinder":
         a = "xyz".index(c.axis)
         r = x - np.asarray(c.center)
-        q = np.stack([np.linalg.norm(np.delete(r, a, axis=1), axis=1) - c.radius,
-                      np.abs(r[:, a]) - c.height / 2], axis=1)
+        q = np.stack(
+            [np.linalg.norm(np.delete(r, a, axis=1), axis=1) - c.radius, np.abs(r[:, a]) - c.height / 2],
+            axis=1,
+        )
         return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
     raise ValueError(f"unknown collider type {t!r}")
 

@@ -14,7 +14,6 @@ A jet's centre, velocity and force at the current time are computed on the host 
 moving jet costs no field upload and no recompilation.
 """
 
-
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
@@ -30,8 +29,9 @@ def jet_row_width(dim: int) -> int:
 
 
 class Sources:
-    def __init__(self, layout: Layout, f, bc: Boundary, vel, scalars, flags, jets: list, material,
-                 gravity: list[float]) -> None:
+    def __init__(
+        self, layout: Layout, f, bc: Boundary, vel, scalars, flags, jets: list, material, gravity: list[float]
+    ) -> None:
         self.layout, self.f, self.bc = layout, f, bc
         self.vel, self.scalars, self.flags = vel, scalars, flags  # scalars: 0 smoke density, 1 temperature
         self.jets = list(jets)
@@ -46,8 +46,19 @@ class Sources:
         self.jet_f = ti.field(f, shape=self.jet_rows.shape)  # this substep's jets (from the kernel argument)
         self.gravity = ti.Vector.field(dim, f, shape=())
         m = material
-        self.params.from_numpy(np.array([m.decay, m.cooling, m.buoyancy, m.thermal_expansion,
-                                         m.ambient_temperature, m.vorticity_confinement], dtype=self.npf))
+        self.params.from_numpy(
+            np.array(
+                [
+                    m.decay,
+                    m.cooling,
+                    m.buoyancy,
+                    m.thermal_expansion,
+                    m.ambient_temperature,
+                    m.vorticity_confinement,
+                ],
+                dtype=self.npf,
+            )
+        )
         self.gravity[None] = [float(g) for g in gravity]
         self.confine = m.vorticity_confinement > 0
         self.buoyant = m.buoyancy != 0 or m.thermal_expansion != 0
@@ -65,8 +76,8 @@ class Sources:
             p, v, F, on = jet.state(t, dim)
             row = self.jet_rows[k]
             row[0:dim] = p
-            row[dim:2 * dim] = v
-            row[2 * dim:3 * dim] = on * F
+            row[dim : 2 * dim] = v
+            row[2 * dim : 3 * dim] = on * F
             row[3 * dim] = jet.radius
             row[3 * dim + 1] = on * jet.density_rate
             row[3 * dim + 2] = on * jet.temperature_rate
@@ -215,12 +226,14 @@ class Sources:
             bc.fill_cell_ghosts(S, 2)
 
         if n_jets > 0:
+
             @ti.kernel
             def add_sources(dt: f, jets: ti.types.ndarray()):
                 for k, j in ti.ndrange(n_jets, width):
                     jf[k, j] = jets[k, j]
                 stages(dt)
         else:
+
             @ti.kernel
             def add_sources(dt: f):
                 stages(dt)

@@ -27,7 +27,6 @@ convergence test reads one number back from the device (every iteration for MGPC
 ``check_every`` sweeps for Jacobi); nothing else in a step synchronises.
 """
 
-
 import math
 
 import numpy as np
@@ -144,9 +143,18 @@ class Projection:
 
                 return sweep
 
-            return {"n": n, "foreach": foreach, "foreach_sum": foreach_sum, "foreach_sum_max": foreach_sum_max,
-                    "foreach_scaled": foreach_scaled, "nb": nb, "offdiag": offdiag, "apply": apply,
-                    "make_gs": make_gs, "D": D}
+            return {
+                "n": n,
+                "foreach": foreach,
+                "foreach_sum": foreach_sum,
+                "foreach_sum_max": foreach_sum_max,
+                "foreach_scaled": foreach_scaled,
+                "nb": nb,
+                "offdiag": offdiag,
+                "apply": apply,
+                "make_gs": make_gs,
+                "D": D,
+            }
 
         ops = [make_ops(lv, D) for lv, D in zip(self.levels, self.D)]
         o0 = ops[0]
@@ -165,7 +173,13 @@ class Projection:
             for a in ti.static(range(dim)):
                 s += c0[a] * ((qi - q[nb0(I, a, 1)]) + (qi - q[nb0(I, a, -1)]))
             return s
-        foreach0, sum0, summax0, scaled0 = o0["foreach"], o0["foreach_sum"], o0["foreach_sum_max"], o0["foreach_scaled"]
+
+        foreach0, sum0, summax0, scaled0 = (
+            o0["foreach"],
+            o0["foreach_sum"],
+            o0["foreach_sum_max"],
+            o0["foreach_scaled"],
+        )
 
         @ti.func
         def divergence(I):
@@ -454,7 +468,12 @@ class Projection:
             scaled0(direction_body, sc, BETA)
             sc[RZ] = sc[RZ_NEW]
 
-        self.cg_prepare, self.cg_residual, self.cg_first, self.cg_apply = cg_prepare, cg_residual, cg_first, cg_apply
+        self.cg_prepare, self.cg_residual, self.cg_first, self.cg_apply = (
+            cg_prepare,
+            cg_residual,
+            cg_first,
+            cg_apply,
+        )
         self.cg_update, self.cg_direction = cg_update, cg_direction
 
     # ------------------------------------------------------------------ host side

@@ -23,7 +23,6 @@ The grid and boundary conditions are in grid.py and boundary.py. The SF entity i
 filling the whole domain; it is read from the scene (the solver gets no sampled bodies).
 """
 
-
 import math
 from typing import Any
 
@@ -44,8 +43,19 @@ with stdout_to_stderr():
 OUTPUT_FIELDS = ("velocity", "pressure", "density", "temperature", "divergence", "vorticity", "solid")
 DEFAULT_FIELDS = ["velocity", "pressure", "density", "temperature", "divergence"]
 HISTORY_KEEP = 100_000  # per-substep solver records kept for run.json
-_SAFE = {"np": np, "pi": math.pi, "sin": np.sin, "cos": np.cos, "exp": np.exp, "sqrt": np.sqrt, "tanh": np.tanh,
-         "abs": np.abs, "where": np.where, "minimum": np.minimum, "maximum": np.maximum}
+_SAFE = {
+    "np": np,
+    "pi": math.pi,
+    "sin": np.sin,
+    "cos": np.cos,
+    "exp": np.exp,
+    "sqrt": np.sqrt,
+    "tanh": np.tanh,
+    "abs": np.abs,
+    "where": np.where,
+    "minimum": np.minimum,
+    "maximum": np.maximum,
+}
 
 
 def eval_field(expr: str, coords: list[np.ndarray]) -> np.ndarray:
@@ -73,8 +83,13 @@ class SFSolver(Solver):
         self.precision = scene.sim.precision
         self.layout = make_layout(scene, self.opts)
         self.time = 0.0
-        self.hist: dict[str, list] = {"iterations": [], "residual": [], "relative_residual": [],
-                                      "viscosity_iterations": [], "converged": []}
+        self.hist: dict[str, list] = {
+            "iterations": [],
+            "residual": [],
+            "relative_residual": [],
+            "viscosity_iterations": [],
+            "converged": [],
+        }
         self.substeps = 0
         self._built = False
 
@@ -93,7 +108,9 @@ class SFSolver(Solver):
         cell_shape = tuple(c + 2 for c in L.n)
         off = (-1,) * dim
         self.vel = ti.field(f, shape=face_shape, offset=(0,) + off)  # component d on its faces
-        self.scalars = ti.field(f, shape=(2,) + cell_shape, offset=(0,) + off)  # smoke density, temperature [K]
+        self.scalars = ti.field(
+            f, shape=(2,) + cell_shape, offset=(0,) + off
+        )  # smoke density, temperature [K]
         self.pressure = ti.field(f, shape=cell_shape, offset=off)  # kinematic: p / rho [m^2/s^2]
         self.flags = ti.field(ti.u8, shape=cell_shape, offset=off)
         self.kinds = ti.field(ti.u8, shape=face_shape, offset=(0,) + off)
@@ -104,11 +121,23 @@ class SFSolver(Solver):
         self.stats = ti.field(ti.f64, shape=2)  # max speed, non-finite count
 
         self.bc = Boundary(L, self.kinds, self.wall_vel)
-        self.sources = Sources(L, f, self.bc, self.vel, self.scalars, self.flags, self.entity.jets, self.mat,
-                               self.scene.sim.gravity_vec)
+        self.sources = Sources(
+            L,
+            f,
+            self.bc,
+            self.vel,
+            self.scalars,
+            self.flags,
+            self.entity.jets,
+            self.mat,
+            self.scene.sim.gravity_vec,
+        )
         self.advector = Advector(L, f, self.bc, self.vel, self.scalars, 2, self.opts.advection)
-        self.diffusion = (Diffusion(L, f, self.bc, self.vel, self.mat.viscosity, self.opts.viscosity_tolerance)
-                          if self.mat.viscosity > 0 else None)
+        self.diffusion = (
+            Diffusion(L, f, self.bc, self.vel, self.mat.viscosity, self.opts.viscosity_tolerance)
+            if self.mat.viscosity > 0
+            else None
+        )
         self.projection = Projection(L, f, self.bc, self.vel, self.pressure, self.opts)
         self._make_kernels()
         moving = self._upload_initial()
@@ -148,7 +177,9 @@ class SFSolver(Solver):
             if e.velocity is not None and e.velocity[d] != 0:
                 mask = np.ones(u.shape, dtype=bool)
                 if e.morph is not None:
-                    mask = points_in_shape(e.morph, np.stack([c.ravel() for c in xf], axis=1)).reshape(u.shape)
+                    mask = points_in_shape(e.morph, np.stack([c.ravel() for c in xf], axis=1)).reshape(
+                        u.shape
+                    )
                 u = np.where(mask, float(e.velocity[d]), 0.0)
             if e.velocity_field is not None:
                 u = u + eval_field(e.velocity_field[d], xf)
@@ -351,8 +382,9 @@ class SFSolver(Solver):
         elif key == "pressure":
             arr = self.mat.rho * self._cell(self.pressure)
         elif key in ("density", "temperature"):
-            arr = self.scalars.to_numpy().astype(np.float64)[(0 if key == "density" else 1,)
-                                                             + (slice(1, -1),) * self.dim]
+            arr = self.scalars.to_numpy().astype(np.float64)[
+                (0 if key == "density" else 1,) + (slice(1, -1),) * self.dim
+            ]
         elif key == "divergence":
             arr = self.divergence()
         elif key == "vorticity":
@@ -377,8 +409,15 @@ class SFSolver(Solver):
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
         d = self.dim
-        return {"velocity": (d, "m/s"), "pressure": (1, "Pa"), "density": (1, "1"), "temperature": (1, "K"),
-                "divergence": (1, "1/s"), "vorticity": (3 if d == 3 else 1, "1/s"), "solid": (1, "1")}
+        return {
+            "velocity": (d, "m/s"),
+            "pressure": (1, "Pa"),
+            "density": (1, "1"),
+            "temperature": (1, "K"),
+            "divergence": (1, "1/s"),
+            "vorticity": (3 if d == 3 else 1, "1/s"),
+            "solid": (1, "1"),
+        }
 
     def default_fields(self, name: str) -> list[str]:
         return list(DEFAULT_FIELDS)
@@ -398,7 +437,11 @@ class SFSolver(Solver):
             return None
         rate = float(np.abs(v - prev[1]).max()) / (self.time - prev[0])
         self._steady_rate = rate
-        return {"criterion": "solvers.sf.steady_tolerance", "change_rate": rate, "tolerance": tol} if rate <= tol else None
+        return (
+            {"criterion": "solvers.sf.steady_tolerance", "change_rate": rate, "tolerance": tol}
+            if rate <= tol
+            else None
+        )
 
     def entity_grid(self, name: str):
         L = self.layout
@@ -413,8 +456,12 @@ class SFSolver(Solver):
     # ------------------------------------------------------------------- state
 
     def get_state(self) -> dict[str, np.ndarray]:
-        return {"velocity": self.vel.to_numpy(), "scalars": self.scalars.to_numpy(),
-                "pressure": self.pressure.to_numpy(), "time": np.array([self.time])}
+        return {
+            "velocity": self.vel.to_numpy(),
+            "scalars": self.scalars.to_numpy(),
+            "pressure": self.pressure.to_numpy(),
+            "time": np.array([self.time]),
+        }
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("velocity", self.vel), ("scalars", self.scalars), ("pressure", self.pressure)):
@@ -444,19 +491,25 @@ class SFSolver(Solver):
             "substeps": self.substeps,
         }
         if its:
-            d.update(iterations_mean=float(np.mean(its)), iterations_max=int(np.max(its)),
-                     residual_max=float(np.max(h["residual"])),
-                     relative_residual_max=float(np.max(h["relative_residual"])),
-                     steps_above_tolerance=(len(h["converged"]) - int(np.sum(h["converged"]))
-                                            if self.projection._checking else None))
+            d.update(
+                iterations_mean=float(np.mean(its)),
+                iterations_max=int(np.max(its)),
+                residual_max=float(np.max(h["residual"])),
+                relative_residual_max=float(np.max(h["relative_residual"])),
+                steps_above_tolerance=(
+                    len(h["converged"]) - int(np.sum(h["converged"])) if self.projection._checking else None
+                ),
+            )
             if self.diffusion is not None:
                 d["viscosity_iterations_mean"] = float(np.mean(h["viscosity_iterations"]))
         if self.opts.steady_tolerance > 0:
             d["steady_tolerance"] = self.opts.steady_tolerance
             d["steady_change_rate_last"] = getattr(self, "_steady_rate", None)
-        d["per_substep"] = {"iterations": list(map(int, its)),
-                            "residual": [float(f"{r:.4g}") for r in h["residual"]],
-                            "relative_residual": [float(f"{r:.4g}") for r in h["relative_residual"]]}
+        d["per_substep"] = {
+            "iterations": list(map(int, its)),
+            "residual": [float(f"{r:.4g}") for r in h["residual"]],
+            "relative_residual": [float(f"{r:.4g}") for r in h["relative_residual"]],
+        }
         if self.diffusion is not None:
             d["per_substep"]["viscosity_iterations"] = list(map(int, h["viscosity_iterations"]))
         return d

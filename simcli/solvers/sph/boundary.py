@@ -69,8 +69,14 @@ def wall_particles(
     # then put in the padded lattice's row-major order, so the result is what the full lattice gave.
     parts = []
     for a in range(dim):
-        sel = [np.flatnonzero(axes[b][2] == 0) if b < a else
-               np.flatnonzero(axes[b][2] != 0) if b == a else np.arange(len(axes[b][0])) for b in range(dim)]
+        sel = [
+            np.flatnonzero(axes[b][2] == 0)
+            if b < a
+            else np.flatnonzero(axes[b][2] != 0)
+            if b == a
+            else np.arange(len(axes[b][0]))
+            for b in range(dim)
+        ]
         parts.append(np.stack([g.ravel() for g in np.meshgrid(*sel, indexing="ij")], axis=1))
     idx = np.concatenate(parts)
     idx = idx[np.argsort(np.ravel_multi_index(tuple(idx.T), [len(ax[0]) for ax in axes]), kind="stable")]

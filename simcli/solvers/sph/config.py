@@ -151,7 +151,9 @@ class SPHOptions(_Options):
                 "gradient_correction applies to the DFSPH pressure solves: set pressure_solver: DFSPH or "
                 "gradient_correction: false"
             )
-        if self.wall_pressure == "extrapolated" and (self.pressure_solver != "DFSPH" or not self.clamp_pressure):
+        if self.wall_pressure == "extrapolated" and (
+            self.pressure_solver != "DFSPH" or not self.clamp_pressure
+        ):
             raise ValueError(
                 "wall_pressure: extrapolated needs pressure_solver: DFSPH with clamp_pressure: true (with WCSPH's "
                 "explicit pressure it made a tank at rest unstable; DFSPH's conjugate-gradient solve for "

@@ -141,7 +141,9 @@ def make_dfsph(S):
                 if ti.static(uniform):
                     g += S.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ nb_g[i, k])
                 else:
-                    g += (S.volume_of(j) * kLi + (S.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * Lm[j]) @ nb_g[i, k]
+                    g += (S.volume_of(j) * kLi + (S.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * Lm[j]) @ nb_g[
+                        i, k
+                    ]
         else:
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]

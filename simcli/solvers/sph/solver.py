@@ -147,7 +147,9 @@ class SPHSolver(Solver):
                 vn = np.einsum("ij,ij->i", v[hit[ok]], nrm[ok])
                 v[hit[ok]] -= np.minimum(vn, 0.0)[:, None] * nrm[ok]
             for spec in specs:  # pushed out of one collider into another: nothing is left inside any
-                drop |= sdf_numpy(spec, x) < -1e-6 * margin  # (the pushed ones lie on a surface, to round-off)
+                drop |= (
+                    sdf_numpy(spec, x) < -1e-6 * margin
+                )  # (the pushed ones lie on a surface, to round-off)
             k = int(drop.sum())
             if k == b.n > 0:
                 from simcli.errors import SceneError
@@ -159,16 +161,29 @@ class SPHSolver(Solver):
                 mass = float(k) * b.entity.material.rho * self._rest_volume(scene)
                 unit = "kg" if dim == 3 else "kg per metre of depth"
                 self.removed[b.name] = {"particles": k, "of": b.n, "mass_kg": mass}
-                why = ("pushing them onto the collider's surface would put them outside the domain (a collider "
-                       "against a domain wall)" if push else
-                       "solvers.sph.inside_colliders: remove, the default with DFSPH")
+                why = (
+                    "pushing them onto the collider's surface would put them outside the domain (a collider "
+                    "against a domain wall)"
+                    if push
+                    else "solvers.sph.inside_colliders: remove, the default with DFSPH"
+                )
                 self.warnings.append(
                     f"{b.name}: {k} of {b.n} particles were sampled inside a collider and removed ({mass:.4g} "
                     f"{unit}, {100.0 * k / b.n:.3g}%; {why}). Move the entity out of the collider to keep them"
-                    + ("" if push else ", or set inside_colliders: push_out"))
+                    + ("" if push else ", or set inside_colliders: push_out")
+                )
             keep = ~drop
-            out.append(Body(name=b.name, entity=b.entity, x=x[keep], v=v[keep], volume=b.volume[keep],
-                            mass=b.mass[keep], fixed=b.fixed[keep]))
+            out.append(
+                Body(
+                    name=b.name,
+                    entity=b.entity,
+                    x=x[keep],
+                    v=v[keep],
+                    volume=b.volume[keep],
+                    mass=b.mass[keep],
+                    fixed=b.fixed[keep],
+                )
+            )
         return out
 
     @staticmethod
@@ -176,8 +191,9 @@ class SPHSolver(Solver):
         """Rest volume of a particle [m^dim]: the lattice cell over the kernel's lattice sum."""
         opts = scene.solvers.sph
         dim = int(scene.sim.dim)
-        return float(opts.particle_size) ** dim / lattice_sum(float(opts.support_radius) / float(opts.particle_size),
-                                                              dim)
+        return float(opts.particle_size) ** dim / lattice_sum(
+            float(opts.support_radius) / float(opts.particle_size), dim
+        )
 
     # ------------------------------------------------------------------ build
 
@@ -651,8 +667,14 @@ class SPHSolver(Solver):
                                     # weighted 2 m_j / (m_i + m_j)), so that momentum is conserved; equal to
                                     # Akinci's for equal materials
                                     mi = mass_of(i)
-                                    kij = (0.5 * (gam + mat_gamma[mid[j]])) * (rho0 + mat_rho0[mid[j]]) / (ri + rj)
-                                    at -= kij * (mj * Ckern(r) / r * d + (2.0 * mj / (mi + mj)) * (ni - nrm[j]))
+                                    kij = (
+                                        (0.5 * (gam + mat_gamma[mid[j]]))
+                                        * (rho0 + mat_rho0[mid[j]])
+                                        / (ri + rj)
+                                    )
+                                    at -= kij * (
+                                        mj * Ckern(r) / r * d + (2.0 * mj / (mi + mj)) * (ni - nrm[j])
+                                    )
                 if ti.static(uniform):
                     if ti.static(has_noslip):
                         av += Mv[i] @ vi - mw[i]
@@ -747,8 +769,9 @@ class SPHSolver(Solver):
 
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
-        return frame_stats_per_body([b.name for b in self.bodies], self.stat_speed.to_numpy(),
-                                    self.stat_bad.to_numpy())
+        return frame_stats_per_body(
+            [b.name for b in self.bodies], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
+        )
 
     def stable_dt(self) -> float:
         """min(cfl ps / (v + c), VISCOUS_SAFETY ps^2 / nu, max_substep) [s], c the WCSPH sound speed at the
@@ -831,10 +854,16 @@ class SPHSolver(Solver):
 
     def get_state(self) -> dict[str, np.ndarray]:
         d = {k: fld.to_numpy() for k, fld in self._state_fields().items()}
-        d["frame_time"] = np.array([self.frame_time])  # stable_dt's look-ahead (the last substep with auto_check)
+        d["frame_time"] = np.array(
+            [self.frame_time]
+        )  # stable_dt's look-ahead (the last substep with auto_check)
         # run.json's solver statistics (DFSPH iterations and errors, what set the substeps, neighbour-list
         # overflow), so that a resumed run reports the whole run, not what came after the resume (JSON bytes)
-        stats = {"dfsph": self.dfsph_stats.d, "dt_limits": self.dt_limits, "overflow": int(self.overflow[None])}
+        stats = {
+            "dfsph": self.dfsph_stats.d,
+            "dt_limits": self.dt_limits,
+            "overflow": int(self.overflow[None]),
+        }
         d["run_stats"] = np.frombuffer(json.dumps(stats).encode("utf-8"), dtype=np.uint8)
         return d
 
@@ -844,9 +873,12 @@ class SPHSolver(Solver):
                 continue
             arr = np.asarray(state[k])
             if arr.shape != fld.shape + ((self.dim,) if k in ("x", "v") else ()):
-                hint = ("; the scene's particle count changed (since session 6, DFSPH removes particles sampled "
-                        "inside a collider: solvers.sph.inside_colliders: push_out restores the old count)"
-                        if k == "x" else "")
+                hint = (
+                    "; the scene's particle count changed (since session 6, DFSPH removes particles sampled "
+                    "inside a collider: solvers.sph.inside_colliders: push_out restores the old count)"
+                    if k == "x"
+                    else ""
+                )
                 raise ValueError(f"SPH state {k!r}: shape {arr.shape} does not fit {fld.shape}{hint}")
             fld.from_numpy(arr.astype(np.int32 if k in ("mid", "pid") else self.npf))
         if "rho" not in state:
@@ -894,7 +926,11 @@ class SPHSolver(Solver):
             "removed_inside_colliders": self.removed,
             "boundary": (
                 f"{self.nbp} boundary particles (Akinci et al. 2012), wall pressure: {self.opts.wall_model}"
-                + (" (Adami et al. 2012 / Band et al. 2018)" if self.opts.wall_model == "extrapolated" else "")
+                + (
+                    " (Adami et al. 2012 / Band et al. 2018)"
+                    if self.opts.wall_model == "extrapolated"
+                    else ""
+                )
             )
             if self._built
             else None,

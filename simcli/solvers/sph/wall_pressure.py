@@ -42,7 +42,9 @@ def make_wall_pressure(S):
     nbp = S.nbp
     R = S.grid.R
     row = 2 * R + 1
-    KB = max(8, S.K // 2)  # liquid neighbours listed per boundary particle: a half neighbourhood at rest is K / 4
+    KB = max(
+        8, S.K // 2
+    )  # liquid neighbours listed per boundary particle: a half neighbourhood at rest is K / 4
     x = S.x
     bx, start = S.bx, S.start
     nb_cnt, nb_j, nb_g, nbw_end = S.nb_cnt, S.nb_j, S.nb_g, S.nbw_end
@@ -57,7 +59,9 @@ def make_wall_pressure(S):
     bhyd = ti.field(f, shape=nbp)  # its hydrostatic k of the substep
     active = ti.field(ti.i32, shape=nbp)  # boundary particles with liquid in reach, this substep
     n_active = ti.field(ti.i32, shape=())
-    bnb_cnt = ti.field(ti.i32, shape=nbp)  # each one's liquid neighbours and Shepard weights W_bf / sum_f W_bf
+    bnb_cnt = ti.field(
+        ti.i32, shape=nbp
+    )  # each one's liquid neighbours and Shepard weights W_bf / sum_f W_bf
     bnb_j = ti.field(ti.i32, shape=(nbp, KB))
     bnb_w = ti.field(f, shape=(nbp, KB))
 
