@@ -1,7 +1,8 @@
 """Validation cases as data: ``configs/validation/<name>.case.yaml`` next to its scene file.
 
 A case names a scene, a measurement (a quantity extracted from the run's ``sim.h5``), a
-reference (an analytic formula or a table from ``../shared/reference/``) and a tolerance.
+reference (an analytic formula, a value, or a published table shipped in
+``simcli/verify/reference_data/`` and named ``${REFERENCE}/<file>``) and a tolerance.
 Adding a case means adding files; nothing here lists cases.
 
     # configs/validation/free_fall.case.yaml
@@ -24,6 +25,9 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simcli.errors import SceneError
 
+REFERENCE_VAR = "${REFERENCE}"
+"""In ``reference.table``: the folder of the tables shipped with simcli (``simcli/verify/reference_data/``)."""
+
 
 class _M(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -41,7 +45,9 @@ class Reference(_M):
         None, description="Formula in t (time [s]) and the constants; numpy functions as np.*."
     )
     table: str | None = Field(
-        None, description="CSV file (relative to the case file; ${SHARED} = ../shared); first column is time."
+        None,
+        description="CSV file: ${REFERENCE}/<file> for a table shipped in simcli/verify/reference_data/, "
+        "else a path relative to the case file; first column is time.",
     )
     column: int = Field(1, ge=1, description="Column of the table holding the reference value.")
     value: float | None = Field(None, description="A single reference value.")
@@ -56,6 +62,12 @@ class Reference(_M):
     def _one(self):
         if sum(x is not None for x in (self.analytic, self.table, self.value)) != 1:
             raise ValueError("give exactly one of analytic, table, value")
+        if self.table is not None and "${" in self.table.replace(REFERENCE_VAR, ""):
+            raise ValueError(
+                f"table: only {REFERENCE_VAR} may be substituted (got {self.table!r}); copy the file into "
+                f"simcli/verify/reference_data/ (with its source in the README there) and write "
+                f"{REFERENCE_VAR}/<file>, or give a path relative to the case file"
+            )
         return self
 
 
@@ -137,6 +149,13 @@ def load_case(path: Path) -> Case:
     case.path = path.resolve()
     if not case.scene_path.exists():
         raise SceneError([f"{path}:1:1: scene: file not found: {case.scene_path}"])
+    if case.reference.table is not None:
+        from simcli.verify.reference import table_path
+
+        table = table_path(case)
+        if not table.is_file():
+            where = loc.where(("reference", "table"))
+            raise SceneError([f"{where}: reference.table: file not found: {table}"])
     return case
 
 

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
-from simcli.verify.cases import Case, ErrorSpec, Reference
+from simcli.verify.cases import REFERENCE_VAR, Case, ErrorSpec, Reference
 
 _SAFE = {
     "np": np,
@@ -23,11 +22,18 @@ _SAFE = {
 }
 
 
-def shared_dir() -> Path:
-    env = os.environ.get("SIMCLI_SHARED")
-    if env:
-        return Path(env)
-    return Path(__file__).resolve().parents[3] / "shared"
+def reference_dir() -> Path:
+    """The published tables the cases compare against, shipped with simcli as package data
+    (``simcli/verify/reference_data/``, each file's source in its README); ``${REFERENCE}`` in a
+    case's ``reference.table``."""
+    return Path(__file__).resolve().parent / "reference_data"
+
+
+def table_path(case: Case) -> Path:
+    """The file a case's ``reference.table`` names: ``${REFERENCE}/<file>`` (the shipped tables), or
+    a path relative to the case file."""
+    p = case.reference.table.replace(REFERENCE_VAR, str(reference_dir()))
+    return Path(p) if Path(p).is_absolute() else case.path.parent / p
 
 
 def _eval(expr: str, env: dict):
@@ -56,9 +62,7 @@ def reference_series(case: Case, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     if ref.analytic is not None:
         v = _eval(ref.analytic, {"t": t, **ref.constants})
         return t, np.broadcast_to(np.asarray(v, dtype=np.float64), t.shape).copy()
-    p = ref.table.replace("${SHARED}", str(shared_dir()))
-    path = Path(p) if Path(p).is_absolute() else case.path.parent / p
-    tab = read_table(path)
+    tab = read_table(table_path(case))
     tt, vv = tab[:, 0], tab[:, ref.column]
     if ref.scale_t:
         tt = np.asarray(_eval(ref.scale_t, {"x": tt, **ref.constants}), dtype=np.float64)

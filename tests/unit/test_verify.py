@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from simcli.verify.cases import Case, discover, load_case
-from simcli.verify.reference import compute_error, read_table, shared_dir
+from simcli.verify.reference import compute_error, read_table, reference_dir, table_path
 from simcli.verify.report import markdown_table
 from simcli.verify.run import Result, level_overrides
 
@@ -68,18 +68,50 @@ def test_period_mean_of_an_oscillation_with_a_higher_mode(tmp_path):
     assert compute_error(c, t, z)["error"] < 5e-3
 
 
-def test_table_reference_from_shared(tmp_path):
-    tab = read_table(shared_dir() / "reference" / "martin_moyce_1952_n2_2_front.csv")
+def test_table_reference_shipped_with_simcli(tmp_path):
+    tab = read_table(reference_dir() / "martin_moyce_1952_n2_2_front.csv")
     assert tab.shape[1] >= 2 and len(tab) > 5
     c = _case(
         tmp_path,
         "measure: {quantity: percentile}\n"
-        "reference: {table: '${SHARED}/reference/martin_moyce_1952_n2_2_front.csv'}\n"
+        "reference: {table: '${REFERENCE}/martin_moyce_1952_n2_2_front.csv'}\n"
         "error: {metric: max_rel}\ntolerance: 0.1\n",
     )
     t = tab[:, 0]  # measured at the table's own times: interpolation is exact
     e = compute_error(c, t, tab[:, 1] * 1.05)
     assert e["error"] == pytest.approx(0.05, rel=1e-6)
+
+
+def test_every_case_reads_its_table_from_inside_the_repository():
+    """A clone is self-contained: every table a shipped case reads lies in the repository (the
+    shipped reference_data/ is package data, so it also ships with a non-editable install), and every
+    shipped table names its source in reference_data/README.md."""
+    tables = {table_path(c).resolve() for c in discover() if c.reference.table is not None}
+    assert tables, "no case reads a table"
+    for t in tables:
+        assert t.is_file() and t.is_relative_to(ROOT), t
+    readme = (reference_dir() / "README.md").read_text()
+    for f in sorted(reference_dir().glob("*.csv")):
+        assert f"`{f.name}`" in readme, f"{f.name} has no source in reference_data/README.md"
+        assert f.read_text().startswith("#"), f"{f.name} does not start with its source"
+    pyproject = (ROOT / "pyproject.toml").read_text()
+    assert "reference_data/*.csv" in pyproject
+
+
+def test_table_outside_the_reference_folder_or_missing_is_a_clear_error(tmp_path):
+    from simcli.errors import SceneError
+
+    with pytest.raises(SceneError) as e:
+        _case(
+            tmp_path,
+            "measure: {quantity: com}\nreference: {table: '${SHARED}/reference/x.csv'}\ntolerance: 1\n",
+        )
+    assert "${REFERENCE}" in e.value.lines[0] and ":3:" in e.value.lines[0]
+    with pytest.raises(SceneError) as e:
+        _case(
+            tmp_path, "measure: {quantity: com}\nreference: {table: '${REFERENCE}/nope.csv'}\ntolerance: 1\n"
+        )
+    assert "c.case.yaml:3:20: reference.table: file not found" in e.value.lines[0]
 
 
 def test_refinement_levels_scale_the_keys(tmp_path):
