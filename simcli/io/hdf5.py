@@ -348,17 +348,17 @@ class H5Writer:
         open-for-writing flag set (``simcli repair`` clears it)."""
         f, self.f = self.f, None
         fd, self._fd = self._fd, None
-        self._ds = []
-        self._time = self._step = None
         if f is None:
             return
-        if fd is not None:
+        if fd is not None:  # first: closing a dataset flushes it too
             try:
                 nul = os.open(os.devnull, os.O_RDWR)
                 os.dup2(nul, fd)
                 os.close(nul)
             except OSError:
                 pass
+        self._ds = []
+        self._time = self._step = None
         try:
             f.close()
         except Exception:  # noqa: BLE001, S110 - nothing more can be done: the data on disk is what counts

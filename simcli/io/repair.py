@@ -70,15 +70,15 @@ def repair(out: Path) -> str:
 
     out = Path(out)
     h5 = out / "sim.h5"
-    if not h5.exists() and not h5.is_symlink():
-        raise OutputError(
-            f"{h5}: not found (nothing to repair: the run wrote no HDF5 output, or it was removed)"
-        )
-    if h5.is_dir():
-        raise OutputError(f"{h5}: is a folder, not an HDF5 file; nothing to repair")
-    if not h5.is_file():
-        raise OutputError(f"{h5}: is not a regular file (a broken link or a device); nothing to repair")
-    with OutputLock(out, "simcli repair"):
+    with OutputLock(out, "simcli repair"):  # not while a run writes it
+        if not h5.exists() and not h5.is_symlink():
+            raise OutputError(
+                f"{h5}: not found (nothing to repair: the run wrote no HDF5 output, or it was removed)"
+            )
+        if h5.is_dir():
+            raise OutputError(f"{h5}: is a folder, not an HDF5 file; nothing to repair")
+        if not h5.is_file():
+            raise OutputError(f"{h5}: is not a regular file (a broken link or a device); nothing to repair")
         size = h5.stat().st_size
         if size == 0:
             raise OutputError(
@@ -89,7 +89,9 @@ def repair(out: Path) -> str:
         if grown:
             # the missing bytes only ever held the frame being written; every frame is checked below against
             # the part that was on disk
-            did.append(f"extended it from {grown[0]} to {grown[1]} bytes (a write was cut short)")
+            did.append(
+                f"extended it from {grown[0]} to {grown[1]} bytes: it ended before the space HDF5 had allocated (a write cut short, or the file truncated)"
+            )
         if clear_status_flags(h5):
             did.append("cleared the open-for-writing flag")
         try:
