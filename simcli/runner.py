@@ -301,7 +301,6 @@ class Runner:
             self._resume_from = str(path)
             self._check_resume_scene(meta, path)
         self._owns_out = True  # (a refused --resume leaves the previous run's run.json as it was)
-        self._startup_point("loading the scene")
         scene_text = yaml.safe_dump(self.resolved, sort_keys=False)
         _atomic_write(self.out / "scene.yaml", "# resolved scene: every default filled in\n" + scene_text)
 
@@ -318,7 +317,7 @@ class Runner:
             "lock": self._lock.info,
         }
         self.write_run_json("starting", None)
-        self._startup_point("output folder prepared")
+        self._startup_point("loading the scene")
 
         # ---- set-up: sample bodies (no taichi yet)
         t0 = time.perf_counter()
