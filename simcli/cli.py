@@ -205,7 +205,7 @@ def schema(out: Path | None) -> None:
 
 
 @cli.command()
-@click.argument("out", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("out", type=click.Path(path_type=Path))
 def repair(out: Path) -> None:
     """Make OUT/sim.h5 of a killed run openable by every HDF5 tool (ParaView, h5py without SWMR).
 

@@ -69,6 +69,12 @@ def repair(out: Path) -> str:
     from .hdf5 import FORMAT, clear_status_flags, extend_to_eoa
 
     out = Path(out)
+    if out.is_file() and out.name.endswith(".h5"):  # the file itself given: its folder
+        out = out.parent
+    if not out.exists():
+        raise OutputError(f"{out}: no such folder (give the run's output folder)")
+    if not out.is_dir():
+        raise OutputError(f"{out}: not a folder (give the run's output folder, which holds sim.h5)")
     h5 = out / "sim.h5"
     with OutputLock(out, "simcli repair"):  # not while a run writes it
         if not h5.exists() and not h5.is_symlink():

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+import pytest
 
 SCENE = """\
 version: 1
@@ -229,6 +230,35 @@ def test_a_signal_before_the_run_starts_is_honoured_in_process(tmp_path):
     assert code == 75 and info["status"] == "interrupted"
     assert _rj(out)["status"] == "interrupted" and "nothing to resume yet" in _rj(out)["error"]
     assert not (out / "sim.h5").exists() and not (out / "checkpoints").exists()
+
+
+def _catches_sigterm(pid: int) -> bool:
+    """Whether process ``pid`` has a handler for SIGTERM (Linux: SigCgt in /proc/<pid>/status)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("SigCgt:"):
+                return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+    except OSError:
+        pass
+    return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc")
+def test_sigterm_as_soon_as_it_is_caught_is_exit_75_with_run_json(tmp_path):
+    """SIGTERM the moment `simcli run` has a handler for it (while it still loads the scene, long before
+    Taichi): honoured, not fatal; run.json says interrupted."""
+    out = tmp_path / "out"
+    p = _popen(["run", str(_scene(tmp_path)), "-o", str(out)])
+    try:
+        _wait_for(lambda: _catches_sigterm(p.pid), p, every=0.001)
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 75, err
+    assert "received during start-up" in err and "nothing to resume yet" in err and "Traceback" not in err
+    assert _rj(out)["status"] == "interrupted" and not (out / "sim.h5").exists()
 
 
 def test_sigterm_while_taichi_starts_is_exit_75_with_run_json(tmp_path):

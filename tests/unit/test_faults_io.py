@@ -223,6 +223,13 @@ def test_repair_of_a_clean_file_reads_every_frame(tmp_path):
     _write(tmp_path, 5)
     r = _repair(tmp_path)
     assert r.exit_code == 0 and "already clean; 5 frames readable" in r.output
+    r = _repair(tmp_path / "sim.h5")  # the file itself: its folder
+    assert r.exit_code == 0 and "5 frames readable" in r.output
+    r = _repair(tmp_path / "nowhere")
+    assert r.exit_code == 74 and "no such folder" in r.output
+    (tmp_path / "notes.txt").write_text("x")
+    r = _repair(tmp_path / "notes.txt")
+    assert r.exit_code == 74 and "not a folder" in r.output
 
 
 # -- what --resume compares ------------------------------------------------------------------------
