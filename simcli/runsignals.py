@@ -25,6 +25,10 @@ class RunSignals:
         self.received = signal.Signals(signum).name
 
     def install(self) -> "RunSignals":
+        # a write past the file-size limit (`ulimit -f`) must fail with EFBIG, which the writers report as an
+        # output error (exit 74), not kill the process: Python ignores SIGXFSZ at start-up; make sure
+        if hasattr(signal, "SIGXFSZ"):
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         for n in self.NAMES:
             s = getattr(signal, n, None)
             if s is not None:

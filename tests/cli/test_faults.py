@@ -135,12 +135,13 @@ def test_a_finished_folder_needs_overwrite_or_resume(tmp_path):
 
 
 def _fsize_limit():  # pragma: no cover - runs in the child
-    resource.setrlimit(resource.RLIMIT_FSIZE, (250_000, 250_000))
+    resource.setrlimit(resource.RLIMIT_FSIZE, (150_000, 150_000))
 
 
 def test_file_size_limit_is_exit_74_with_every_completed_frame(tmp_path):
     out = tmp_path / "out"
-    scene = _scene(tmp_path, LONG.replace("steps: 100000", "steps: 5000"))
+    text = LONG.replace("steps: 100000", "steps: 200").replace("{every: 10, keep: 2}", "{every: 20, keep: 2}")
+    scene = _scene(tmp_path, text)
     r = _run(["run", str(scene), "-o", str(out), "-q"], preexec_fn=_fsize_limit)
     assert r.returncode == 74, (r.returncode, r.stderr[-3000:])  # was a SIGSEGV / SIGBUS at exit
     assert "Traceback" not in r.stderr and "sim.h5" in r.stderr and "file-size limit" in r.stderr
@@ -155,6 +156,12 @@ def test_file_size_limit_is_exit_74_with_every_completed_frame(tmp_path):
         x = f["entities/blob/position"][:n]
         assert np.isfinite(x).all() and list(f["step"][:n]) == list(range(n))
     assert len(_pvd_ok(out)) >= n
+    # with room again, --resume continues from the newest checkpoint to the end
+    r = _run(["run", str(scene), "-o", str(out), "-q", "--resume"])
+    assert r.returncode == 0, r.stderr
+    with h5py.File(out / "sim.h5", "r") as f:
+        assert list(f["step"][...]) == list(range(201))
+    assert len(_pvd_ok(out)) == 201
 
 
 def test_sim_h5_deleted_while_running_is_exit_74_and_written_back(tmp_path):
