@@ -143,6 +143,7 @@ class Runner:
         self.restore_signals = True  # see run_scene
         self.overwrite = False  # see run_scene
         self._lock = None  # the output folder's lock (simcli.io.outdir), held for the whole run
+        self._owns_out = False  # run.json is written only once the folder is this run's (lock + policy)
         self._sink = None
 
     # ------------------------------------------------------------------ helpers
@@ -163,7 +164,7 @@ class Runner:
             peak_memory_mb=round(_peak_memory_mb(), 1),
             updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         )
-        if getattr(self, "_owns_out", False) and self.out.is_dir():  # never another run's run.json
+        if self._owns_out and self.out.is_dir():  # never another run's run.json
             try:
                 _atomic_write(self.out / "run.json", json.dumps(self.info, indent=2) + "\n")
             except OutputError as e:
