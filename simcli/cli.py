@@ -11,7 +11,7 @@ from pathlib import Path
 import click
 
 from simcli import __version__
-from simcli.errors import EXIT_INVALID_SCENE, EXIT_OK, EXIT_USAGE, SceneError
+from simcli.errors import EXIT_INVALID_SCENE, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, SceneError
 
 _T0 = time.perf_counter()
 
@@ -50,6 +50,12 @@ def cli() -> None:
     help="Compute backend (overrides sim.backend).",
 )
 @click.option("--resume", is_flag=True, help="Continue from the newest checkpoint in the output folder.")
+@click.option(
+    "--overwrite",
+    is_flag=True,
+    help="Replace a previous run in the output folder (its frames, checkpoints, run.json); without it "
+    "(or --resume) such a folder is refused with exit 2.",
+)
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 @click.option("--json", "as_json", is_flag=True, help="Print run.json to stdout at the end.")
 def run(
@@ -58,10 +64,21 @@ def run(
     sets: tuple[str, ...],
     backend: str | None,
     resume: bool,
+    overwrite: bool,
     quiet: bool,
     as_json: bool,
 ) -> None:
     """Run SCENE and write frames, run.json and checkpoints to the output folder."""
+    # first of all: a SIGTERM/SIGINT/SIGUSR1 from now on is recorded and honoured (run.json says
+    # interrupted, exit 75), also while the scene loads and Taichi starts
+    from simcli.runsignals import RunSignals
+
+    signals = RunSignals().install()
+    if resume and overwrite:
+        _err(
+            "simcli: error: --resume continues the run in the output folder, --overwrite replaces it: give one"
+        )
+        sys.exit(EXIT_USAGE)
     from simcli.scene.loader import load_scene
 
     try:
@@ -81,6 +98,8 @@ def run(
         sets=list(sets),
         t_process=_T0,
         restore_signals=False,
+        overwrite=overwrite,
+        signals=signals,
     )
     # the run is over: a SIGTERM/SIGUSR1 from now on (Slurm's, during Taichi's clean-up and the
     # interpreter's shut-down, which puts Python-level handlers back to the default) must not turn
@@ -186,23 +205,27 @@ def schema(out: Path | None) -> None:
 
 
 @cli.command()
-@click.argument("out", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("out", type=click.Path(path_type=Path))
 def repair(out: Path) -> None:
     """Make OUT/sim.h5 of a killed run openable by every HDF5 tool (ParaView, h5py without SWMR).
 
     A run killed with SIGKILL leaves every completed frame in sim.h5, but HDF5 keeps its
     "open for writing" flag set; SWMR readers read it as it is, other tools refuse it until
-    the flag is cleared (what `h5clear -s` does). `simcli run --resume` clears it too."""
-    from simcli.io import clear_status_flags, open_frames
+    the flag is cleared (what `h5clear -s` does). `simcli run --resume` clears it too. A file cut short
+    by a failed write (file-size limit, disk full) is made openable again. Every frame is read back
+    before it is counted; anything that is not a repairable sim.h5 is exit 74 saying what was found."""
+    from simcli.errors import OutputError
+    from simcli.io.repair import repair as _repair
 
-    h5 = out / "sim.h5"
-    if not h5.exists():
-        _err(f"{h5}: not found")
-        sys.exit(EXIT_USAGE)
-    cleared = clear_status_flags(h5)
-    with open_frames(h5) as f:
-        n = len(f["time"])
-    _err(f"{h5}: {'cleared the open-for-writing flag' if cleared else 'already clean'}; {n} frames readable")
+    try:
+        msg = _repair(out)
+    except OutputError as e:
+        _err(f"simcli: error: {e}")
+        sys.exit(e.exit_code)
+    except Exception as e:  # noqa: BLE001 - whatever else the file system or HDF5 says: no traceback
+        _err(f"simcli: error: {out / 'sim.h5'}: cannot repair it ({type(e).__name__}: {e})")
+        sys.exit(EXIT_OUTPUT)
+    _err(msg)
 
 
 @cli.command()

@@ -8,7 +8,6 @@ import math
 import os
 import platform
 import resource
-import signal
 import sys
 import time
 import traceback
@@ -31,6 +30,7 @@ from simcli.errors import (
 )
 from simcli.geometry.mesh import MeshError
 from simcli.progress import Progress
+from simcli.runsignals import RunSignals
 from simcli.scene.loader import LoadedScene
 from simcli.scene.models import resolved_scene_dict
 
@@ -76,31 +76,12 @@ def _versions(ti_info: dict | None) -> dict:
     return v
 
 
-class _Signals:
-    """SIGTERM, SIGINT, SIGUSR1: finish the current step, checkpoint, exit 75."""
+class _StartupInterrupted(SimcliError):
+    exit_code = EXIT_INTERRUPTED
 
-    NAMES = ("SIGTERM", "SIGINT", "SIGUSR1")
 
-    def __init__(self):
-        self.received: str | None = None
-        self._old = {}
-
-    def _handler(self, signum, frame):
-        if self.received is not None and signum == signal.SIGINT:
-            # a second Ctrl-C: the user really wants out
-            raise KeyboardInterrupt
-        self.received = signal.Signals(signum).name
-
-    def install(self):
-        for n in self.NAMES:
-            s = getattr(signal, n, None)
-            if s is not None:
-                old = signal.signal(s, self._handler)
-                self._old.setdefault(s, old)
-
-    def restore(self):
-        for s, h in self._old.items():
-            signal.signal(s, h)
+# SIGTERM, SIGINT, SIGUSR1: finish the current step, checkpoint, exit 75 (installed by `simcli run` first)
+_Signals = RunSignals
 
 
 def run_scene(
@@ -113,15 +94,22 @@ def run_scene(
     t_process: float | None = None,
     solver_factory=None,
     restore_signals: bool = True,
+    overwrite: bool = False,
+    signals: RunSignals | None = None,
 ) -> tuple[int, dict | None]:
     """Run a validated scene. Returns (exit code, run.json dict).
 
     restore_signals: put the caller's SIGTERM/SIGINT/SIGUSR1 handlers back when the run ends. The
     command line passes False: a signal that arrives after the run has finished, while the process
     shuts down (Taichi's clean-up takes a moment), must not kill it with the default action and
-    turn a finished run's exit 0 into 143."""
+    turn a finished run's exit 0 into 143.
+    overwrite: replace a previous run in the output folder (without it, or resume, such a folder is refused).
+    signals: handlers the caller installed before loading the scene (a signal during start-up is honoured)."""
     runner = Runner(loaded, out_dir, backend, resume, quiet, sets or [], t_process)
     runner.restore_signals = restore_signals
+    runner.overwrite = overwrite
+    if signals is not None:
+        runner.signals = signals
     return runner.run(solver_factory)
 
 
@@ -153,6 +141,10 @@ class Runner:
         }
         self.signals = _Signals()
         self.restore_signals = True  # see run_scene
+        self.overwrite = False  # see run_scene
+        self._lock = None  # the output folder's lock (simcli.io.outdir), held for the whole run
+        self._owns_out = False  # run.json is written only once the folder is this run's (lock + policy)
+        self._sink = None
 
     # ------------------------------------------------------------------ helpers
     def log(self, msg: str) -> None:
@@ -172,7 +164,7 @@ class Runner:
             peak_memory_mb=round(_peak_memory_mb(), 1),
             updated=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         )
-        if self.out.is_dir():
+        if self._owns_out and self.out.is_dir():  # never another run's run.json
             try:
                 _atomic_write(self.out / "run.json", json.dumps(self.info, indent=2) + "\n")
             except OutputError as e:
@@ -183,7 +175,15 @@ class Runner:
     def run(self, solver_factory=None) -> tuple[int, dict | None]:
         self.signals.install()
         try:
-            return self._run(solver_factory)
+            try:
+                return self._run(solver_factory)
+            except BaseException:
+                self._abort_sink()  # sim.h5 closed now (or abandoned if it cannot be), not at interpreter exit
+                raise
+        except _StartupInterrupted as e:
+            print(f"simcli: {e}", file=sys.stderr, flush=True)
+            self.info["error"] = str(e)
+            return EXIT_INTERRUPTED, self.write_run_json("interrupted", EXIT_INTERRUPTED)
         except NumericalError as e:
             print(f"simcli: error: {e}", file=sys.stderr, flush=True)
             self.info["error"] = str(e)
@@ -216,8 +216,33 @@ class Runner:
         finally:
             if self.restore_signals:
                 self.signals.restore()
+            if self._lock is not None:
+                self._lock.release()
+
+    def _abort_sink(self) -> None:
+        sink, self._sink = self._sink, None
+        if sink is not None:
+            sink.abort()
+
+    def _startup_point(self, phase: str) -> None:
+        """A signal received during start-up (recorded by the handlers `simcli run` installs first) stops
+        the run here, before the next phase: there is no checkpoint of this run to resume from yet."""
+        sig = self.signals.received
+        if sig is None:
+            return
+        if self.resume and getattr(self, "_resume_from", None):
+            rest = f"the checkpoint it started from ({self._resume_from}) is untouched: --resume again"
+        else:
+            rest = "nothing to resume yet: run the same command again to start afresh"
+        raise _StartupInterrupted(
+            f"{sig} received during start-up ({phase}): stopped before the first step; {rest}"
+        )
 
     def _prepare_out(self) -> None:
+        """Create the output folder, take its lock (one run per folder at a time) and apply the
+        previous-run policy: a folder holding another run is written only with --resume or --overwrite."""
+        from simcli.io.outdir import OutputLock, refuse_previous_run, remove_previous_run
+
         try:
             self.out.mkdir(parents=True, exist_ok=True)
             probe = self.out / ".write_test"
@@ -228,6 +253,17 @@ class Runner:
                 f"cannot write to output folder {self.out}: {e.strerror or e}; choose another with "
                 f"-o or output.dir"
             ) from None
+        lock = OutputLock(self.out).acquire()
+        self._lock = lock
+        self._owns_out = False
+        if not self.resume:
+            if self.overwrite:
+                gone = remove_previous_run(self.out)
+                if gone:
+                    self.log(f"--overwrite: removed the previous run's {', '.join(gone)} from {self.out}")
+            else:
+                refuse_previous_run(self.out)
+            self._owns_out = True
 
     def _run(self, solver_factory) -> tuple[int, dict]:
         import warnings
@@ -238,6 +274,14 @@ class Runner:
         scene = self.scene
         sim = scene.sim
         ckpt = None
+        if self.resume and not self.out.is_dir():
+            print(
+                f"simcli: error: --resume: no checkpoint in {self.out / 'checkpoints'} (no such folder); run "
+                "without --resume",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE, None
+        self._prepare_out()
         if self.resume:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", CheckpointWarning)
@@ -246,6 +290,7 @@ class Runner:
                 self.warnings.append(str(w.message))
                 print(f"simcli: warning: {w.message}", file=sys.stderr)
             if found is None:
+                self._owns_out = False
                 print(
                     f"simcli: error: --resume: no checkpoint in {self.out / 'checkpoints'}; run without --resume",
                     file=sys.stderr,
@@ -254,7 +299,9 @@ class Runner:
             path, state, meta = found
             meta = dict(meta, path=str(path))
             ckpt = (state, meta)
-        self._prepare_out()
+            self._resume_from = str(path)
+            self._check_resume_scene(meta, path)
+        self._owns_out = True  # (a refused --resume leaves the previous run's run.json as it was)
         scene_text = yaml.safe_dump(self.resolved, sort_keys=False)
         _atomic_write(self.out / "scene.yaml", "# resolved scene: every default filled in\n" + scene_text)
 
@@ -268,8 +315,10 @@ class Runner:
             "command": " ".join(sys.argv),
             "pid": os.getpid(),
             "host": platform.node(),
+            "lock": self._lock.info,
         }
         self.write_run_json("starting", None)
+        self._startup_point("loading the scene")
 
         # ---- set-up: sample bodies (no taichi yet)
         t0 = time.perf_counter()
@@ -287,12 +336,14 @@ class Runner:
                     f"{fam} particle spacing {opt} = {family_spacing(scene, fam):g} m; lower it"
                 )
         self.timings["setup_s"] = time.perf_counter() - t0
+        self._startup_point("sampling the bodies")
 
         # ---- taichi and the solver
         from simcli.backend import init_taichi
 
         ti_info = init_taichi(self.backend, sim.precision, sim.threads)
         self.signals.install()  # Taichi installs handlers of its own in ti.init: ours must win
+        self._startup_point("starting Taichi")
         self.timings["taichi_init_s"] = ti_info["import_s"] + ti_info["init_s"]
         self.info.update(
             backend=ti_info["arch"],
@@ -318,6 +369,7 @@ class Runner:
             for w in getattr(s, "warnings", None) or []:
                 self.warn(w)
         self.timings["build_s"] = time.perf_counter() - t0
+        self._startup_point("building the solvers")
         self.info["counts"] = {s.family: s.counts() for s in solvers}
         n_particles = sum(int(s.counts().get("particles", 0)) for s in solvers)
         self.info["particles"] = n_particles
@@ -327,7 +379,7 @@ class Runner:
         every = scene.output.every
         n_steps = sim.n_steps
         entity_meta = self._entity_meta(solvers)
-        sink = FrameSink(self.out, list(scene.output.formats))
+        sink = self._sink = FrameSink(self.out, list(scene.output.formats))
         step = 0
         frame = 0
         substeps_now = sim.substeps if sim.substeps != "auto" else None
@@ -458,6 +510,7 @@ class Runner:
                     "scene_name": self.name,
                     "timings": {"stepping_s": self.timings["stepping_s"]},
                     "particles": n_particles,
+                    "scene": self.resolved,  # what --resume compares the scene with (simcli.resume_check)
                 }
                 state = {}
                 for s in solvers:
@@ -466,6 +519,7 @@ class Runner:
                 self.info["checkpoint"] = str(p)
                 self.timings["checkpoint_s"] += time.perf_counter() - t0
                 if interrupted:
+                    self._sink = None
                     sink.close()
                     self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
                     print(
@@ -480,6 +534,7 @@ class Runner:
                 self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
                 self.write_run_json("running", None)
                 last_json = time.perf_counter()
+        self._sink = None
         sink.close()
         progress.close()
         self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
@@ -545,6 +600,42 @@ class Runner:
         unreadable error here."""
         vals = [float(s.stable_dt()) for s in solvers]
         return fallback if any(math.isnan(v) for v in vals) else min(vals)
+
+    def _check_resume_scene(self, meta: dict, path) -> None:
+        """--resume: the checkpoint's metadata is consistent and its scene matches this one in everything
+        that changes the physics or the time axis (simcli.resume_check); exit 65 naming what differs."""
+        from simcli.resume_check import meta_problems, scene_differences
+
+        saved = meta.get("scene")
+        if not isinstance(saved, dict):
+            self.warn(
+                f"checkpoint {path} does not record its scene (written by an older simcli): the scene "
+                "could not be compared with it"
+            )
+        diffs = scene_differences(saved, self.resolved) if isinstance(saved, dict) else []
+        if diffs:
+            raise SceneError(
+                [
+                    f"--resume: the checkpoint {path} does not fit this scene: "
+                    f"{len(diffs)} key(s) that change the physics or the time axis differ:"
+                ]
+                + [f"  {d}" for d in diffs]
+                + [
+                    "  resume with the values the run was started with, or start a new run with the new ones "
+                    "(--overwrite, or another -o)"
+                ]
+            )
+        sim = self.scene.sim
+        bad = meta_problems(meta, sim.dt, self.scene.output.every, sim.n_steps)
+        if bad:
+            raise SceneError(
+                [f"--resume: checkpoint {path} has inconsistent metadata (edited or damaged?):"]
+                + [f"  {b}" for b in bad]
+                + [
+                    "  remove it to resume from an older checkpoint, or start afresh with --overwrite "
+                    "(or another -o)"
+                ]
+            )
 
     def _check_resume_meta(self, meta: dict) -> None:
         if meta.get("scene_name") not in (None, self.name):

@@ -161,6 +161,8 @@ def output_error(path: Path | str, exc: BaseException, what: str = "write") -> O
     text = str(exc)
     if err == errno.ENOSPC or "No space left" in text:
         reason = "disk full (no space left on device)"
+    elif err == errno.EFBIG or "File too large" in text:
+        reason = "file too large (the file-size limit, `ulimit -f`, reached)"
     elif err == errno.EDQUOT or "quota" in text.lower():
         reason = "disk quota exceeded"
     elif err in (errno.EACCES, errno.EPERM, errno.EROFS) or "ermission denied" in text:
@@ -351,6 +353,17 @@ class FrameSink:
             out[e.name] = {f: e.prepare(f, ed[f]) for f in e.fields}
         return out
 
+    def abort(self) -> None:
+        """Close after a failure elsewhere (numerical, a signal, a write error): what can be closed is,
+        sim.h5 is abandoned if it cannot be (see ``H5Writer.abandon``); never raises."""
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001
+            pass
+        h5, self._h5 = self._h5, None
+        if h5 is not None:
+            h5.abandon()
+
     def close(self) -> None:
         errors = []
         for w in (self._h5, self._vtk):
@@ -359,6 +372,10 @@ class FrameSink:
                     w.close()
                 except OutputError as exc:
                     errors.append(exc)
+                except Exception as exc:  # noqa: BLE001 - h5py's own errors on close
+                    if hasattr(w, "abandon"):
+                        w.abandon()
+                    errors.append(output_error(getattr(w, "path", self.out_dir), exc, "close"))
         self._h5 = self._vtk = self._xdmf = None
         self._open = False
         if errors:

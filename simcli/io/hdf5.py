@@ -120,6 +120,70 @@ def lookup3(data: bytes, initval: int = 0) -> int:
     return c
 
 
+def superblock_info(path: Path | str) -> dict:
+    """Where the HDF5 superblock is and what it says: base, version, flags, eoa (end of allocated
+    space, relative to base) and the file's size. Raises OutputError saying what the file is instead."""
+    path = Path(path)
+    with guard(path, "read"), open(path, "rb") as fh:
+        size = fh.seek(0, os.SEEK_END)
+        base = 0
+        while base + 64 <= size:
+            fh.seek(base)
+            if fh.read(8) == _HDF5_SIGNATURE:
+                break
+            base = 512 if base == 0 else base * 2
+        else:
+            fh.seek(0)
+            head = fh.read(16)
+            raise OutputError(f"{path}: not an HDF5 file ({size} bytes, starting {head!r})")
+        fh.seek(base)
+        head = fh.read(12)
+        version = head[8]
+        info = {"base": base, "version": version, "size": size, "flags": None, "eoa": None}
+        if version < 2:
+            return info
+        so = head[9]
+        if so not in (4, 8):
+            raise OutputError(
+                f"{path}: HDF5 superblock damaged (offset size {so}); the file cannot be repaired"
+            )
+        n = 12 + 4 * so
+        fh.seek(base)
+        sb = fh.read(n + 4)
+        if len(sb) < n + 4:
+            raise OutputError(
+                f"{path}: HDF5 superblock cut short ({size} bytes); the file cannot be repaired"
+            )
+        (stored,) = struct.unpack_from("<I", sb, n)
+        if lookup3(bytes(sb[:n])) != stored:
+            raise OutputError(
+                f"{path}: HDF5 superblock damaged (checksum mismatch): HDF5 cannot open the file and simcli "
+                "cannot repair it"
+            )
+        (eoa,) = struct.unpack_from({4: "<I", 8: "<Q"}[so], sb, 12 + 2 * so)
+        info.update(flags=head[11], eoa=eoa)
+        return info
+
+
+def extend_to_eoa(path: Path | str) -> tuple[int, int] | None:
+    """A file that ends before the space HDF5 had allocated (a write cut short by a file-size limit or a
+    full disk) is refused by HDF5 ("truncated file"); the missing bytes were never written, so zeros
+    stand in for them (sparse). Returns (old size, new size) if extended. Raises OutputError."""
+    path = Path(path)
+    sb = superblock_info(path)
+    end = sb["base"] + sb["eoa"] if sb["eoa"] is not None else 0
+    if end <= sb["size"]:
+        return None
+    try:
+        os.truncate(path, end)
+    except OSError as e:
+        raise OutputError(
+            f"{path}: {sb['size']} bytes, shorter than the {end} HDF5 had allocated, and it cannot be extended: "
+            f"{e.strerror or e}"
+        ) from None
+    return sb["size"], end
+
+
 def clear_status_flags(path: Path | str) -> bool:
     """Clear the "file is open for (SWMR) write" flags a killed writer leaves in the superblock.
 
@@ -187,6 +251,118 @@ class H5Writer:
         self.entities: list[EntityMeta] = []
         self._ds: list[tuple[h5py.Dataset, str, str]] = []  # (dataset, entity, field)
         self._times: list[float] = []
+        self._fd: int | None = None  # HDF5's file descriptor (sec2 driver)
+        self._ident: tuple[int, int] | None = None  # (st_dev, st_ino) of the file we write
+        self._size = 0  # its size after the last complete frame
+
+    # -- faults -----------------------------------------------------------------------------
+    def _kept(self) -> str:
+        n = len(self._times)
+        return (
+            f"the {n} frame(s) completed before are kept (`simcli repair {self.path.parent}` makes the "
+            f"file openable by every HDF5 tool)"
+        )
+
+    def _watch(self) -> None:
+        """Remember which file HDF5 writes (inode) and how large it is after a complete frame."""
+        try:
+            self._fd = int(self.f.id.get_vfd_handle())
+            st = os.fstat(self._fd)
+        except Exception:  # noqa: BLE001 - another driver: no checks, nothing lost by that
+            self._fd = None
+            return
+        self._ident = (st.st_dev, st.st_ino)
+        self._size = st.st_size
+
+    def _check_intact(self) -> None:
+        """sim.h5 deleted, replaced or truncated by someone else since the last frame: stop with exit 74
+        rather than write on into a file nobody will see (Linux keeps writing to a deleted inode)."""
+        if self._fd is None or self._ident is None:
+            return
+        try:
+            st = os.fstat(self._fd)
+        except OSError:
+            return
+        try:
+            ps = os.stat(self.path)
+        except FileNotFoundError:
+            ps = None
+        except OSError:
+            return
+        if ps is None:
+            restored = self._restore_deleted()
+            raise OutputError(
+                f"{self.path} was deleted by another process while this run was writing it: "
+                + (
+                    f"its {len(self._times)} completed frame(s) were written back to {self.path} (run "
+                    f"`simcli repair {self.path.parent}` before opening it); the run stops here"
+                    if restored
+                    else f"it could not be written back ({restored}); the run stops here"
+                )
+            )
+        if (ps.st_dev, ps.st_ino) != self._ident:
+            raise OutputError(
+                f"{self.path} was replaced by another file while this run was writing it (a second run into "
+                f"the same folder?): this run's frames are not in it; the run stops here"
+            )
+        if st.st_size < self._size:
+            raise OutputError(
+                f"{self.path} was truncated by another process while this run was writing it ({self._size} -> "
+                f"{st.st_size} bytes): the frames in it are lost (the files under vtk/, if written, keep "
+                f"theirs); the run stops here"
+            )
+
+    def _restore_deleted(self):
+        """Copy the still-open, deleted file (consistent as of the last complete frame) back to its name."""
+        tmp = self.path.with_name("." + self.path.name + ".restore.tmp")
+        try:
+            with open(tmp, "wb") as out:
+                off = 0
+                while True:
+                    b = os.pread(self._fd, 1 << 22, off)
+                    if not b:
+                        break
+                    out.write(b)
+                    off += len(b)
+                out.flush()
+                os.fsync(out.fileno())
+            if self.path.exists():
+                tmp.unlink()
+                return False
+            os.replace(tmp, self.path)
+            return True
+        except OSError as e:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+            return e.strerror or str(e)
+
+    def abandon(self) -> None:
+        """Close the file after a failed write without writing anything more into it.
+
+        After a failed flush HDF5 keeps dirty metadata that it retries to write on close and again when
+        the library shuts down at exit (where a failure crashes the process: SIGSEGV/SIGBUS under a
+        file-size limit). Pointing HDF5's descriptor at /dev/null first lets both succeed and leaves the
+        file on disk as the last complete frame left it: every completed frame readable, the
+        open-for-writing flag set (``simcli repair`` clears it)."""
+        f, self.f = self.f, None
+        fd, self._fd = self._fd, None
+        if f is None:
+            return
+        if fd is not None:  # first: closing a dataset flushes it too
+            try:
+                nul = os.open(os.devnull, os.O_RDWR)
+                os.dup2(nul, fd)
+                os.close(nul)
+            except OSError:
+                pass
+        self._ds = []
+        self._time = self._step = None
+        try:
+            f.close()
+        except Exception:  # noqa: BLE001, S110 - nothing more can be done: the data on disk is what counts
+            pass
 
     def times(self) -> list[float]:
         return list(self._times)
@@ -207,6 +383,7 @@ class H5Writer:
         else:
             if not self.path.exists():
                 raise OutputError(f"cannot resume: {self.path} does not exist")
+            extend_to_eoa(self.path)
             clear_status_flags(self.path)
             with guard(self.path, "open for append"):
                 f = _h5file(self.path, "a", libver=LIBVER)
@@ -224,6 +401,7 @@ class H5Writer:
                 f.attrs[k] = _attr_value(v)
             f.flush()
             f.swmr_mode = True
+        self._watch()
 
     def _create(self, f: h5py.File) -> None:
         t = f.create_dataset("time", shape=(0,), maxshape=(None,), chunks=(1024,), dtype="f8")
@@ -296,6 +474,11 @@ class H5Writer:
         if frame != len(self._times):
             raise ValueError(f"sim.h5 holds {len(self._times)} frames; cannot write frame {frame}")
         try:
+            self._check_intact()
+        except OutputError:
+            self.abandon()
+            raise
+        try:
             for d, ename, fname in self._ds:
                 d.resize(frame + 1, axis=0)
                 d.write_direct(data[ename][fname], dest_sel=np.s_[frame])
@@ -306,12 +489,28 @@ class H5Writer:
             self._time[frame] = time
             f.flush()
         except (OSError, RuntimeError) as exc:
-            raise output_error(self.path, exc) from exc
+            err = output_error(self.path, exc)
+            self.abandon()
+            raise OutputError(f"{err}; {self._kept()}") from exc
         self._times.append(time)
+        if self._fd is not None:
+            try:
+                self._size = os.fstat(self._fd).st_size
+            except OSError:
+                pass
 
     def close(self) -> None:
-        f, self.f = self.f, None
-        self._ds = []
-        if f is not None:
-            with guard(self.path, "close"):
-                f.close()
+        if self.f is None:
+            return
+        try:
+            self._check_intact()
+        except OutputError:
+            self.abandon()
+            raise
+        try:
+            self.f.close()
+        except (OSError, RuntimeError) as exc:
+            err = output_error(self.path, exc, "close")
+            self.abandon()
+            raise OutputError(f"{err}; {self._kept()}") from exc
+        self.f, self._fd, self._ds = None, None, []

@@ -242,6 +242,8 @@ def _run_locked(ls: LoadedSweep, run: Run, out: Path, tag: str, threads: int | N
         cmd += ["--set", s]
     if resume:
         cmd.append("--resume")
+    else:  # a fresh start replaces what an earlier attempt left (simcli run refuses that without it)
+        cmd.append("--overwrite")
     if quiet:
         cmd.append("--quiet")
     env = dict(os.environ)

@@ -113,7 +113,18 @@ def run_case(
         code, stderr, wall = 0, "", reused
         _DONE[key] = (code, stderr, wall, out)
     else:
-        cmd = [sys.executable, "-m", "simcli", "run", str(case.scene_path), "-o", str(out), "--quiet"]
+        # --overwrite: the folder is this case's own, a previous `verify` left its run there
+        cmd = [
+            sys.executable,
+            "-m",
+            "simcli",
+            "run",
+            str(case.scene_path),
+            "-o",
+            str(out),
+            "--quiet",
+            "--overwrite",
+        ]
         for s in sets:
             cmd += ["--set", s]
         if backend:
