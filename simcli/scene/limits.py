@@ -155,7 +155,8 @@ def _check_time(s, err) -> None:
         where = ("sim", "steps")
     else:
         n_steps = (1.0 if sim.duration is None else sim.duration) / sim.dt
-        where = ("sim", "duration") if sim.duration is not None else ("sim", "dt")
+        # point at the odd one: a step under 10 ns is a unit slip in dt, otherwise the duration is long
+        where = ("sim", "duration") if sim.duration is not None and sim.dt >= 1e-8 else ("sim", "dt")
     if not math.isfinite(n_steps) or n_steps > MAX_STEPS:
         err(
             where,
