@@ -114,10 +114,60 @@ def check_limits(loaded, geometry_ok: bool = True) -> list[str]:
                     f"{v:g} {unit} is outside the plausible range {lo:g}..{hi:g} {unit} of any material "
                     f"(SI units: {_unit_hint(key)})",
                 )
-    _check_coords(loc.data, (), err)
-    _check_time(s, err)
     if not out and geometry_ok:
         out += check_overlaps(loaded)[0]
+    return out
+
+
+# Solver resolutions: beyond these the sizes and counts derived from them overflow (a particle_size of 1e-300
+# squared is 0) long before the memory estimate could say "too large"; every real scene is far inside.
+OPTION_RANGES: dict[tuple[str, str], tuple[float, float, str]] = {
+    ("mpm", "grid_density"): (1.0e-3, 1.0e6, "cells/m"),
+    ("mpm", "particle_size"): (1.0e-6, 1.0e3, "m"),
+    ("sph", "particle_size"): (1.0e-6, 1.0e3, "m"),
+    ("sph", "support_factor"): (1.0, 10.0, "particle sizes"),
+    ("pbd", "particle_size"): (1.0e-6, 1.0e3, "m"),
+    ("pbd", "tet_resolution"): (1.0e-3, 1.0e6, "cells/m"),
+    ("fem", "resolution"): (1.0e-3, 1.0e6, "cells/m"),
+    ("fem", "surface_resolution"): (1.0e-3, 1.0e6, "cells/m"),
+    ("fem", "max_volume"): (1.0e-18, 1.0e9, "m^3"),
+}
+MAX_ITERATIONS = 10**6  # any solver iteration cap (pcg_max_iter, max_iterations, ...)
+
+
+def check_bounds(loaded) -> list[str]:
+    """Bounds that keep the semantic checks' own arithmetic finite (coordinates, step counts, solver
+    resolutions): run before ``check_scene``, whose estimates would otherwise overflow or divide by zero."""
+    s = loaded.scene
+    loc = loaded.located
+    out: list[str] = []
+
+    def err(path: tuple, msg: str, key: bool = False):
+        dotted = ".".join(str(p) for p in path) or "(top level)"
+        out.append(f"{loc.where(path, prefer_key=key)}: {dotted}: {msg}")
+
+    for (fam, key), (lo, hi, unit) in OPTION_RANGES.items():
+        v = getattr(getattr(s.solvers, fam), key, None)
+        if isinstance(v, (int, float)) and not lo <= v <= hi:
+            err(
+                ("solvers", fam, key),
+                f"{v:g} {unit} is outside the range {lo:g}..{hi:g} {unit} a solver can use",
+            )
+    for fam in type(s.solvers).model_fields:
+        opts = getattr(s.solvers, fam)
+        for key in type(opts).model_fields:
+            v = getattr(opts, key)
+            if (
+                ("iter" in key or key in ("check_every", "smoothing"))
+                and isinstance(v, int)
+                and v > MAX_ITERATIONS
+            ):
+                err(
+                    ("solvers", fam, key),
+                    f"{v} is more than the {MAX_ITERATIONS:,} iterations any solve needs",
+                )
+    _check_coords(loc.data, (), err)
+    _check_time(s, err)
     return out
 
 

@@ -537,8 +537,9 @@ def scene_from_located(loc: Located, path: Path, check: bool = True) -> LoadedSc
     loaded = LoadedScene(scene=scene, path=path, located=loc)
     if check:
         from simcli.scene.checks import check_scene
+        from simcli.scene.limits import check_bounds
 
-        lines = check_scene(loaded)
+        lines = check_bounds(loaded) or check_scene(loaded)
         if lines:
             raise SceneError(lines)
     return loaded
