@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import re
+import stat
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,6 +62,7 @@ def _mark(node) -> tuple[int, int]:
 # memory, time or Python's stack.
 MAX_DEPTH = 64  # nesting levels of mappings and lists
 MAX_NODES = 100_000  # nodes after every alias is expanded (the shipped scenes have < 2,000)
+MAX_FILE_BYTES = 4 * 2**20  # a scene or sweep file (the largest shipped one is a few KB)
 # tags the loader constructs; any other (!!python/object/new:dict, !!binary, !!set, !custom) is refused
 _ALLOWED_TAGS = {
     "tag:yaml.org,2002:" + t for t in ("map", "seq", "str", "int", "float", "bool", "null", "merge")
@@ -196,6 +199,16 @@ def read_yaml_file(path: Path) -> Located:
     unreadable or malformed."""
     shown = str(path)
     try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):  # /dev/zero or a FIFO would be read forever
+            raise SceneError([f"{shown}: not a regular file"])
+        if st.st_size > MAX_FILE_BYTES:
+            raise SceneError(
+                [
+                    f"{shown}: {st.st_size / 2**20:.0f} MiB is too large for a scene or sweep file (at most "
+                    f"{MAX_FILE_BYTES // 2**20} MiB; meshes go in their own files)"
+                ]
+            )
         text = Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise SceneError([f"{shown}: file not found"]) from None

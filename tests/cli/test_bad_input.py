@@ -105,6 +105,15 @@ def test_set_values_are_read_by_the_same_reader(tmp_path):
         assert r.exception is None or isinstance(r.exception, SystemExit)
 
 
+def test_devices_and_huge_files_are_not_read(tmp_path):
+    r = CliRunner().invoke(cli, ["validate", "/dev/zero"])  # was read until memory ran out
+    assert r.exit_code == 65 and "/dev/zero: not a regular file" in r.output, r.output
+    big = tmp_path / "big.yaml"
+    big.write_text("# " + "x" * (5 * 2**20) + "\n" + GOOD)
+    r = CliRunner().invoke(cli, ["validate", str(big)])
+    assert r.exit_code == 65 and "too large for a scene or sweep file (at most 4 MiB" in r.output, r.output
+
+
 def test_empty_file_and_no_entities(tmp_path):
     _expect(tmp_path, "", ":1:1:", "the scene is empty")
     _expect(tmp_path, "# only a comment\n", ":1:1:", "the scene is empty")
