@@ -124,12 +124,22 @@ def _check_tree(node, file: str) -> None:
     size(node)
 
 
+def _construct(loader, node, file: str) -> Any:
+    """A scalar's value; an explicit tag that does not fit it (``!!float abc``, ``!!int 1.5``) is an error at
+    its place, not a ValueError from PyYAML's constructor."""
+    try:
+        return loader.construct_object(node, deep=True)
+    except (ValueError, TypeError, OverflowError, IndexError, KeyError) as e:  # PyYAML raises these
+        tag = str(node.tag).replace("tag:yaml.org,2002:", "!!")
+        raise SceneError([f"{_where_node(file, node)}: cannot read {node.value!r} as {tag}: {e}"]) from None
+
+
 def _walk(loader, node, path: Path_, loc: Located, errors: list[str]) -> Any:
     if isinstance(node, yaml.MappingNode):
         loader.flatten_mapping(node)
         out: dict = {}
         for knode, vnode in node.value:
-            key = loader.construct_object(knode, deep=True)
+            key = _construct(loader, knode, loc.file)
             if not isinstance(key, (str, int, float, bool)) or key is None:
                 errors.append(
                     f"{loc.file}:{_mark(knode)[0]}:{_mark(knode)[1]}: {_dotted(path)}: keys must be "
@@ -153,7 +163,7 @@ def _walk(loader, node, path: Path_, loc: Located, errors: list[str]) -> Any:
             loc.key_pos.setdefault(path + (i,), _mark(item))
             items.append(_walk(loader, item, path + (i,), loc, errors))
         return items
-    return loader.construct_object(node, deep=True)
+    return _construct(loader, node, loc.file)
 
 
 class _Loader(yaml.SafeLoader):

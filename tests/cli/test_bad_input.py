@@ -86,6 +86,15 @@ def test_unknown_tag_is_refused(tmp_path):
     _expect(tmp_path, GOOD.replace("rho: 1000", "rho: !!binary AAAA"), ":6:", "is not supported")
 
 
+def test_explicit_tags_that_do_not_fit_their_value(tmp_path):
+    """`!!float abc` raised PyYAML's ValueError (a traceback), `!!float ''` an IndexError."""
+    _expect(tmp_path, GOOD.replace("rho: 1000", "rho: !!float abc"), ":6:", "cannot read 'abc' as !!float")
+    _expect(tmp_path, GOOD.replace("rho: 1000", "rho: !!float ''"), ":6:", "as !!float")
+    _expect(tmp_path, GOOD.replace("substeps: 10", "substeps: !!int x"), ":2:", "as !!int")
+    code, out, _ = _validate(tmp_path, GOOD.replace("rho: 1000", "rho: !!float 1000"))
+    assert code == 0, out
+
+
 def test_dates_stay_strings(tmp_path):
     code, out, _ = _validate(tmp_path, GOOD.replace("name: jelly", "name: 2024-01-01"))
     assert code == 0, out

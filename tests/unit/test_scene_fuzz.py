@@ -110,5 +110,47 @@ def test_mutated_shipped_scenes_give_scene_errors_only(scene, mutations):
             assert line.startswith(f"{base.file}:"), line
 
 
+_SNIPPETS = list("[]{}:,-&*!|>'\"#%@`\t\n ?") + [
+    "\x00",
+    "\u2028",
+    "\ufeff",
+    "1e400",
+    ".nan",
+    "<<: *a",
+    "&a ",
+    "*a",
+    "!!str ",
+    "!!float ",
+    "!!int ",
+    "!!python/name:os.system ",
+    "~",
+    "0x1F",
+    "2024-01-01",
+]
+
+
+@settings(max_examples=60, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    scene=st.sampled_from(SCENES),
+    edits=st.lists(
+        st.tuples(st.floats(0, 1), st.integers(0, 5), st.sampled_from(_SNIPPETS)), min_size=1, max_size=4
+    ),
+)
+def test_edited_scene_text_gives_scene_errors_only(scene, edits):
+    """The same at the text level: characters of YAML syntax, tags and anchors spliced into a shipped file."""
+    from simcli.scene.loader import parse_yaml
+
+    text = scene.read_text()
+    for where, cut, snippet in edits:
+        i = int(where * len(text))
+        text = text[:i] + snippet + text[i + cut :]
+    try:
+        scene_from_located(parse_yaml(text, str(scene)), scene)
+    except SceneError as e:
+        assert e.lines
+        for line in e.lines:
+            assert line.startswith(f"{scene}:") or line.startswith(f"{scene}"), line
+
+
 def test_the_fuzz_has_scenes():
     assert len(SCENES) > 50
