@@ -108,6 +108,11 @@ def init_taichi(
                 threads = len(os.sched_getaffinity(0))
             except AttributeError:  # pragma: no cover - non-Linux
                 threads = os.cpu_count() or 1
+    # never more threads than the cores this process may use (sim.threads: 100000 once started ~32,000 threads
+    # and hit the machine's thread limit): clamped, and `simcli validate` / `run` warn (docs/LIMITS.md)
+    from simcli.scene.limits import allowed_threads
+
+    threads = max(1, min(int(threads), allowed_threads()))
     t0 = time.perf_counter()
     with stdout_to_stderr():
         if backend == "cpu":

@@ -87,6 +87,7 @@ def run(
         for line in e.lines:
             _err(line)
         sys.exit(EXIT_INVALID_SCENE)
+    _print_warnings(loaded)
     from simcli.runner import run_scene
 
     code, info = run_scene(
@@ -137,10 +138,19 @@ def validate(scenes: tuple[Path, ...], sets: tuple[str, ...], quiet: bool) -> No
             for line in e.lines:
                 _err(line)
             continue
+        _print_warnings(loaded)
         if not quiet:
             s = loaded.scene
             _err(f"{path}: ok ({len(s.entities)} entities, dim {s.sim.dim}, {s.sim.n_steps} steps)")
     sys.exit(EXIT_INVALID_SCENE if bad else EXIT_OK)
+
+
+def _print_warnings(loaded) -> None:
+    """What does not stop a run but should be said (docs/LIMITS.md): overlaps, threads clamped."""
+    from simcli.scene.limits import scene_warnings
+
+    for line in scene_warnings(loaded):
+        _err(line)
 
 
 def _is_sweep(path: Path) -> bool:

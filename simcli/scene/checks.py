@@ -199,6 +199,9 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             f"rest densities (rho: {sph_rho}): its pressure operator is symmetric only for one rest density. Use "
             "clamp_pressure: true (a free surface), pressure_solver: WCSPH, or one rho for every SPH.Liquid",
         )
+    from simcli.scene.limits import check_limits  # bounds, names, stability, overlaps (docs/LIMITS.md)
+
+    errors += check_limits(loaded, geometry_ok=not errors)
     if errors:
         return sort_lines(errors)
 
@@ -271,7 +274,9 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             f"nodes) but only {avail / 2**30:.1f} GiB is available; lower solvers.mpm.grid_density, raise "
             f"particle_size or shrink the domain",
         )
-    return errors
+    from simcli.scene.limits import check_stability  # a fixed substep over the stability limit
+
+    return errors or check_stability(loaded)
 
 
 def _fmt(v) -> str:

@@ -7,7 +7,10 @@ No Taichi here: ``simcli validate`` and ``simcli schema`` must answer in well un
 from __future__ import annotations
 
 import difflib
+import math
+import os
 import re
+import stat
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,12 +57,89 @@ def _mark(node) -> tuple[int, int]:
     return node.start_mark.line + 1, node.start_mark.column + 1
 
 
+# The YAML reader's limits (docs/LIMITS.md): a scene is a few hundred nodes; these stop a "billion laughs"
+# (aliases of aliases expanding exponentially), a recursive alias and a 50,000-deep nesting before they cost
+# memory, time or Python's stack.
+MAX_DEPTH = 64  # nesting levels of mappings and lists
+MAX_NODES = 100_000  # nodes after every alias is expanded (the shipped scenes have < 2,000)
+MAX_FILE_BYTES = 4 * 2**20  # a scene or sweep file (the largest shipped one is a few KB)
+# tags the loader constructs; any other (!!python/object/new:dict, !!binary, !!set, !custom) is refused
+_ALLOWED_TAGS = {
+    "tag:yaml.org,2002:" + t for t in ("map", "seq", "str", "int", "float", "bool", "null", "merge")
+}
+
+
+def _where_node(loc_file: str, node) -> str:
+    line, col = _mark(node)
+    return f"{loc_file}:{line}:{col}"
+
+
+def _check_tree(node, file: str) -> None:
+    """Refuse unknown tags, recursive aliases and an expanded size over MAX_NODES, in time linear in the
+    file (sizes are memoised per node, so a billion laughs is measured without being expanded)."""
+    sizes: dict[int, int] = {}
+    active: set[int] = set()
+
+    def size(n) -> int:
+        k = id(n)
+        if k in sizes:
+            return sizes[k]
+        if k in active:
+            raise SceneError(
+                [
+                    f"{_where_node(file, n)}: malformed YAML: a recursive alias (an anchor used inside "
+                    "itself); write the value out"
+                ]
+            )
+        if n.tag not in _ALLOWED_TAGS:
+            raise SceneError(
+                [
+                    f"{_where_node(file, n)}: YAML tag '{n.tag}' is not supported (a scene holds plain "
+                    "mappings, lists, strings, numbers, booleans and null); remove the tag"
+                ]
+            )
+        active.add(k)
+        total = 1
+        if isinstance(n, yaml.MappingNode):
+            for kn, vn in n.value:
+                total += size(kn) + size(vn)
+                if total > MAX_NODES:
+                    break
+        elif isinstance(n, yaml.SequenceNode):
+            for it in n.value:
+                total += size(it)
+                if total > MAX_NODES:
+                    break
+        active.discard(k)
+        sizes[k] = total
+        if total > MAX_NODES:
+            raise SceneError(
+                [
+                    f"{_where_node(file, n)}: YAML too large: more than {MAX_NODES:,} values once its "
+                    "aliases (*name) are expanded (a scene has a few hundred); remove the nested aliases"
+                ]
+            )
+        return total
+
+    size(node)
+
+
+def _construct(loader, node, file: str) -> Any:
+    """A scalar's value; an explicit tag that does not fit it (``!!float abc``, ``!!int 1.5``) is an error at
+    its place, not a ValueError from PyYAML's constructor."""
+    try:
+        return loader.construct_object(node, deep=True)
+    except (ValueError, TypeError, OverflowError, IndexError, KeyError) as e:  # PyYAML raises these
+        tag = str(node.tag).replace("tag:yaml.org,2002:", "!!")
+        raise SceneError([f"{_where_node(file, node)}: cannot read {node.value!r} as {tag}: {e}"]) from None
+
+
 def _walk(loader, node, path: Path_, loc: Located, errors: list[str]) -> Any:
     if isinstance(node, yaml.MappingNode):
         loader.flatten_mapping(node)
         out: dict = {}
         for knode, vnode in node.value:
-            key = loader.construct_object(knode, deep=True)
+            key = _construct(loader, knode, loc.file)
             if not isinstance(key, (str, int, float, bool)) or key is None:
                 errors.append(
                     f"{loc.file}:{_mark(knode)[0]}:{_mark(knode)[1]}: {_dotted(path)}: keys must be "
@@ -83,11 +163,27 @@ def _walk(loader, node, path: Path_, loc: Located, errors: list[str]) -> Any:
             loc.key_pos.setdefault(path + (i,), _mark(item))
             items.append(_walk(loader, item, path + (i,), loc, errors))
         return items
-    return loader.construct_object(node, deep=True)
+    return _construct(loader, node, loc.file)
 
 
 class _Loader(yaml.SafeLoader):
-    """SafeLoader with YAML 1.2 floats: PyYAML (YAML 1.1) reads 1e5 or -1e-3 as strings."""
+    """SafeLoader with YAML 1.2 floats (PyYAML, YAML 1.1, reads 1e5 or -1e-3 as strings), no implicit
+    dates (2024-01-01 stays a string) and a nesting depth limit (the composer recurses per level)."""
+
+    _depth = 0
+
+    def compose_node(self, parent, index):
+        self._depth += 1
+        try:
+            if self._depth > MAX_DEPTH:
+                mark = self.peek_event().start_mark
+                raise yaml.MarkedYAMLError(
+                    problem=f"nested more than {MAX_DEPTH} levels deep (a scene needs fewer than 10)",
+                    problem_mark=mark,
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
 
 
 _Loader.add_implicit_resolver(
@@ -102,6 +198,10 @@ _Loader.add_implicit_resolver(
     ),
     list("-+0123456789."),
 )
+_Loader.yaml_implicit_resolvers = {
+    k: [r for r in v if r[0] != "tag:yaml.org,2002:timestamp"]
+    for k, v in _Loader.yaml_implicit_resolvers.items()
+}
 
 
 def read_yaml_file(path: Path) -> Located:
@@ -109,6 +209,16 @@ def read_yaml_file(path: Path) -> Located:
     unreadable or malformed."""
     shown = str(path)
     try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):  # /dev/zero or a FIFO would be read forever
+            raise SceneError([f"{shown}: not a regular file"])
+        if st.st_size > MAX_FILE_BYTES:
+            raise SceneError(
+                [
+                    f"{shown}: {st.st_size / 2**20:.0f} MiB is too large for a scene or sweep file (at most "
+                    f"{MAX_FILE_BYTES // 2**20} MiB; meshes go in their own files)"
+                ]
+            )
         text = Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise SceneError([f"{shown}: file not found"]) from None
@@ -117,15 +227,19 @@ def read_yaml_file(path: Path) -> Located:
     return parse_yaml(text, shown)
 
 
-def parse_yaml(text: str, file: str) -> Located:
-    """Parse YAML text, keeping positions. Raises SceneError for malformed YAML."""
+def parse_yaml_any(text: str, file: str) -> Located:
+    """Parse YAML text of any shape (a ``--set`` value), keeping positions, within the reader's limits
+    (MAX_DEPTH, MAX_NODES, plain tags only). Raises SceneError for malformed or refused YAML; an empty
+    document gives None."""
     loc = Located(data=None, file=file)
     errors: list[str] = []
     try:
         loader = _Loader(text)
         try:
             node = loader.get_single_node()
-            loc.data = _walk(loader, node, (), loc, errors) if node is not None else {}
+            if node is not None:
+                _check_tree(node, file)
+                loc.data = _walk(loader, node, (), loc, errors)
         finally:
             loader.dispose()
     except yaml.MarkedYAMLError as e:
@@ -136,8 +250,16 @@ def parse_yaml(text: str, file: str) -> Located:
         raise SceneError([f"{file}:{line}:{col}: malformed YAML: {problem}{ctx}"]) from None
     except yaml.YAMLError as e:
         raise SceneError([f"{file}:1:1: malformed YAML: {e}"]) from None
+    except RecursionError:  # a guard of last resort: MAX_DEPTH stops the composer first
+        raise SceneError([f"{file}:1:1: malformed YAML: nested too deeply"]) from None
     if errors:
         raise SceneError(errors)
+    return loc
+
+
+def parse_yaml(text: str, file: str) -> Located:
+    """Parse YAML text, keeping positions. Raises SceneError for malformed YAML."""
+    loc = parse_yaml_any(text, file)
     if loc.data is None:
         loc.data = {}
     if not isinstance(loc.data, dict):
@@ -390,6 +512,62 @@ class LoadedScene:
         return self.scene.name or self.path.stem
 
 
+# Integers beyond this are refused everywhere (the solvers index with 32-bit integers; no count, seed or
+# size of a scene comes near it).
+MAX_INT = 2**31 - 1
+
+
+def _check_numbers(data: Any, path: Path_, loc: Located, errors: list[str]) -> None:
+    """NaN, Inf and out-of-range integers anywhere in a scene are errors at their place: no key of the
+    format means 'infinite' (an open bound is written by leaving the key out)."""
+    if isinstance(data, dict):
+        for k, v in data.items():
+            _check_numbers(v, path + (k,), loc, errors)
+    elif isinstance(data, list):
+        for i, v in enumerate(data):
+            _check_numbers(v, path + (i,), loc, errors)
+    elif isinstance(data, float) and not math.isfinite(data):
+        errors.append(f"{loc.where(path)}: {_dotted(path)}: must be a finite number (got {data})")
+    elif isinstance(data, int) and not isinstance(data, bool) and abs(data) > MAX_INT:
+        errors.append(
+            f"{loc.where(path)}: {_dotted(path)}: integer {_short(data)} is beyond {MAX_INT:,} (the "
+            "largest any "
+            "key takes)"
+        )
+
+
+def scene_from_located(loc: Located, path: Path, check: bool = True) -> LoadedScene:
+    """Validate located YAML data as a scene (``load_scene`` and every run of a sweep): plain numbers,
+    strict types (no true for a number, no 5.5 for a count), then the semantic checks. Raises SceneError."""
+    errors: list[str] = []
+    if not loc.data:
+        raise SceneError(
+            [
+                f"{loc.file}:1:1: (top level): the scene is empty; a scene needs at least entities: "
+                "(each a name, "
+                "a material and a morph); see configs/ for examples"
+            ]
+        )
+    _check_numbers(loc.data, (), loc, errors)
+    if errors:
+        raise SceneError(sort_lines(errors))
+    try:
+        # strict: YAML gives plain types, so strict only refuses what lax mode would silently convert (true
+        # read as 1 Pa, 2.7 truncated to a count, '1e5' as a number)
+        scene = Scene.model_validate(loc.data, strict=True)
+    except ValidationError as e:
+        raise SceneError(format_validation_error(e, loc)) from None
+    loaded = LoadedScene(scene=scene, path=path, located=loc)
+    if check:
+        from simcli.scene.checks import check_scene
+        from simcli.scene.limits import check_bounds
+
+        lines = check_bounds(loaded) or check_scene(loaded)
+        if lines:
+            raise SceneError(lines)
+    return loaded
+
+
 def load_scene(path: str | Path, sets: list[str] | tuple[str, ...] = (), check: bool = True) -> LoadedScene:
     """Read, override, validate and semantically check a scene file.
 
@@ -413,15 +591,4 @@ def load_scene(path: str | Path, sets: list[str] | tuple[str, ...] = (), check: 
                 errors.append(f"--set {s}: {e}")
         if errors:
             raise SceneError(errors)
-    try:
-        scene = Scene.model_validate(loc.data)
-    except ValidationError as e:
-        raise SceneError(format_validation_error(e, loc)) from None
-    loaded = LoadedScene(scene=scene, path=path, located=loc)
-    if check:
-        from simcli.scene.checks import check_scene
-
-        lines = check_scene(loaded)
-        if lines:
-            raise SceneError(lines)
-    return loaded
+    return scene_from_located(loc, path, check)

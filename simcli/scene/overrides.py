@@ -5,8 +5,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import yaml
-
 
 def split_path(dotted: str) -> tuple:
     """'entities.0.material.E' -> ('entities', 0, 'material', 'E')."""
@@ -23,12 +21,13 @@ def parse_set(text: str) -> tuple[tuple, Any]:
         raise ValueError("expected KEY=VALUE, e.g. --set sim.dt=1e-3")
     key, raw = text.split("=", 1)
     path = split_path(key.strip())
-    try:
-        from simcli.scene.loader import _Loader
+    from simcli.errors import SceneError
+    from simcli.scene.loader import parse_yaml_any
 
-        value = yaml.load(raw, Loader=_Loader) if raw.strip() != "" else None
-    except yaml.YAMLError as e:
-        raise ValueError(f"value is not valid YAML: {e}") from None
+    try:
+        value = parse_yaml_any(raw, "value").data if raw.strip() != "" else None
+    except SceneError as e:  # the scene reader's limits (depth, aliases, tags) hold for --set too
+        raise ValueError("; ".join(e.lines).replace("value:1:", "column ")) from None
     return path, value
 
 

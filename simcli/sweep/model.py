@@ -46,6 +46,9 @@ SCHEMA_ID = "https://simcli.dev/schemas/sweep.schema.json"
 ADMIN_DIR = "_sweep"
 # a dotted scene key: keys and list indices separated by dots
 KEY_PATTERN = r"^[^.\s]+(\.[^.\s]+)*$"
+# Most runs one sweep expands to (docs/LIMITS.md): more is refused before expansion. A sweep of this size is
+# already a Slurm array beyond most sites' MaxArraySize; split larger studies.
+MAX_RUNS = 5000
 _NAME_OK = re.compile(r"[^A-Za-z0-9._+=-]")
 
 Values = Annotated[list[Any], Field(min_length=1)]
@@ -102,11 +105,9 @@ def sweep_schema_text() -> str:
 
 def looks_like_sweep(path: str | Path) -> bool:
     """True for a sweep file (a top-level ``base:`` key), so ``simcli validate`` can route it here."""
-    import yaml
-
-    try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+    try:  # the scene reader (its limits on aliases and depth hold here too)
+        data = read_yaml_file(Path(path)).data
+    except SceneError:
         return False
     return isinstance(data, dict) and "base" in data and "entities" not in data
 
@@ -323,6 +324,19 @@ def load_sweep(path: str | Path) -> LoadedSweep:
     if errors:
         raise SceneError(sort_lines(errors))
 
+    n_runs = math.prod(len(v) for v in sweep.grid.values()) * (
+        len(next(iter(sweep.zip.values()))) if sweep.zip else 1
+    )
+    if n_runs > MAX_RUNS:  # before expanding: every run holds a copy of the base scene
+        sizes = " x ".join(f"{k}: {len(v)}" for k, v in {**sweep.grid, **sweep.zip}.items())
+        raise SceneError(
+            [
+                f"{loc.where(('grid',) if sweep.grid else ('zip',), prefer_key=True)}: "
+                f"{'grid' if sweep.grid else 'zip'}: the sweep expands to {n_runs:,} runs ({sizes}), "
+                "more than "
+                f"the {MAX_RUNS:,} one sweep may hold; shorten the lists or split it into several sweeps"
+            ]
+        )
     runs = _expand(sweep, loc, base_loc, errors)
     if errors:
         raise SceneError(sort_lines(list(dict.fromkeys(errors))))
@@ -473,22 +487,9 @@ def run_located(ls: LoadedSweep, run: Run) -> Located:
 
 def load_run_scene(ls: LoadedSweep, run: Run, check: bool = True) -> LoadedScene:
     """Validate one run's scene (no solver, no Taichi). Raises SceneError."""
-    from simcli.scene.loader import format_validation_error
-    from simcli.scene.models import Scene
+    from simcli.scene.loader import scene_from_located
 
-    loc = run_located(ls, run)
-    try:
-        scene = Scene.model_validate(loc.data)
-    except ValidationError as e:
-        raise SceneError(format_validation_error(e, loc)) from None
-    loaded = LoadedScene(scene=scene, path=ls.base_path, located=loc)
-    if check:
-        from simcli.scene.checks import check_scene
-
-        lines = check_scene(loaded)
-        if lines:
-            raise SceneError(lines)
-    return loaded
+    return scene_from_located(run_located(ls, run), ls.base_path, check)
 
 
 def validate_runs(ls: LoadedSweep) -> list[str]:
