@@ -13,19 +13,43 @@ import time
 
 _STATE: dict = {}
 
+# Taichi prints a version banner ("[Taichi] version 1.7.4, llvm ...") when it is first imported,
+# whichever module does it; simcli reports the version in run.json and `simcli info` instead.
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
+
 
 @contextlib.contextmanager
-def stdout_to_stderr():
-    """Send everything written to fd 1 (Python and C level) to fd 2 for the duration."""
+def stdout_to(fd: int):
+    """Send everything written to fd 1 (Python and C level) to ``fd`` for the duration."""
     sys.stdout.flush()
     saved = os.dup(1)
     try:
-        os.dup2(2, 1)
+        os.dup2(fd, 1)
         yield
     finally:
         sys.stdout.flush()
         os.dup2(saved, 1)
         os.close(saved)
+
+
+def stdout_to_stderr():
+    """Send everything written to fd 1 (Python and C level) to fd 2 for the duration."""
+    return stdout_to(2)
+
+
+@contextlib.contextmanager
+def quiet_stdout(quiet: bool):
+    """Taichi's own lines on fd 1 ("[Taichi] Starting on arch=x64"): to stderr, or nowhere when quiet."""
+    if not quiet:
+        with stdout_to(2):
+            yield
+        return
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        with stdout_to(null):
+            yield
+    finally:
+        os.close(null)
 
 
 def default_cache_dir() -> str:
@@ -56,18 +80,24 @@ def platform_hint(backend: str) -> str:
 
 
 def init_taichi(
-    backend: str = "cpu", precision: str = "f32", threads: int | None = None, debug: bool = False
+    backend: str = "cpu",
+    precision: str = "f32",
+    threads: int | None = None,
+    debug: bool = False,
+    quiet: bool = False,
 ) -> dict:
     """Initialise Taichi once per process and return facts about it.
 
     backend: auto | cpu | gpu | cuda | vulkan | metal. ``auto`` tries a GPU and falls back
-    to the CPU. Returns {'arch', 'import_s', 'init_s', 'threads', 'cache'}.
+    to the CPU. ``quiet``: nothing of Taichi's own on the terminal (its banner and "Starting
+    on arch" line; its warnings and errors still go to stderr). Returns {'arch', 'import_s', 'init_s',
+    'threads', 'cache'}.
     """
     if _STATE:
         return dict(_STATE)
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")  # the version banner
     t0 = time.perf_counter()
-    with stdout_to_stderr():
+    with quiet_stdout(quiet):
         import taichi as ti
     import_s = time.perf_counter() - t0
 
@@ -109,7 +139,7 @@ def init_taichi(
             except AttributeError:  # pragma: no cover - non-Linux
                 threads = os.cpu_count() or 1
     t0 = time.perf_counter()
-    with stdout_to_stderr():
+    with quiet_stdout(quiet):
         if backend == "cpu":
             ti.init(arch=ti.cpu, cpu_max_num_threads=threads, **kwargs)
         else:

@@ -12,6 +12,7 @@ import click
 
 from simcli import __version__
 from simcli.errors import EXIT_INVALID_SCENE, EXIT_OK, EXIT_USAGE, SceneError
+from simcli.progress import plural
 
 _T0 = time.perf_counter()
 
@@ -120,7 +121,9 @@ def validate(scenes: tuple[Path, ...], sets: tuple[str, ...], quiet: bool) -> No
             continue
         if not quiet:
             s = loaded.scene
-            _err(f"{path}: ok ({len(s.entities)} entities, dim {s.sim.dim}, {s.sim.n_steps} steps)")
+            _err(
+                f"{path}: ok ({plural(len(s.entities), 'entity')}, dim {s.sim.dim}, {plural(s.sim.n_steps, 'step')})"
+            )
     sys.exit(EXIT_INVALID_SCENE if bad else EXIT_OK)
 
 
@@ -160,7 +163,7 @@ def _validate_sweep(path: Path, quiet: bool) -> int:
     for line in lines:
         _err(line)
     if not lines and not quiet:
-        _err(f"{path}: ok (sweep of {len(ls.runs)} runs)")
+        _err(f"{path}: ok (sweep of {plural(len(ls.runs), 'run')})")
     return 1 if lines else 0
 
 
@@ -202,7 +205,9 @@ def repair(out: Path) -> None:
     cleared = clear_status_flags(h5)
     with open_frames(h5) as f:
         n = len(f["time"])
-    _err(f"{h5}: {'cleared the open-for-writing flag' if cleared else 'already clean'}; {n} frames readable")
+    _err(
+        f"{h5}: {'cleared the open-for-writing flag' if cleared else 'already clean'}; {plural(n, 'frame')} readable"
+    )
 
 
 @cli.command()
