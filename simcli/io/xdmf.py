@@ -153,9 +153,9 @@ class XdmfWriter:
             else:
                 nc, npc = e.cells.shape
                 extra = f' NodesPerElement="{npc}"' if e.kind == "lines" else ""
-                # The cells are wrapped in a whole-array hyperslab: vtkXdmfReader caches a mesh
-                # keyed on the topology/geometry DataItem *text*, which would be the same for
-                # every frame here and serve stale points; the geometry's text names its frame.
+                # The cells are a whole-array hyperslab, as the frames' data: vtkXdmfReader caches
+                # a mesh keyed on the DataItem text, and a plain DataItem here (the same text in
+                # every frame) served stale points; the tests read frames out of order to catch it.
                 cells = _heavy(
                     f"{self.h5}:/entities/{e.name}/cells", "int64", (nc, npc), (nc, npc), (0, 0), (nc, npc)
                 )
