@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -45,6 +48,11 @@ def test_one_entity_one_step_in_good_english(tmp_path):
     assert "done: 1 step, 2 frames in" in r.stderr, r.stderr
     assert not re.search(r"(?<![\d.])1 (steps|entities|frames)\b", r.stderr), r.stderr
     assert "[Taichi] version" not in r.stderr  # the import banner: never (run.json has the version)
+    # the progress line's rate is run.json's (steps over stepping time)
+    m = re.search(r"simcli: step 1/1 \(100\.0%\) t=\S+ ([\d.]+) steps/s ETA 0:00", r.stderr)
+    assert m, r.stderr
+    rj = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert float(m.group(1)) == pytest.approx(rj["throughput"]["steps_per_s"], abs=0.051)
 
 
 def test_quiet_run_prints_nothing_of_taichi(tmp_path):
