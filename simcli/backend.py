@@ -13,19 +13,43 @@ import time
 
 _STATE: dict = {}
 
+# Taichi prints a version banner ("[Taichi] version 1.7.4, llvm ...") when it is first imported,
+# whichever module does it; simcli reports the version in run.json and `simcli info` instead.
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
+
 
 @contextlib.contextmanager
-def stdout_to_stderr():
-    """Send everything written to fd 1 (Python and C level) to fd 2 for the duration."""
+def stdout_to(fd: int):
+    """Send everything written to fd 1 (Python and C level) to ``fd`` for the duration."""
     sys.stdout.flush()
     saved = os.dup(1)
     try:
-        os.dup2(2, 1)
+        os.dup2(fd, 1)
         yield
     finally:
         sys.stdout.flush()
         os.dup2(saved, 1)
         os.close(saved)
+
+
+def stdout_to_stderr():
+    """Send everything written to fd 1 (Python and C level) to fd 2 for the duration."""
+    return stdout_to(2)
+
+
+@contextlib.contextmanager
+def quiet_stdout(quiet: bool):
+    """Taichi's own lines on fd 1 ("[Taichi] Starting on arch=x64"): to stderr, or nowhere when quiet."""
+    if not quiet:
+        with stdout_to(2):
+            yield
+        return
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        with stdout_to(null):
+            yield
+    finally:
+        os.close(null)
 
 
 def default_cache_dir() -> str:
@@ -56,18 +80,24 @@ def platform_hint(backend: str) -> str:
 
 
 def init_taichi(
-    backend: str = "cpu", precision: str = "f32", threads: int | None = None, debug: bool = False
+    backend: str = "cpu",
+    precision: str = "f32",
+    threads: int | None = None,
+    debug: bool = False,
+    quiet: bool = False,
 ) -> dict:
     """Initialise Taichi once per process and return facts about it.
 
     backend: auto | cpu | gpu | cuda | vulkan | metal. ``auto`` tries a GPU and falls back
-    to the CPU. Returns {'arch', 'import_s', 'init_s', 'threads', 'cache'}.
+    to the CPU. ``quiet``: nothing of Taichi's own on the terminal (its banner and "Starting
+    on arch" line; its warnings and errors still go to stderr). Returns {'arch', 'import_s', 'init_s',
+    'threads', 'cache'}.
     """
     if _STATE:
         return dict(_STATE)
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")  # the version banner
     t0 = time.perf_counter()
-    with stdout_to_stderr():
+    with quiet_stdout(quiet):
         import taichi as ti
     import_s = time.perf_counter() - t0
 
@@ -114,7 +144,7 @@ def init_taichi(
 
     threads = max(1, min(int(threads), allowed_threads()))
     t0 = time.perf_counter()
-    with stdout_to_stderr():
+    with quiet_stdout(quiet):
         if backend == "cpu":
             ti.init(arch=ti.cpu, cpu_max_num_threads=threads, **kwargs)
         else:
@@ -142,3 +172,146 @@ def init_taichi(
         taichi=ti.__version__,
     )
     return dict(_STATE)
+
+
+# ---------------------------------------------------------------------------------------------
+# `simcli info`: what this machine offers, without risking the process that asks
+# ---------------------------------------------------------------------------------------------
+
+#: the GPU backends `--backend` offers, probed by `simcli info`. (Taichi's OpenGL probe,
+#: ``_ti_core.with_opengl()``, is not among them: simcli does not offer OpenGL, and that probe
+#: kills the process with SIGSEGV on a machine without a display.)
+PROBED_BACKENDS = ("cuda", "vulkan", "metal")
+
+_PROBE_CHILD = r"""
+import json, os, sys
+out = os.fdopen(os.dup(1), "w")
+os.dup2(2, 1)  # Taichi's banners and warnings: not on our channel
+os.environ["ENABLE_TAICHI_HEADER_PRINT"] = "False"
+os.environ.setdefault("TI_LOG_LEVEL", "error")
+from taichi._lib import core
+for name in sys.argv[1:]:
+    out.write(name + "\n")  # announced first: if the probe kills us, the parent knows which one
+    out.flush()
+    f = getattr(core, "with_" + name, None)
+    out.write(json.dumps({name: bool(f()) if f is not None else None}) + "\n")
+    out.flush()
+"""
+
+
+def probe_backends(names=PROBED_BACKENDS, timeout_s: float = 60.0, python: str | None = None) -> dict:
+    """Which GPU backends this Taichi build has, each asked in a child process.
+
+    Returns {name: True | False | None (this Taichi does not know it) | "probe failed: ..."}.
+    A probe that crashes or hangs takes down only the child; the others are asked again in a
+    fresh one. Never raises.
+    """
+    import json
+    import subprocess
+
+    result: dict = {}
+    left = list(names)
+    while left:
+        try:
+            r = subprocess.run(
+                [python or sys.executable, "-c", _PROBE_CHILD, *left],
+                capture_output=True,
+                text=True,
+                timeout=timeout_s,
+            )
+            lines, rc = r.stdout.splitlines(), r.returncode
+        except subprocess.TimeoutExpired as e:
+            out = e.stdout.decode() if isinstance(e.stdout, bytes) else (e.stdout or "")
+            lines, rc = out.splitlines(), None
+        except OSError as e:  # pragma: no cover - no interpreter
+            return {**result, **{n: f"probe failed: {e}" for n in left}}
+        current = None
+        for line in lines:
+            if line.startswith("{"):
+                result.update(json.loads(line))
+                current = None
+            else:
+                current = line.strip()
+        left = [n for n in left if n not in result]
+        if not left:
+            break
+        if current is None:  # died before it asked anything (e.g. Taichi does not import)
+            why = "timed out" if rc is None else f"exit {rc}"
+            return {**result, **{n: f"probe failed: Taichi did not load ({why})" for n in left}}
+        if rc is None:
+            why = f"timed out after {timeout_s:g} s"
+        elif rc < 0:
+            import signal
+
+            try:
+                why = f"crashed ({signal.Signals(-rc).name})"
+            except ValueError:
+                why = f"crashed (signal {-rc})"
+        else:
+            why = f"exit {rc}"
+        result[current] = f"probe failed: {why}"
+        left.remove(current)
+    return result
+
+
+def machine_facts(timeout_s: float = 60.0) -> dict:
+    """Versions, backends and devices for `simcli info` (importing Taichi only in a child)."""
+    import platform
+    import subprocess
+    from importlib import metadata
+
+    from simcli import __version__
+
+    facts: dict = {
+        "simcli": __version__,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+    }
+    for dist in ("taichi", "numpy", "h5py", "meshio", "pydantic", "PyYAML", "click"):
+        try:
+            facts[dist.lower()] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            facts[dist.lower()] = None
+    if facts["taichi"] is not None:
+        facts["taichi_backends_compiled"] = probe_backends(timeout_s=timeout_s)
+    else:
+        facts["taichi_backends_compiled"] = {}
+    facts["cuda_driver"] = _has_gpu_driver()
+    try:
+        r = subprocess.run(
+            ["nvidia-smi", "--query-gpu=name,memory.total", "--format=csv,noheader"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        gpus = [g.strip() for g in r.stdout.splitlines() if g.strip()] if r.returncode == 0 else []
+    except (OSError, subprocess.SubprocessError):
+        gpus = []
+    facts["gpus"] = gpus
+    cuda_ok = facts["taichi_backends_compiled"].get("cuda") is True and facts["cuda_driver"]
+    facts["backend_auto"] = "cuda" if cuda_ok else "cpu"
+    facts["cpu"] = _cpu_model() or platform.processor() or platform.machine()
+    try:
+        facts["cpu_cores"] = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - non-Linux
+        facts["cpu_cores"] = os.cpu_count()
+    facts["memory_gb"] = _memory_gb()
+    return facts
+
+
+def _cpu_model() -> str | None:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return None
+
+
+def _memory_gb() -> float | None:
+    try:
+        return round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        return None

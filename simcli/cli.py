@@ -12,6 +12,7 @@ import click
 
 from simcli import __version__
 from simcli.errors import EXIT_INVALID_SCENE, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, SceneError
+from simcli.progress import plural
 
 _T0 = time.perf_counter()
 
@@ -141,7 +142,9 @@ def validate(scenes: tuple[Path, ...], sets: tuple[str, ...], quiet: bool) -> No
         _print_warnings(loaded)
         if not quiet:
             s = loaded.scene
-            _err(f"{path}: ok ({len(s.entities)} entities, dim {s.sim.dim}, {s.sim.n_steps} steps)")
+            _err(
+                f"{path}: ok ({plural(len(s.entities), 'entity')}, dim {s.sim.dim}, {plural(s.sim.n_steps, 'step')})"
+            )
     sys.exit(EXIT_INVALID_SCENE if bad else EXIT_OK)
 
 
@@ -189,7 +192,7 @@ def _validate_sweep(path: Path, quiet: bool) -> int:
     for line in lines:
         _err(line)
     if not lines and not quiet:
-        _err(f"{path}: ok (sweep of {len(ls.runs)} runs)")
+        _err(f"{path}: ok (sweep of {plural(len(ls.runs), 'run')})")
     return 1 if lines else 0
 
 
@@ -241,59 +244,21 @@ def repair(out: Path) -> None:
 @cli.command()
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output on stdout.")
 def info(as_json: bool) -> None:
-    """Versions, backends and devices found."""
-    import platform
+    """Versions, backends and devices found (GPU backends are probed in a child process)."""
+    from simcli.backend import machine_facts
 
-    from simcli.backend import stdout_to_stderr
-
-    facts: dict = {
-        "simcli": __version__,
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-    }
-    for mod in ("numpy", "h5py", "meshio", "pydantic", "yaml", "click"):
-        try:
-            facts[mod] = __import__(mod).__version__
-        except Exception:
-            facts[mod] = None
-    with stdout_to_stderr():
-        try:
-            import taichi as ti
-
-            facts["taichi"] = (
-                ti.__version__ if isinstance(ti.__version__, str) else ".".join(map(str, ti.__version__))
-            )
-            from taichi._lib import core as _ti_core
-
-            backends = {}
-            for name in ("cuda", "vulkan", "metal", "opengl"):
-                try:
-                    backends[name] = bool(getattr(_ti_core, f"with_{name}")())
-                except Exception:
-                    backends[name] = False
-            facts["taichi_backends_compiled"] = backends
-        except Exception as e:  # pragma: no cover
-            facts["taichi"] = f"unavailable: {e}"
-    try:
-        import subprocess
-
-        r = subprocess.run(
-            ["nvidia-smi", "--query-gpu=name,memory.total", "--format=csv,noheader"],
-            capture_output=True,
-            text=True,
-            timeout=5,
-        )
-        facts["gpus"] = [g.strip() for g in r.stdout.splitlines() if g.strip()] if r.returncode == 0 else []
-    except Exception:
-        facts["gpus"] = []
-    import os
-
-    facts["cpu_cores"] = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    facts = machine_facts()
     if as_json:
         click.echo(json.dumps(facts, indent=2))
-    else:
-        for k, v in facts.items():
-            _err(f"{k}: {v}")
+        return
+    for k, v in facts.items():
+        if isinstance(v, dict):
+            v = ", ".join(
+                f"{name}: {'yes' if x is True else 'no' if x is False else x}" for name, x in v.items()
+            )
+        elif isinstance(v, list):
+            v = "; ".join(v) if v else "none found"
+        _err(f"{k}: {v}")
 
 
 def _register_optional() -> None:

@@ -29,7 +29,7 @@ from simcli.errors import (
     SimcliError,
 )
 from simcli.geometry.mesh import MeshError
-from simcli.progress import Progress
+from simcli.progress import Progress, plural
 from simcli.runsignals import RunSignals
 from simcli.scene.loader import LoadedScene
 from simcli.scene.models import resolved_scene_dict
@@ -341,7 +341,7 @@ class Runner:
         # ---- taichi and the solver
         from simcli.backend import init_taichi
 
-        ti_info = init_taichi(self.backend, sim.precision, sim.threads)
+        ti_info = init_taichi(self.backend, sim.precision, sim.threads, quiet=self.quiet)
         self.signals.install()  # Taichi installs handlers of its own in ti.init: ours must win
         self._startup_point("starting Taichi")
         self.timings["taichi_init_s"] = ti_info["import_s"] + ti_info["init_s"]
@@ -433,13 +433,16 @@ class Runner:
                 f"(CFL / elastic wave speed); suggest sim.substeps >= {need} or sim.substeps: auto"
             )
 
-        progress = Progress(total_steps=n_steps, start_step=step, dt=sim.dt, quiet=self.quiet)
+        progress = Progress(
+            total_steps=n_steps, start_step=step, dt=sim.dt, quiet=self.quiet, warmup_steps=every
+        )
         self.write_run_json("running", None)
         ckpt_every = scene.checkpoint.every
         first = True
         last_json = time.perf_counter()
         t_loop = time.perf_counter()
         stepping0 = self.timings["stepping_s"]
+        self._step0 = step  # steps of this process are counted from here (a resumed run: its checkpoint)
         substeps_done = 0
         # smallest and largest substep taken [s] (over the whole run: a resumed run continues the checkpoint's)
         saved = ckpt[1].get("dt_range") if ckpt is not None else None
@@ -529,7 +532,7 @@ class Runner:
                         flush=True,
                     )
                     return EXIT_INTERRUPTED, self.write_run_json("interrupted", EXIT_INTERRUPTED)
-            progress.update(step)
+            progress.update(step, self.timings["stepping_s"] - stepping0)
             if time.perf_counter() - last_json > 10.0:
                 self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
                 self.write_run_json("running", None)
@@ -552,7 +555,9 @@ class Runner:
         ]
         if not rates:
             rates = [f"{tp.get('steps_per_s') or 0:.3g} steps/s"]
-        self.log(f"done: {step} steps, {frame + 1} frames in {self.out} ({', '.join(rates)})")
+        self.log(
+            f"done: {plural(step, 'step')}, {plural(frame + 1, 'frame')} in {self.out} ({', '.join(rates)})"
+        )
         return EXIT_OK, info
 
     # ------------------------------------------------------------------ pieces
@@ -583,7 +588,7 @@ class Runner:
                 "dt_max_s": dt_hi if dt_hi > 0 else None,
             },
             throughput={
-                "steps_per_s": (step / steady) if step else 0.0,
+                "steps_per_s": ((step - getattr(self, "_step0", 0)) / steady) if step else 0.0,
                 "substeps_per_s": sps,
                 "particle_substeps_per_s": sps * n_particles,
                 "cell_substeps_per_s": sps

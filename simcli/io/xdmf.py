@@ -1,10 +1,27 @@
-"""``sim.xdmf``: an XDMF 3 description of sim.h5 that ParaView / VTK open directly.
+"""``sim.xdmf``: an XDMF description of sim.h5 that ParaView / VTK open directly, with either of
+VTK's XDMF readers: the XDMF 3 reader ParaView picks by default (vtkXdmf3Reader, "Xdmf3ReaderS/T")
+and the legacy XDMF 2 one (vtkXdmfReader, ParaView's "XDMF Reader").
 
-One temporal collection per entity; each frame is a uniform grid whose geometry and
-attributes are hyperslabs (frame ``i``) of the frame-indexed datasets in sim.h5.  Particles
-use Polyvertex topology, meshes Tetrahedron / Triangle / Polyline topology on the static
-``cells`` dataset, grids 3DCoRectMesh with cell-centred attributes (a 2D grid as one layer of 3D cells centred
-on z = 0: VTK's XDMF reader misplaces a 2DCoRectMesh and its cell data).
+One temporal collection per entity; each frame is a uniform grid whose geometry and attributes
+are frame ``i`` of the frame-indexed datasets in sim.h5 (the layout the contract describes; the
+file is written in SWMR mode, which cannot add a dataset per frame). Particles use Polyvertex
+topology, meshes Tetrahedron / Triangle / Polyline topology on the static ``cells`` dataset,
+grids 3DCoRectMesh with cell-centred attributes (a 2D grid as one layer of 3D cells centred on
+z = 0: VTK's XDMF reader misplaces a 2DCoRectMesh and its cell data).
+
+How one frame of a dataset is addressed, so that both readers read it (see :func:`_heavy`):
+
+* the XDMF 2 reader reads a hyperslab DataItem (two child DataItems: start/stride/count, then
+  the dataset). It accepts the XDMF 1 spelling ``Type="HyperSlab"`` for ``ItemType``.
+* the XDMF 3 library reads ``ItemType="HyperSlab"`` (and ``ItemType="Function"``) as a
+  reference that VTK's XDMF 3 reader asks for its number type before reading it: the array is
+  skipped ("Skipping unrecognized array type [None]") and the grid has 0 points. It does not
+  know the XDMF 1 ``Type`` spelling, so the same element is for it a plain HDF DataItem whose
+  text is XDMF 3's own hyperslab syntax ``file:/dataset|start:stride:count:dataspace``, read
+  lazily (only the frame shown). (An XDMF 3 ``<Function>`` wrapper also works but reads every
+  frame of every field when the file is opened: minutes and the whole of sim.h5 in memory.)
+
+Names (entities, fields) are XML-escaped wherever they are written (attribute or text).
 
 The file is rewritten atomically after each frame so that it always lists exactly the frames
 that sim.h5 holds.  Per-frame XML is built once and cached, so a rewrite is a join + write.
@@ -14,7 +31,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import TYPE_CHECKING
-from xml.sax.saxutils import quoteattr
+from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 
@@ -50,6 +67,27 @@ def _fmt(x: float) -> str:
     return repr(float(x))
 
 
+def _ints(v) -> str:
+    return " ".join(str(int(x)) for x in v)
+
+
+def _heavy(path: str, dtype: str, dims, full, start, count) -> str:
+    """A DataItem for ``path[start : start + count]`` (stride 1) of an HDF5 dataset of shape ``full``,
+    shaped ``dims``: an XDMF 2 hyperslab (``Type=``) whose own text is the XDMF 3 hyperslab syntax."""
+    nt, prec = _number_type(dtype)
+    rank = len(full)
+    stride = (1,) * rank
+    xdmf3 = f"{path}|{_ints(start)}:{_ints(stride)}:{_ints(count)}:{_ints(full)}"
+    return (
+        f'<DataItem Type="HyperSlab" Dimensions="{_ints(dims)}" NumberType="{nt}" Precision="{prec}" '
+        f'Format="HDF">{escape(xdmf3)}'
+        f'<DataItem Dimensions="3 {rank}" NumberType="UInt" Format="XML">'
+        f"{_ints(start)} {_ints(stride)} {_ints(count)}</DataItem>"
+        f'<DataItem Dimensions="{_ints(full)}" NumberType="{nt}" Precision="{prec}" Format="HDF">'
+        f"{escape(path)}</DataItem></DataItem>"
+    )
+
+
 class XdmfWriter:
     def __init__(self, path: Path, h5_name: str, entities: list[EntityMeta]):
         self.path = Path(path)
@@ -70,26 +108,16 @@ class XdmfWriter:
 
     # ------------------------------------------------------------------------------------
     def _slab(self, e: EntityMeta, fname: str, frame: int) -> str:
-        """A hyperslab DataItem picking frame ``frame`` of /entities/<e>/<fname>."""
-        comps, _unit, dtype = e.fields[fname]
+        """Frame ``frame`` of /entities/<e>/<fname>, readable by both XDMF readers (module doc)."""
+        dtype = e.fields[fname][2]
         shape = e.frame_shape(fname)
-        full = (frame + 1,) + shape  # any first dimension > frame works; keep it honest and small
-        rank = len(full)
-        start = " ".join([str(frame)] + ["0"] * (rank - 1))
-        stride = " ".join(["1"] * rank)
-        count = " ".join(["1"] + [str(s) for s in shape])
-        nt, prec = _number_type(dtype)
-        dims = " ".join(str(s) for s in shape)
+        dims = shape
         if e.kind == "grid" and e.dim == 2:
-            dims = "1 " + dims  # the one-layer 3D mesh of a 2D grid
-        fdims = " ".join(str(s) for s in full)
-        return (
-            f'<DataItem ItemType="HyperSlab" Dimensions="{dims}" Type="HyperSlab">'
-            f'<DataItem Dimensions="3 {rank}" NumberType="UInt" Format="XML">'
-            f"{start} {stride} {count}</DataItem>"
-            f'<DataItem Dimensions="{fdims}" NumberType="{nt}" Precision="{prec}" Format="HDF">'
-            f"{self.h5}:/entities/{e.name}/{fname}</DataItem></DataItem>"
-        )
+            dims = (1,) + shape  # the one-layer 3D mesh of a 2D grid
+        full = (frame + 1,) + shape  # any first dimension > frame works; keep it honest and small
+        start = (frame,) + (0,) * len(shape)
+        count = (1,) + shape
+        return _heavy(f"{self.h5}:/entities/{e.name}/{fname}", dtype, dims, full, start, count)
 
     def _grid(self, e: EntityMeta, frame: int, time: float) -> str:
         name = quoteattr(f"{e.name}_{frame:06d}")
@@ -125,16 +153,15 @@ class XdmfWriter:
             else:
                 nc, npc = e.cells.shape
                 extra = f' NodesPerElement="{npc}"' if e.kind == "lines" else ""
-                # The cells are wrapped in a whole-array hyperslab: vtkXdmfReader caches a mesh
-                # keyed on the topology/geometry DataItem *text*, which would be the same for
-                # every frame here and serve stale points; a wrapped DataItem has no text, so
-                # that cache is (silently) off.
+                # The cells are a whole-array hyperslab, as the frames' data: vtkXdmfReader caches
+                # a mesh keyed on the DataItem text, and a plain DataItem here (the same text in
+                # every frame) served stale points; the tests read frames out of order to catch it.
+                cells = _heavy(
+                    f"{self.h5}:/entities/{e.name}/cells", "int64", (nc, npc), (nc, npc), (0, 0), (nc, npc)
+                )
                 parts.append(
                     f'<Topology TopologyType="{TOPOLOGY[e.kind]}" NumberOfElements="{nc}"{extra}>'
-                    f'<DataItem ItemType="HyperSlab" Dimensions="{nc} {npc}" Type="HyperSlab">'
-                    f'<DataItem Dimensions="3 2" NumberType="UInt" Format="XML">0 0 1 1 {nc} {npc}</DataItem>'
-                    f'<DataItem Dimensions="{nc} {npc}" NumberType="Int" Precision="8" Format="HDF">'
-                    f"{self.h5}:/entities/{e.name}/cells</DataItem></DataItem></Topology>"
+                    f"{cells}</Topology>"
                 )
             parts.append(f'<Geometry GeometryType="{"XYZ" if e.dim == 3 else "XY"}">')
             parts.append(self._slab(e, "position", frame))
