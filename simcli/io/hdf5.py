@@ -421,6 +421,11 @@ class H5Writer:
             if e.cells is not None:
                 c = g.create_dataset("cells", data=e.cells, dtype="i8")
                 c.attrs["unit"] = "1"
+            elif e.kind == "particles":
+                # one vertex cell per particle, for sim.xdmf: ParaView's XDMF 3 reader builds no cells
+                # for a Polyvertex topology without connectivity (nothing shows in its Surface view)
+                v = g.create_dataset("vertices", data=np.arange(e.n, dtype="i8"), dtype="i8")
+                v.attrs["unit"] = "1"
             for fname, (_comps, unit, dtype) in e.fields.items():
                 shape = e.frame_shape(fname)
                 d = g.create_dataset(

@@ -147,8 +147,14 @@ class XdmfWriter:
             )
         else:
             if e.kind == "particles":
+                # connectivity from the static /vertices (0..n-1), a whole-array hyperslab as the cells
+                # below: without it the XDMF 3 reader makes points but no cells
+                verts = _heavy(
+                    f"{self.h5}:/entities/{e.name}/vertices", "int64", (e.n,), (e.n,), (0,), (e.n,)
+                )
                 parts.append(
-                    f'<Topology TopologyType="Polyvertex" NumberOfElements="{e.n}" NodesPerElement="1"/>'
+                    f'<Topology TopologyType="Polyvertex" NumberOfElements="{e.n}" NodesPerElement="1">'
+                    f"{verts}</Topology>"
                 )
             else:
                 nc, npc = e.cells.shape
