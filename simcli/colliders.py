@@ -137,14 +137,24 @@ def contact_velocity(v, n, v_wall, contact: ti.template(), mu):
     slip: the normal relative velocity is removed both ways (the body cannot leave nor enter);
     separate: removed only when moving into the surface; sticky: the node moves with the surface.
     Friction (Coulomb, ``mu``) acts on the tangential relative velocity in proportion to the
-    removed compressive normal velocity.
+    removed compressive normal velocity: the node's tangential velocity change is at most mu
+    times its own normal velocity change (impulses per unit node mass, gravity of the substep
+    included), so the friction impulse summed over the nodes is mu times the normal force.
+
+    A frictional slip face (``mu > 0``) is unilateral like ``separate``: a node leaving it is
+    released. Holding such a node (a tensile normal impulse, with no friction since there is no
+    compression) while its neighbours' compressive impulses grow to balance it breaks Coulomb's
+    law: a sliding block rocks on its front edge, its compressive nodes carry up to 5x its weight
+    and it stops in 0.64 of Coulomb's distance (docs/VALIDATION.md, "Coulomb friction"). Without
+    friction slip stays bilateral, as before.
     """
     vr = v - v_wall
     vn = vr.dot(n)
     if ti.static(contact == "sticky"):
         vr = vr * 0.0
     elif ti.static(contact == "slip"):
-        vr = _tangential(vr, n, vn, mu)
+        if vn < 0 or mu <= 0:
+            vr = _tangential(vr, n, vn, mu)
     else:  # separate
         if vn < 0:
             vr = _tangential(vr, n, vn, mu)

@@ -109,7 +109,12 @@ class Boundary(Strict):
         "Grid fluids (SF) only: open (outflow: zero pressure on the face, fluid leaves or enters freely); "
         "periodic (leaving through this face re-enters through the opposite one; give both faces of an axis).",
     )
-    friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient [-].")
+    friction: float = Field(
+        0.0,
+        ge=0,
+        description="Coulomb friction coefficient [-]. MPM: friction > 0 makes a slip face unilateral like "
+        "separate (material may leave it; Coulomb friction needs a compressive contact).",
+    )
     velocity: Vec | None = Field(
         None, description="Wall velocity [m/s] (a moving lid); one component per dimension."
     )
@@ -144,7 +149,12 @@ class _ColliderBase(Strict):
     boundary: Literal["slip", "sticky", "separate"] = Field(
         "separate", description="Contact condition on the collider surface (see domain.boundary.type)."
     )
-    friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient [-].")
+    friction: float = Field(
+        0.0,
+        ge=0,
+        description="Coulomb friction coefficient [-]. MPM: friction > 0 makes a slip collider unilateral "
+        "like separate (Coulomb friction needs a compressive contact).",
+    )
 
 
 class PlaneCollider(_ColliderBase):

@@ -572,5 +572,52 @@ def column_height(f, entity, width, axis=0, up=None, wall=0.0, q=99.0, spacing=0
     return f["time"][...], np.asarray(out)
 
 
+# ------------------------------------------------------------------ Coulomb friction (sliding)
+
+
+def _along(f, entity, direction, field):
+    """Mean of ``field`` (particles of one entity carry equal mass: the centre of mass for
+    positions, its velocity for velocities) projected on the unit ``direction``."""
+    d = np.asarray(direction, dtype=np.float64)
+    d = d / np.linalg.norm(d)
+    return _stack(f, entity, field).mean(axis=1) @ d
+
+
+@measurement("slide_distance")
+def slide_distance(f, entity, direction=(1.0, 0.0), **_):
+    """Displacement [m] of the centre of mass along ``direction`` since the first frame."""
+    s = _along(f, entity, direction, "position")
+    return f["time"][...], s - s[0]
+
+
+@measurement("slide_velocity")
+def slide_velocity(f, entity, direction=(1.0, 0.0), **_):
+    """Velocity [m/s] of the centre of mass along ``direction`` (the mean particle velocity)."""
+    return f["time"][...], _along(f, entity, direction, "velocity")
+
+
+@measurement("slide_stop_time")
+def slide_stop_time(f, entity, direction=(1.0, 0.0), level=0.1, **_):
+    """Time [s] a sliding body stops: where its centre-of-mass velocity along ``direction``,
+    extrapolated from the last stretch above ``level`` times the initial speed (a straight line
+    through the frames between that level and 0.6 of the initial speed), reaches zero. A body
+    under Coulomb friction decelerates uniformly, so the line is its velocity; fitting it away
+    from the stop avoids the frame rate's resolution and the elastic ringing of a stopped body.
+    Every entry of the returned series is that one time (NaN while the body has not slowed)."""
+    t = np.asarray(f["time"][...], dtype=np.float64)
+    v = _along(f, entity, direction, "velocity")
+    v0 = v[0]
+    below = np.nonzero(v < level * v0)[0]
+    stop = np.nan
+    if len(below):
+        k = below[0]
+        sel = (np.arange(len(v)) < k) & (v <= 0.6 * v0)
+        if sel.sum() >= 2:
+            slope, icpt = np.polyfit(t[sel], v[sel], 1)
+            if slope < 0:
+                stop = -icpt / slope
+    return t, np.full(len(t), stop)
+
+
 # the PBD family's measurements register themselves in MEASUREMENTS on import
 from simcli.solvers.pbd import measures as _pbd_measures  # noqa: E402,F401

@@ -50,8 +50,8 @@ def make_nearest(scene, dim: int = 3):
             if phi < phi_min:
                 phi_min = phi
                 n_min = nrm
-                kind = ti.static(KIND_ID[o[6]])
-                mu = ti.static(float(o[7]))
+                kind = KIND_ID[o[6]]  # a plain store: `x = ti.static(...)` only rebinds a Python name
+                mu = float(o[7])
         return phi_min, n_min, kind, mu
 
     return nearest
