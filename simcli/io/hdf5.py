@@ -9,6 +9,7 @@ Layout (see SCENE_FORMAT.md section 3)::
         <field>            (frames, n[, comps]); grid fields (frames, nz, ny, nx[, comps]) in 3D,
                            (frames, ny, nx[, comps]) in 2D, with origin / spacing attrs (x, y, z)
         cells              (n_cells, nodes per cell) int64, static, meshes only
+        vertices           (n,) int64 = 0..n-1, static, particles only (sim.xdmf's vertex cells)
 
 Crash safety: all datasets are created first, then the file switches to SWMR mode; each
 frame writes the entity datasets, flushes, and only then extends ``/time`` and ``/step`` and
