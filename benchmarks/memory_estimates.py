@@ -107,9 +107,9 @@ def sf(res: int) -> str:
     )
 
 
-# family -> (scene maker, the three sizes, what the size is)
+# family -> (scene maker, the sizes (three about 10x apart; MPM a fourth at 5 M particles), what the size is)
 CASES = {
-    "MPM": (mpm, [100, 180, 320], "grid_density"),
+    "MPM": (mpm, [100, 180, 320, 400], "grid_density"),
     "SPH": (sph, [0.02, 0.01, 0.0066], "particle_size"),
     "FEM": (fem, [100, 200, 300], "resolution"),
     "PBD": (pbd, [100, 316, 1000], "Rectangle resolution"),
@@ -127,19 +127,24 @@ def _du(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
 
 
-def measure(family: str, size, work: Path) -> dict:
+def estimate(family: str, size, d: Path):
+    """(memory estimate, disk estimate, scene file) of a case, from the current code."""
     from simcli.resources import estimate_disk, estimate_memory
     from simcli.scene.loader import load_scene
 
-    make, _, what = CASES[family]
-    d = work / f"{family}_{size}"
-    shutil.rmtree(d, ignore_errors=True)
-    d.mkdir(parents=True)
+    d.mkdir(parents=True, exist_ok=True)
     scene = d / "scene.yaml"
-    scene.write_text(make(size))
+    scene.write_text(CASES[family][0](size))
     loaded = load_scene(scene)
     est = estimate_memory(loaded.scene, loaded.scene_dir)
-    disk = estimate_disk(loaded.scene, est)
+    return est, estimate_disk(loaded.scene, est), scene
+
+
+def measure(family: str, size, work: Path) -> dict:
+    what = CASES[family][2]
+    d = work / f"{family}_{size}"
+    shutil.rmtree(d, ignore_errors=True)
+    est, disk, scene = estimate(family, size, d)
     out = d / "out"
     # an empty kernel cache: the first run of a scene compiles its kernels with LLVM, whose memory adds to
     # the peak (100-300 MB); a second run with the cache filled peaks lower. The estimate is for the first.
@@ -159,6 +164,7 @@ def measure(family: str, size, work: Path) -> dict:
     wrote = _du(out) - sum(_du(out / s) for s in ("checkpoints",) if (out / s).exists())
     row = {
         "family": family,
+        "size_value": size,
         "size": f"{what} {size}",
         "elements": est.elements_text(),
         "estimate_mb": est.total / 2**20,
@@ -191,14 +197,39 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("families", nargs="*", default=list(CASES))
     ap.add_argument("--small", action="store_true", help="only the smallest size of each family")
-    ap.add_argument("--sizes", default=None, help="comma-separated size indices (0, 1, 2)")
+    ap.add_argument("--sizes", default=None, help="comma-separated size indices (0, 1, 2, ...)")
     ap.add_argument("--work", default="/tmp/simcli_memory_bench", type=Path)
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
+    ap.add_argument(
+        "--retable",
+        nargs="+",
+        type=Path,
+        default=None,
+        help="no runs: the table of these JSON files' measurements with the current code's estimates",
+    )
     a = ap.parse_args()
-    idx = [0] if a.small else [int(i) for i in a.sizes.split(",")] if a.sizes else [0, 1, 2]
+    idx = [0] if a.small else [int(i) for i in a.sizes.split(",")] if a.sizes else None
     rows = []
+    if a.retable:
+        for f in a.retable:
+            for r in json.loads(f.read_text()):
+                size = r.get("size_value")
+                if size is None:  # rows written before size_value was stored: the last word of size
+                    last = r["size"].split()[-1]
+                    size = float(last) if "." in last else int(last)
+                est, disk, _ = estimate(r["family"], size, a.work / "retable")
+                rss = r["measured_mb"] * 2**20
+                r.update(
+                    elements=est.elements_text(),
+                    estimate_mb=est.total / 2**20,
+                    ratio=est.total / rss,
+                    disk_estimate_mb=disk / 2**20,
+                )
+                rows.append(r)
+        print(table(rows))
+        return
     for fam in a.families:
-        for i in idx:
+        for i in idx if idx is not None else range(len(CASES[fam][1])):
             size = CASES[fam][1][i]
             r = measure(fam, size, a.work)
             rows.append(r)
