@@ -107,6 +107,23 @@ def sf(res: int) -> str:
     )
 
 
+def mixed(gd: int) -> str:
+    """MPM liquid and an FEM block in one scene: two families' kernels compiled in one process."""
+    return (
+        "version: 1\nname: mem_mixed\n"
+        + _sim(1.0e-5)
+        + "domain: {lower: [-0.5, -0.5, 0], upper: [0.5, 0.5, 1.0]}\n"
+        f"solvers:\n  mpm: {{grid_density: {gd}}}\n  fem: {{integrator: explicit, resolution: {gd}}}\n"
+        "entities:\n  - name: water\n"
+        "    material: {type: MPM.Liquid, E: 1.0e6, nu: 0.2, rho: 1000}\n"
+        "    morph: {type: Box, lower: [0.1, 0.1, 0], upper: [0.3, 0.4, 0.35]}\n"
+        "  - name: block\n"
+        "    material: {type: FEM.Elastic, E: 1.0e5, nu: 0.3, rho: 1000}\n"
+        "    morph: {type: Box, lower: [-0.3, -0.3, 0.2], upper: [-0.1, -0.1, 0.4]}\n"
+        "output: {every: 1}\n"
+    )
+
+
 # family -> (scene maker, the sizes (three about 10x apart; MPM a fourth at 5 M particles), what the size is)
 CASES = {
     "MPM": (mpm, [100, 180, 320, 400], "grid_density"),
@@ -115,6 +132,7 @@ CASES = {
     "PBD": (pbd, [100, 316, 1000], "Rectangle resolution"),
     "PBF": (pbd_liquid, [0.01, 0.005, 0.0033], "particle_size"),
     "SF": (sf, [32, 64, 128], "resolution"),
+    "MPM+FEM": (mixed, [100], "grid_density and resolution"),
 }
 
 
