@@ -87,6 +87,33 @@ class Estimate:
 
 # --------------------------------------------------------------------------------------- per element
 
+_HUGE = 10**18  # a count beyond any machine: the estimate says "too large" without overflowing
+
+
+def _cnt(x: float) -> int:
+    """A count from a float, capped at _HUGE (inf and nan included)."""
+    return int(min(x, _HUGE)) if math.isfinite(x) else _HUGE
+
+
+def particle_count(morph, spacing: float, dim: int, scene_dir=None) -> int:
+    """Particles a morph gets at this spacing, in Python numbers (no int64 overflow at absurd spacings):
+    a Box's lattice exactly, other shapes volume / spacing^dim (as sampling.estimate_particle_count)."""
+    h = float(spacing)
+    if morph.type == "Box":
+        lo, hi = morph.bounds()
+        n = 1
+        for a, b in zip(lo, hi):
+            k = (b - a) / h + 0.5
+            n *= max(1, math.floor(k)) if math.isfinite(k) and k < _HUGE else _HUGE
+        return min(n, _HUGE)
+    from simcli.geometry.sampling import morph_volume
+
+    try:
+        n = (morph_volume(morph, dim, scene_dir) ** (1.0 / dim) / h) ** dim
+    except OverflowError:
+        return _HUGE
+    return int(min(n, _HUGE)) if math.isfinite(n) else _HUGE
+
 
 def _fp(scene) -> int:
     return 2 if scene.sim.precision == "f64" else 1
@@ -122,17 +149,13 @@ MPM_PRIVATE_GRID_BYTES = 1 << 30
 
 
 def _mpm(scene, scene_dir, lo, hi) -> Part | None:
-    from simcli.geometry.sampling import estimate_particle_count
-
     dim = scene.sim.dim
     mpm = scene.solvers.mpm
     fp = _fp(scene)
-    n = sum(
-        estimate_particle_count(e.morph, mpm.spacing, dim, scene_dir)
-        for e in scene.entities
-        if e.family == "MPM"
+    n = sum(particle_count(e.morph, mpm.spacing, dim, scene_dir) for e in scene.entities if e.family == "MPM")
+    nodes = math.prod(
+        _cnt(math.ceil(min((hi[a] - lo[a]) * mpm.grid_density, 1e30) - 1e-6)) + 7 for a in range(dim)
     )
-    nodes = math.prod(int(math.ceil((hi[a] - lo[a]) * mpm.grid_density - 1e-6)) + 7 for a in range(dim))
     gdim = dim + 2
     copy = nodes * gdim * 4 * fp
     t = threads_for(scene)
@@ -166,23 +189,23 @@ SPH_HOST_FACTOR = 1.15
 
 
 def _sph(scene, scene_dir, lo, hi) -> Part | None:
-    from simcli.geometry.sampling import estimate_particle_count
     from simcli.solvers.sph.neighbours import neighbour_capacity
 
     dim = scene.sim.dim
     sph = scene.solvers.sph
     fp = _fp(scene)
     n = sum(
-        estimate_particle_count(e.morph, sph.particle_size, dim, scene_dir)
+        particle_count(e.morph, sph.particle_size, dim, scene_dir)
         for e in scene.entities
         if e.family == "SPH"
     )
     ext = [hi[a] - lo[a] for a in range(dim)]
     faces = sum(math.prod(ext[b] for b in range(dim) if b != a) for a in range(dim))
     layers = max(2, math.ceil(sph.support_factor - 1e-9))
-    n_bnd = int(2 * layers * faces / sph.particle_size ** (dim - 1))
-    cell = 0.5 * sph.support_factor * sph.particle_size
-    cells = math.prod(math.ceil(e / cell) + 6 for e in ext)
+    h = float(sph.particle_size)
+    n_bnd = _cnt(2 * layers * (faces ** (1.0 / (dim - 1)) / h) ** (dim - 1))
+    cell = 0.5 * sph.support_factor * h
+    cells = math.prod(_cnt(math.ceil(min(e / cell, 1e30))) + 6 for e in ext)
     per_p = _sph_bytes_per_particle(
         dim, sph.support_factor, sph.pressure_solver == "DFSPH", sph.gradient_correction
     )
@@ -240,12 +263,10 @@ PBD_PARTICLE_HOST_FACTOR = 1.24  # free particles (PBD.Particle, PBD.Liquid)
 def pbd_entity_counts(e, opts, scene_dir=None) -> tuple[int, int, str]:
     """(vertices, constraints, kind) of a PBD entity, from its morph alone (no mesh built). Mesh files are
     read (memory proportional to the file); every other morph is counted analytically."""
-    from simcli.geometry.sampling import estimate_particle_count
-
     m = e.morph
     mat = e.material.type
     if mat in ("PBD.Particle", "PBD.Liquid"):
-        n = estimate_particle_count(m, opts.particle_size, 3, scene_dir)
+        n = particle_count(m, opts.particle_size, 3, scene_dir)
         return n, 0, "particles"
     if mat == "PBD.Elastic" and m.type != "Line":
         from simcli.solvers.fem.config import FEMOptions
@@ -334,6 +355,19 @@ def _sf(scene, scene_dir, lo, hi) -> Part | None:
     )
 
 
+_KEYS = {
+    "MPM": (
+        ("solvers", "mpm", "grid_density"),
+        "lower solvers.mpm.grid_density (or raise solvers.mpm.particle_size)",
+    ),
+    "SPH": (("solvers", "sph", "particle_size"), "raise solvers.sph.particle_size"),
+    "FEM": (("solvers", "fem", "resolution"), "lower solvers.fem.resolution"),
+    "PBD": (
+        ("solvers", "pbd", "particle_size"),
+        "raise solvers.pbd.particle_size or lower the morphs' resolution",
+    ),
+    "SF": (("solvers", "sf", "resolution"), "lower solvers.sf.resolution"),
+}
 _FAMILIES = {"MPM": _mpm, "SPH": _sph, "FEM": _fem, "PBD": _pbd, "SF": _sf}
 _DEFAULT_FIELDS = {
     "MPM": ["position", "velocity"],
@@ -373,7 +407,10 @@ def estimate_memory(scene, scene_dir: Path | None = None) -> Estimate:
     base = max((BASELINE[k] for k in keys), default=BASELINE["MPM"]) + EXTRA_FAMILY * max(0, len(fams) - 1)
     est = Estimate(baseline=base)
     for f in fams:
-        p = _FAMILIES[f](scene, scene_dir, lo, hi)
+        try:
+            p = _FAMILIES[f](scene, scene_dir, lo, hi)
+        except (OverflowError, ZeroDivisionError):  # sizes beyond any machine (a spacing of 1e-300 m)
+            p = Part(f, "beyond any machine", _HUGE, *_KEYS[f])
         if p is not None:
             est.parts.append(p)
     return est

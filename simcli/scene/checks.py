@@ -124,7 +124,8 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         if not (shape_ok and ok_dom):
             continue
         try:
-            from simcli.geometry.sampling import estimate_particle_count, morph_bounds
+            from simcli.geometry.sampling import morph_bounds
+            from simcli.resources import particle_count as estimate_particle_count  # no int64 overflow
 
             mlo, mhi = morph_bounds(m, loaded.scene_dir)
             if e.family == "MPM":

@@ -169,3 +169,29 @@ def test_disk_estimate_bounds_the_written_output(tmp_path):
     assert r.returncode == 0, r.stderr
     wrote = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     assert wrote <= need <= 3 * wrote, (wrote, need)
+
+
+@pytest.mark.parametrize(
+    "solvers,material,key",
+    [
+        ("{mpm: {grid_density: 64, particle_size: 1.0e-30}}", "MPM.Liquid", "solvers.mpm.grid_density"),
+        ("{sph: {particle_size: 1.0e-300}}", "SPH.Liquid", "solvers.sph.particle_size"),
+        ("{pbd: {particle_size: 1.0e-30}}", "PBD.Liquid", "solvers.pbd.particle_size"),
+    ],
+)
+def test_absurd_spacing_is_too_large_not_an_overflow(tmp_path, solvers, material, key):
+    """A spacing so small that the particle count overflows int64 is refused as too large (it used to wrap
+    to 0 particles and validate 'ok')."""
+    text = f"""\
+    version: 1
+    sim: {{dim: 3, dt: 1.0e-3, substeps: 1, steps: 1}}
+    domain: {{lower: [0, 0, 0], upper: [1, 1, 1]}}
+    solvers: {solvers}
+    entities:
+      - name: water
+        material: {{type: {material}}}
+        morph: {{type: Box, lower: [0, 0, 0], upper: [1, 1, 0.5]}}
+    """
+    r = CliRunner().invoke(cli, ["validate", str(_write(tmp_path, text))])
+    assert r.exit_code == 65, r.output
+    assert f"{key}: scene too large" in r.output, r.output

@@ -283,7 +283,7 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
 
 # Bodies up to this many vertices or particles are built in `validate` (which then also reports a morph that
 # gets no particles, or that TetGen cannot mesh); larger ones are checked from their bounds only.
-VALIDATE_BUILD_LIMIT = 200_000
+VALIDATE_BUILD_LIMIT = 20_000
 
 
 def _morph_extent(m, scene_dir):
