@@ -124,6 +124,22 @@ def mixed(gd: int) -> str:
     )
 
 
+def mpm_f64(gd: int) -> str:
+    return mpm(gd).replace("sim: {dim: 3,", "sim: {dim: 3, precision: f64,")
+
+
+def sph_2d(h: float) -> str:
+    return (
+        "version: 1\nname: mem_sph2d\nsim: {dim: 2, dt: 1.0e-4, substeps: 1, steps: 3}\n"
+        "domain: {lower: [0, 0], upper: [4, 2], boundary: {type: slip}}\n"
+        f"solvers:\n  sph: {{particle_size: {h}, pressure_solver: DFSPH}}\n"
+        "entities:\n  - name: water\n"
+        "    material: {type: SPH.Liquid, rho: 1000, mu: 0.001}\n"
+        "    morph: {type: Box, lower: [0, 0], upper: [1.5, 1.5]}\n"
+        "output: {every: 1}\n"
+    )
+
+
 # family -> (scene maker, the sizes (three about 10x apart; MPM a fourth at 5 M particles), what the size is)
 CASES = {
     "MPM": (mpm, [100, 180, 320, 400], "grid_density"),
@@ -133,6 +149,8 @@ CASES = {
     "PBF": (pbd_liquid, [0.01, 0.005, 0.0033], "particle_size"),
     "SF": (sf, [32, 64, 128], "resolution"),
     "MPM+FEM": (mixed, [100], "grid_density and resolution"),
+    "MPM f64": (mpm_f64, [180], "grid_density"),
+    "SPH 2D": (sph_2d, [0.002], "particle_size"),
 }
 
 

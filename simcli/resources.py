@@ -168,7 +168,7 @@ def _mpm(scene, scene_dir, lo, hi) -> Part | None:
         b,
         ("solvers", "mpm", "grid_density"),
         "lower solvers.mpm.grid_density (or raise solvers.mpm.particle_size), or shrink the domain",
-        out_bytes=n * _out_floats(scene, "MPM", dim) * 4 * fp,
+        out_bytes=n * _out_floats(scene, "MPM", dim) * 4,  # output is float32 at either precision
     )
 
 
@@ -221,7 +221,7 @@ def _sph(scene, scene_dir, lo, hi) -> Part | None:
         b,
         ("solvers", "sph", "particle_size"),
         "raise solvers.sph.particle_size, or shrink the domain",
-        out_bytes=n * _out_floats(scene, "SPH", dim) * 4 * fp,
+        out_bytes=n * _out_floats(scene, "SPH", dim) * 4,  # output is float32 at either precision
     )
 
 
@@ -243,7 +243,7 @@ def _fem(scene, scene_dir, lo, hi) -> Part | None:
         b,
         ("solvers", "fem", "resolution"),
         "lower solvers.fem.resolution (Box morphs) or raise solvers.fem.max_volume (other shapes)",
-        out_bytes=nv * _out_floats(scene, "FEM", 3) * 4 * _fp(scene),
+        out_bytes=nv * _out_floats(scene, "FEM", 3) * 4,  # float32 at either precision
         static_out_bytes=nt * 4 * 8,
     )
 
@@ -330,7 +330,7 @@ def _pbd(scene, scene_dir, lo, hi) -> Part | None:
         b,
         key,
         advice,
-        out_bytes=nv * _out_floats(scene, "PBD", 3) * 4 * fp,
+        out_bytes=nv * _out_floats(scene, "PBD", 3) * 4,  # output is float32 at either precision
     )
 
 
@@ -351,7 +351,7 @@ def _sf(scene, scene_dir, lo, hi) -> Part | None:
         b,
         ("solvers", "sf", "resolution"),
         "lower solvers.sf.resolution",
-        out_bytes=cells * _out_floats(scene, "SF", len(n)) * 4 * _fp(scene),
+        out_bytes=cells * _out_floats(scene, "SF", len(n)) * 4,  # float32 at either precision
     )
 
 
