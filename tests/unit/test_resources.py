@@ -195,3 +195,17 @@ def test_absurd_spacing_is_too_large_not_an_overflow(tmp_path, solvers, material
     r = CliRunner().invoke(cli, ["validate", str(_write(tmp_path, text))])
     assert r.exit_code == 65, r.output
     assert f"{key}: scene too large" in r.output, r.output
+
+
+def test_checkpoints_count_the_state_copy(tmp_path):
+    """With checkpoint.every > 0 the estimate holds the checkpoint's numpy copy of the state (MPM, 3D, f32:
+    x, v, C, H and F in float64 plus Jp: 176 bytes a particle), and the disk estimate keeps checkpoint.keep."""
+    make = CASES["MPM"][0]
+    plain = _estimate(tmp_path, make(100))
+    text = make(100).replace("output: {every: 1,", "checkpoint: {every: 2, keep: 3}\noutput: {every: 1,")
+    ck = _estimate(tmp_path, text)
+    n = 80_135  # particles of the 100 case
+    assert ck.total - plain.total == n * 176
+    loaded = load_scene(_write(tmp_path, text))
+    disk = resources.estimate_disk(loaded.scene, ck)
+    assert disk - resources.estimate_disk(load_scene(_write(tmp_path, make(100))).scene, plain) == 3 * n * 176
