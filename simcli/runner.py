@@ -302,6 +302,15 @@ class Runner:
             self._resume_from = str(path)
             self._check_resume_scene(meta, path)
         self._owns_out = True  # (a refused --resume leaves the previous run's run.json as it was)
+        from simcli.resources import disk_problem  # the output's size against the folder's free space
+
+        found = disk_problem(scene, self.loaded.scene_dir, self.out, int(ckpt[1]["frame"]) + 1 if ckpt else 0)
+        if found and found[0]:
+            raise SceneError(
+                [f"{self.loaded.located.where(('output', 'every'), prefer_key=True)}: {found[1]}"]
+            )
+        if found:
+            self.warn(found[1])
         scene_text = yaml.safe_dump(self.resolved, sort_keys=False)
         _atomic_write(self.out / "scene.yaml", "# resolved scene: every default filled in\n" + scene_text)
 

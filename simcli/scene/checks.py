@@ -8,47 +8,6 @@ from pathlib import Path
 
 from simcli.scene.loader import LoadedScene, sort_lines
 
-# Bytes of solver state per MPM particle and per grid node, f32 (f64 doubles them).
-# Particle: x, v (dim each), C, F (dim^2 each), volume, mass, material id, fixed flag,
-# warm-start rotation (4), Jp; plus one host copy for output.
-_BYTES_PER_PARTICLE_3D = 4 * (3 + 3 + 9 + 9 + 4 + 6) + 4 * 12
-_BYTES_PER_PARTICLE_2D = 4 * (2 + 2 + 4 + 4 + 2 + 6) + 4 * 8
-_BYTES_PER_CELL = {2: 4 * 3, 3: 4 * 4}  # grid momentum/velocity (dim) + mass
-# SPH, f32: per particle x, v, new v, boundary gradient sum (dim each), 10 scalars, 6 ints, the reorder
-# copies (2 dim + 4) and the neighbour list (capacity x (index + gradient)); per boundary particle
-# position, velocity, volume, flag; per cell (cell = support / 2) count and start offsets of the liquid
-# and of the boundary particles.
-
-
-def _sph_bytes_per_particle(dim: int, support_factor: float, dfsph: bool = True, kgc: bool = False) -> int:
-    from simcli.solvers.sph.neighbours import neighbour_capacity  # numpy only, no Taichi
-
-    # a neighbour-list entry: the index, and for DFSPH grad W too (WCSPH recomputes it)
-    entry = 1 + dim if dfsph else 1
-    correction = dim * dim if kgc else 0  # DFSPH gradient_correction: a dim x dim matrix
-    return 4 * (4 * dim + 10 + 6 + 2 * dim + 4 + correction + neighbour_capacity(dim, support_factor) * entry)
-
-
-_SPH_BYTES_PER_BOUNDARY = {d: 4 * (2 * d + 2) for d in (2, 3)}
-_SPH_BYTES_PER_CELL = 4 * 3
-MEMORY_FRACTION = 0.8  # refuse a scene that needs more than this share of available memory
-
-
-def _available_memory() -> int:
-    try:
-        import psutil
-
-        return int(psutil.virtual_memory().available)
-    except Exception:  # pragma: no cover - psutil missing
-        try:
-            with open("/proc/meminfo") as f:
-                for line in f:
-                    if line.startswith("MemAvailable:"):
-                        return int(line.split()[1]) * 1024
-        except OSError:
-            pass
-    return 1 << 62
-
 
 def check_scene(loaded: LoadedScene) -> list[str]:
     s = loaded.scene
@@ -165,7 +124,8 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         if not (shape_ok and ok_dom):
             continue
         try:
-            from simcli.geometry.sampling import estimate_particle_count, morph_bounds
+            from simcli.geometry.sampling import morph_bounds
+            from simcli.resources import particle_count as estimate_particle_count  # no int64 overflow
 
             mlo, mhi = morph_bounds(m, loaded.scene_dir)
             if e.family == "MPM":
@@ -205,75 +165,12 @@ def check_scene(loaded: LoadedScene) -> list[str]:
     if errors:
         return sort_lines(errors)
 
-    # memory estimate, before anything is allocated
-    fp = 2 if s.sim.precision == "f64" else 1
-    per_p = (_BYTES_PER_PARTICLE_3D if dim == 3 else _BYTES_PER_PARTICLE_2D) * fp
-    cells = 1
-    if "MPM" in s.families:
-        for a in range(dim):
-            cells *= int(math.ceil((hi[a] - lo[a]) * mpm.grid_density)) + 7
-    need = n_particles * per_p + cells * _BYTES_PER_CELL[dim] * fp
-    sf_cells = 0
-    if "SF" in s.families:
-        from simcli.solvers.sf.config import estimate_bytes
+    # memory estimate, before anything is allocated (simcli/resources.py: counts from the morphs alone)
+    from simcli.resources import estimate_memory, memory_problem
 
-        n_sf, _ = s.solvers.sf.cells(lo, hi)
-        sf_cells = math.prod(n_sf)
-        sf_mat = next(e.material for e in s.entities if e.family == "SF")
-        need += estimate_bytes(s.solvers.sf, sf_mat, n_sf, s.sim.precision)
-    n_bnd = sph_cells = 0
-    if "SPH" in s.families:
-        # boundary particles: layers covering the kernel support outside every face (colliders add less)
-        ext = [hi[a] - lo[a] for a in range(dim)]
-        faces = sum(math.prod(ext[b] for b in range(dim) if b != a) for a in range(dim))
-        layers = max(2, math.ceil(sph.support_factor - 1e-9))
-        n_bnd = int(2 * layers * faces / sph.particle_size ** (dim - 1))
-        cell = 0.5 * sph.support_factor * sph.particle_size
-        sph_cells = math.prod(math.ceil(e / cell) + 6 for e in ext)
-        per_particle = _sph_bytes_per_particle(
-            dim, sph.support_factor, sph.pressure_solver == "DFSPH", sph.gradient_correction
-        )
-        per_boundary = _SPH_BYTES_PER_BOUNDARY[dim]
-        if sph.wall_model == "extrapolated":  # wall_pressure.py: 4 scalars and a list of (index, weight)
-            from simcli.solvers.sph.neighbours import neighbour_capacity
-
-            per_boundary += 4 * (4 + 2 * max(8, neighbour_capacity(dim, sph.support_factor) // 2))
-            per_particle += 4
-        need += (n_sph * per_particle + n_bnd * per_boundary + sph_cells * _SPH_BYTES_PER_CELL) * fp
-        n_particles += n_sph
-    if fem_t:
-        from simcli.solvers.fem.mesh import estimate_bytes as fem_bytes
-
-        need += fem_bytes(fem_v, fem_t, s.solvers.fem.integrator, s.sim.precision)
-    avail = _available_memory()
-    if need > MEMORY_FRACTION * avail and fem_t and not (n_particles or sf_cells):
-        err(
-            ("solvers", "fem", "resolution"),
-            f"scene too large: needs about {need / 2**30:.1f} GiB (about {fem_v:,} FEM vertices, {fem_t:,} "
-            f"tetrahedra) but only {avail / 2**30:.1f} GiB is available; lower solvers.fem.resolution (Box) "
-            f"or raise max_volume (Sphere, Cylinder, surface meshes)",
-        )
-    elif need > MEMORY_FRACTION * avail and sf_cells:
-        err(
-            ("solvers", "sf", "resolution"),
-            f"scene too large: needs about {need / 2**30:.1f} GiB ({sf_cells:,} SF grid cells"
-            f"{f', {n_particles:,} particles' if n_particles else ''}) but only {avail / 2**30:.1f} GiB is "
-            f"available; lower solvers.sf.resolution",
-        )
-    elif need > MEMORY_FRACTION * avail and "SPH" in s.families and "MPM" not in s.families:
-        err(
-            ("solvers", "sph", "particle_size"),
-            f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {n_bnd:,} boundary "
-            f"particles, {sph_cells:,} neighbour-grid cells) but only {avail / 2**30:.1f} GiB is available; raise "
-            f"solvers.sph.particle_size or shrink the domain",
-        )
-    elif need > MEMORY_FRACTION * avail:
-        err(
-            ("solvers", "mpm", "grid_density") if "MPM" in s.families else ("entities",),
-            f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {cells:,} grid "
-            f"nodes) but only {avail / 2**30:.1f} GiB is available; lower solvers.mpm.grid_density, raise "
-            f"particle_size or shrink the domain",
-        )
+    found = memory_problem(estimate_memory(s, loaded.scene_dir))
+    if found:
+        err(*found)
     from simcli.scene.limits import check_stability  # a fixed substep over the stability limit
 
     return errors or check_stability(loaded)

@@ -254,9 +254,16 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
     if out:
         return out
     try:
-        from simcli.solvers.pbd.topology import mesh_for_entity
+        # validate never builds a large body: beyond VALIDATE_BUILD_LIMIT vertices only the counts (for the
+        # memory estimate) and the bounds come from the morph; the run builds it after the estimate passed
+        from simcli.resources import pbd_entity_counts
 
-        x = mesh_for_entity(e, scene_dir, opts).x
+        if pbd_entity_counts(e, opts or PBDOptions(), scene_dir)[0] > VALIDATE_BUILD_LIMIT:
+            x = _morph_extent(m, scene_dir)
+        else:
+            from simcli.solvers.pbd.topology import mesh_for_entity
+
+            x = mesh_for_entity(e, scene_dir, opts).x
     except Exception as ex:  # noqa: BLE001 - unreadable mesh file, no triangles, no tetgen: all reported
         return [(("morph",) + (("file",) if m.type == "Mesh" else ()), str(ex))]
     if lo is not None:
@@ -272,6 +279,29 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
                 )
             )
     return out
+
+
+# Bodies up to this many vertices or particles are built in `validate` (which then also reports a morph that
+# gets no particles, or that TetGen cannot mesh); larger ones are checked from their bounds only.
+VALIDATE_BUILD_LIMIT = 20_000
+
+
+def _morph_extent(m, scene_dir):
+    """Points spanning the morph's extent without building it: a Rectangle's corners, a Line's points,
+    the bounding box of anything else (a Mesh's from its file)."""
+    import numpy as np
+
+    if m.type == "Rectangle":
+        from simcli.solvers.pbd.topology import sheet_axes
+
+        u, v, _ = sheet_axes(m.normal)
+        c = np.asarray(m.center, dtype=np.float64)
+        return np.array([c + 0.5 * (a * m.size[0] * u + b * m.size[1] * v) for a in (-1, 1) for b in (-1, 1)])
+    if m.type == "Line":
+        return np.asarray(m.points, dtype=np.float64)
+    from simcli.geometry.sampling import morph_bounds
+
+    return np.stack(morph_bounds(m, scene_dir))
 
 
 def _polyline_length(points) -> float:
