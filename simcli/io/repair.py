@@ -35,7 +35,7 @@ def _verify(f, size: int) -> tuple[int, int, str | None]:
         return 0, n, "no /entities group"
 
     def visit(name, obj):
-        if hasattr(obj, "shape") and name.split("/")[-1] != "cells":
+        if hasattr(obj, "shape") and name.split("/")[-1] not in ("cells", "vertices"):  # static topology
             ds.append(obj)
 
     ents.visititems(visit)

@@ -174,14 +174,15 @@ def test_disk_estimate_bounds_the_written_output(tmp_path):
 @pytest.mark.parametrize(
     "solvers,material,key",
     [
-        ("{mpm: {grid_density: 64, particle_size: 1.0e-30}}", "MPM.Liquid", "solvers.mpm.grid_density"),
-        ("{sph: {particle_size: 1.0e-300}}", "SPH.Liquid", "solvers.sph.particle_size"),
-        ("{pbd: {particle_size: 1.0e-30}}", "PBD.Liquid", "solvers.pbd.particle_size"),
+        ("{mpm: {grid_density: 64, particle_size: 1.0e-6}}", "MPM.Liquid", "solvers.mpm.grid_density"),
+        ("{sph: {particle_size: 1.0e-6}}", "SPH.Liquid", "solvers.sph.particle_size"),
+        ("{pbd: {particle_size: 1.0e-6}}", "PBD.Liquid", "solvers.pbd.particle_size"),
     ],
 )
 def test_absurd_spacing_is_too_large_not_an_overflow(tmp_path, solvers, material, key):
-    """A spacing so small that the particle count overflows int64 is refused as too large (it used to wrap
-    to 0 particles and validate 'ok')."""
+    """The smallest spacing the range check lets through (1e-6 m: 5e17 particles in this box, near int64's
+    limit; smaller spacings are refused by the range check first) is refused as too large, not wrapped to
+    0 particles (1e-30 used to validate 'ok')."""
     text = f"""\
     version: 1
     sim: {{dim: 3, dt: 1.0e-3, substeps: 1, steps: 1}}
