@@ -63,14 +63,14 @@ class FlipTransfer:
         return c
 
     @ti.func
-    def store(self, I, g, vI):
-        """Node I: the velocity increment v_new - v_old of this substep (0 on empty nodes)."""
+    def store(self, node, g, vI):
+        """The velocity increment v_new - v_old of this substep at ``node`` (0 on empty nodes)."""
         m = g[self.dim]
         dv = ti.Vector.zero(self.f, self.dim)
         if m > 0:
             for d in ti.static(range(self.dim)):
                 dv[d] = vI[d] - g[self.vo + d] / m
-        self.grid_dv[I] = dv
+        self.grid_dv[node] = dv
 
     @ti.func
     def gather(self, base, w):
