@@ -1,6 +1,6 @@
 """MLS-MPM solver (Hu et al. 2018, "A Moving Least Squares Material Point Method with
-Displacement Discontinuity and Two-Way Rigid Body Coupling"), APIC transfers, quadratic
-B-splines, 2D and 3D, f32 and f64.
+Displacement Discontinuity and Two-Way Rigid Body Coupling"), APIC transfers (or FLIP/PIC with
+``solvers.mpm.transfer: flip``, see transfer.py), quadratic B-splines, 2D and 3D, f32 and f64.
 
 A substep is four named kernels, in the paper's order::
 
