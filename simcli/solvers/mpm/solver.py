@@ -1,6 +1,6 @@
 """MLS-MPM solver (Hu et al. 2018, "A Moving Least Squares Material Point Method with
-Displacement Discontinuity and Two-Way Rigid Body Coupling"), APIC transfers, quadratic
-B-splines, 2D and 3D, f32 and f64.
+Displacement Discontinuity and Two-Way Rigid Body Coupling"), APIC transfers (or FLIP/PIC with
+``solvers.mpm.transfer: flip``, see transfer.py), quadratic B-splines, 2D and 3D, f32 and f64.
 
 A substep is four named kernels, in the paper's order::
 
@@ -53,6 +53,7 @@ from simcli.solvers.base import (
 )
 from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, elastic_moduli, law_key
+from simcli.solvers.mpm.transfer import FlipTransfer
 from simcli.solvers.taichi_funcs import make_body_of, make_finite
 
 with stdout_to_stderr():
@@ -93,6 +94,9 @@ class MPMSolver(Solver):
         self.dx = float(opts.dx)
         self.inv_dx = 1.0 / self.dx
         self.cfl = float(opts.cfl)
+        # velocity transfer (compile-time): "apic" or "flip" (FLIP/PIC blend, see transfer.py)
+        self.transfer = str(getattr(opts, "transfer", "apic"))
+        self.flip_ratio = float(getattr(opts, "flip_ratio", 0.99))
         lo, hi = scene.domain.bounds(self.dim)
         self.domain_lo = np.asarray(lo, dtype=np.float64)
         self.domain_hi = np.asarray(hi, dtype=np.float64)
@@ -172,6 +176,8 @@ class MPMSolver(Solver):
             raise ValueError("p2g_mode 'chunked' needs the CPU backend")
         T = max(1, min(threads, self.n))
         copy_bytes = int(np.prod(self.grid_shape)) * (self.dim + 2) * (8 if self.precision == "f64" else 4)
+        if self.transfer == "flip":  # the grid copies also carry the momentum without the stress impulse
+            copy_bytes += int(np.prod(self.grid_shape)) * self.dim * (8 if self.precision == "f64" else 4)
         if self.p2g_mode == "auto":
             # private copies cost T grids of memory: beyond the budget, atomics on one grid
             self.chunked = cpu and T * copy_bytes <= MAX_PRIVATE_GRID_BYTES
@@ -192,6 +198,9 @@ class MPMSolver(Solver):
 
         # grid: T private copies of (momentum, mass[, fixed mass]) + the updated velocity
         self.gdim = dim + 1 + (1 if self.has_fixed else 0)
+        self.flip = FlipTransfer(self) if self.transfer == "flip" else None
+        if self.flip is not None:
+            self.gdim = self.flip.allocate(self.gdim)
         self.grid = ti.Vector.field(self.gdim, f, shape=(T,) + self.grid_shape)
         self.grid_v = ti.Vector.field(dim, f, shape=self.grid_shape)
         self.bbox = ti.Vector.field(dim, ti.i32, shape=(T, 2))  # per chunk [lo, hi) node box
@@ -297,6 +306,8 @@ class MPMSolver(Solver):
         )
         gravity, mat_mu, mat_lam, mat_law_id = self.gravity, self.mat_mu, self.mat_lam, self.mat_law_id
         laws, boundary = self.laws, self.boundary
+        flip = self.flip  # None under APIC (the default): nothing below compiles FLIP code then
+        use_flip = flip is not None
         n_laws = len(laws)
         any_plastic = any(law.plastic for law in laws)
         dx, inv_dx = self.dx, self.inv_dx
@@ -354,13 +365,15 @@ class MPMSolver(Solver):
             return [ti.Vector([M[r, c] for r in ti.static(range(dim))]) for c in ti.static(range(dim))]
 
         @ti.func
-        def node_value(val, weight, m, fm):
+        def node_value(val, weight, m, fm, mv):
             c = ti.Vector.zero(f, gdim)
             for d in ti.static(range(dim)):
                 c[d] = weight * val[d]
             c[dim] = weight * m
             if ti.static(has_fixed):
                 c[dim + 1] = weight * fm
+            if ti.static(use_flip):  # FLIP: the momentum without the stress impulse too
+                c = flip.momentum(c, weight, mv)
             return c
 
         @ti.func
@@ -372,8 +385,11 @@ class MPMSolver(Solver):
             m = mass[p]
             # MLS-MPM (Hu et al. 2018, eq. 16 and 29): node i gets w_i (m v + Q (x_i - x_p)) with
             # Q = m C - dt V0 D^-1 tau, D^-1 = 4 / dx^2 for quadratic B-splines; x_i - x_p = (i - fx) dx
-            affine = (-dt * vol[p] * 4.0 * inv_dx * inv_dx) * tau + m * C[p]
-            q0 = m * v[p] - affine @ (fx * dx)
+            affine = (-dt * vol[p] * 4.0 * inv_dx * inv_dx) * tau
+            if ti.static(not use_flip):  # APIC sends the affine velocity C; FLIP only the stress
+                affine = affine + m * C[p]
+            mv = m * v[p]
+            q0 = mv - affine @ (fx * dx)
             A = cols(affine * dx)
             fm = 0.0
             if ti.static(has_fixed):
@@ -385,14 +401,14 @@ class MPMSolver(Solver):
                     qij = qi + A[1] * j
                     wij = wi * w[j][1]
                     if ti.static(dim == 2):
-                        c = node_value(qij, wij, m, fm)
+                        c = node_value(qij, wij, m, fm, mv)
                         if ti.static(chunked):  # chunk t owns copy t: plain read-add-write
                             grid[t, base[0] + i, base[1] + j] = grid[t, base[0] + i, base[1] + j] + c
                         else:
                             grid[0, base[0] + i, base[1] + j] += c
                     else:
                         for k in ti.static(range(3)):
-                            c = node_value(qij + A[2] * k, wij * w[k][2], m, fm)
+                            c = node_value(qij + A[2] * k, wij * w[k][2], m, fm, mv)
                             if ti.static(chunked):
                                 grid[t, base[0] + i, base[1] + j, base[2] + k] = (
                                     grid[t, base[0] + i, base[1] + j, base[2] + k] + c
@@ -449,7 +465,10 @@ class MPMSolver(Solver):
                                 )
                                 Hp = Fp - ti.Matrix.identity(f, dim)
                 F[p] = Hp
-                xp = x[p] + dt * new_v
+                v_grid = new_v  # positions move with the grid velocity under both transfers
+                if ti.static(use_flip):
+                    new_v = flip.blend(v[p], v_grid, flip.gather(base, w))
+                xp = x[p] + dt * v_grid
                 if ti.static(boundary.n_colliders > 0):
                     # a particle that ended inside a collider goes back to its surface (the grid
                     # contact alone lets particles that start inside, or tunnel, stay there)
@@ -522,6 +541,8 @@ class MPMSolver(Solver):
                 else:
                     vI = boundary.apply(I, vI)
             grid_v[I] = vI
+            if ti.static(use_flip):
+                flip.store(I, g, vI)
 
         @ti.func
         def grid_update(dt):
@@ -855,7 +876,11 @@ class MPMSolver(Solver):
 
     def info(self) -> dict[str, Any]:
         return {
-            "transfer": "MLS-MPM / APIC, quadratic B-splines",
+            "transfer": (
+                f"MLS-MPM / FLIP-PIC blend (flip_ratio {self.flip_ratio}), quadratic B-splines"
+                if self.transfer == "flip"
+                else "MLS-MPM / APIC, quadratic B-splines"
+            ),
             "grid": f"dense {self.grid_shape}, work limited to the particles' bounding box",
             "p2g": f"{self.T} private grid copies, no atomics" if self.chunked else "atomic adds",
             "laws": list(self.law_keys),
