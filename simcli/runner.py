@@ -33,10 +33,8 @@ from simcli.geometry.mesh import MeshError
 from simcli.progress import Progress
 from simcli.scene.loader import LoadedScene
 from simcli.scene.models import resolved_scene_dict
+from simcli.solvers.base import RUNAWAY_CFL  # the runaway guard's limit; the families read it there
 
-# A substep whose CFL number (max speed * substep / dx) exceeds this is a blow-up: MPM's
-# transfers assume particles move less than a cell per substep.
-RUNAWAY_CFL = 2.0
 AUTO_MAX_SUBSTEPS = 100_000
 
 

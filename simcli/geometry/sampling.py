@@ -55,6 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simcli.geometry.body import Body
 from simcli.geometry.mesh import (
     MeshError,
     MeshFileNotFoundError,
@@ -66,7 +67,6 @@ from simcli.geometry.mesh import (
 )
 from simcli.geometry.regions import check_shape_dim, points_in_regions, points_in_shape, shape_volume
 from simcli.scene.morphs import BoxShape, CylinderShape, MeshShape, SphereShape
-from simcli.solvers.base import Body
 
 __all__ = [
     "JITTER",

@@ -26,7 +26,7 @@ from simcli.backend import init_taichi
 init_taichi("cpu", "f64")
 from simcli.scene.loader import load_scene
 from simcli.solvers.fem.solver import FEMSolver
-from simcli.solvers.fem.mesh import signed_volumes
+from simcli.geometry.tetmesh import signed_volumes
 
 root = sys.argv[1]
 what = sys.argv[2]

@@ -292,8 +292,8 @@ def test_example_sweep_in_configs_is_valid():
 
 
 def test_committed_sweep_schema_is_current(tmp_path):
-    from simcli.scene.schema import write_schemas
     from simcli.sweep.model import sweep_schema_text
+    from simcli.sweep.schema import write_schemas
     from tests.sweep.conftest import ROOT
 
     committed = (ROOT / "schemas" / "sweep.schema.json").read_text()

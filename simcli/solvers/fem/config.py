@@ -12,8 +12,9 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simcli.scene.material_base import _Solid
+from simcli.scene.meshing import MIN_DIHEDRAL
 from simcli.scene.morphs import Region
-from simcli.solvers.mpm.config import MuscleGroup, MuscleGroups  # groups and signals are MPM.Muscle's
+from simcli.scene.muscle import MuscleGroup, MuscleGroups  # groups and signals shared with MPM.Muscle
 
 Vec = list[float]
 
@@ -42,7 +43,7 @@ class FEMOptions(_Options):
         "tetrahedralisation (default: about resolution^-3 / 6, i.e. Box-like element sizes).",
     )
     min_dihedral: float = Field(
-        10.0,
+        MIN_DIHEDRAL,
         ge=0,
         lt=70,
         description="Sphere, Cylinder and surface Mesh morphs: smallest dihedral angle [deg] the tetrahedraliser "

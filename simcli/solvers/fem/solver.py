@@ -15,8 +15,8 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.geometry.regions import points_in_regions, points_in_shape
+from simcli.geometry.tetmesh import boundary_faces, mesh_for_entity, signed_volumes
 from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
-from simcli.solvers.fem.mesh import boundary_faces, mesh_for_entity, signed_volumes
 from simcli.solvers.fem.models import LAWS, lame_for
 from simcli.solvers.taichi_funcs import make_body_frame_stats
 

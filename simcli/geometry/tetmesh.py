@@ -1,4 +1,4 @@
-"""Tetrahedral meshes of FEM entities (numpy, no Taichi).
+"""Tetrahedral meshes of solid entities (numpy, no Taichi): FEM's elements and PBD.Elastic's soft bodies.
 
 * Box morphs: structured Kuhn subdivision (each cell into 6 tetrahedra sharing its main diagonal,
   conforming across cells) at ``solvers.fem.resolution`` cells per metre.
@@ -261,7 +261,7 @@ def tetrahedralise(verts: np.ndarray, tris: np.ndarray, max_volume: float, min_d
     return np.asarray(nodes, dtype=np.float64), np.asarray(elems, dtype=np.int64)
 
 
-def _read_tets(morph: MeshShape, scene_dir):
+def read_tets(morph: MeshShape, scene_dir):
     """Tetrahedra of a Mesh morph's file, or None when it holds only a surface."""
     import meshio
 
@@ -282,7 +282,8 @@ def _read_tets(morph: MeshShape, scene_dir):
 
 
 def mesh_for_entity(entity, opts, scene_dir=None) -> TetMesh:
-    """The validated tetrahedral mesh of an FEM entity's morph."""
+    """The validated tetrahedral mesh of an entity's morph; ``opts``: a ``simcli.scene.meshing.Meshing``
+    or FEMOptions (the same fields)."""
     m = entity.morph
     name = f"entity '{entity.name}'"
     h = 1.0 / float(opts.resolution)
@@ -302,7 +303,7 @@ def mesh_for_entity(entity, opts, scene_dir=None) -> TetMesh:
         x, t = tetrahedralise(v, f, max_vol, opts.min_dihedral, name)
         mesh = TetMesh(x, orient(x, t), "Cylinder")
     elif isinstance(m, MeshShape):
-        got = _read_tets(m, scene_dir)
+        got = read_tets(m, scene_dir)
         if got is not None:
             mesh = TetMesh(got[0], got[1], str(m.file))
         else:
@@ -312,19 +313,6 @@ def mesh_for_entity(entity, opts, scene_dir=None) -> TetMesh:
     else:  # pragma: no cover
         raise MeshError(f"{name}: unsupported morph {m.type}")
     return validate(mesh, name)
-
-
-# ----------------------------------------------------------------------------- scene checks (no Taichi)
-
-# Bytes per vertex / per tetrahedron at f32 (f64 doubles the Taichi part): Taichi fields (explicit:
-# x, v, rest x, free, prescribed v, dead load, mass, adjacency start, vertex outputs; per tet: indices, B,
-# volume, material, corner forces, adjacency, outputs, muscle data) plus the host copies (numpy f64) kept
-# by the solver; implicit adds 8 vectors + a 3x3 preconditioner per vertex and the singular-value-frame
-# Hessian data (U, V, 3x3 block, 6 eigenvalues) and 4 diagonal 3x3 blocks per tet.
-_FEM_VERTEX = {"explicit": (4 * 22, 160), "implicit": (4 * 59, 160)}  # (Taichi at f32, host)
-_FEM_TET = {"explicit": (4 * 32 + 36, 250), "implicit": (4 * 101 + 36, 250)}
-# measured (peak RSS, 1 step, f32): 40^3 Box minus 10^3 Box (67,590 vertices, 378,000 tets more): explicit
-# +177 MB (estimate 173 MB), implicit +272 MB (estimate 287 MB)
 
 
 def estimate_counts(entity, opts, scene_dir=None) -> tuple[int, int]:
@@ -343,7 +331,7 @@ def estimate_counts(entity, opts, scene_dir=None) -> tuple[int, int]:
     elif isinstance(m, CylinderShape):
         vol = math.pi * m.radius**2 * m.height
     else:
-        got = _read_tets(m, scene_dir)
+        got = read_tets(m, scene_dir)
         if got is not None:
             return got[0].shape[0], got[1].shape[0]
         surf = load_mesh_morph(m, scene_dir)
@@ -351,35 +339,3 @@ def estimate_counts(entity, opts, scene_dir=None) -> tuple[int, int]:
         vol = float(np.prod(hi - lo))  # bounding box: an upper bound
     tets = max(1, int(2.0 * vol / max_vol))
     return tets // 5 + 1, tets
-
-
-def estimate_bytes(n_vertices: int, n_tets: int, integrator: str, precision: str) -> int:
-    fp = 2 if precision == "f64" else 1
-    (vt, vh), (tt, th) = _FEM_VERTEX[integrator], _FEM_TET[integrator]
-    return n_vertices * (vt * fp + vh) + n_tets * (tt * fp + th)
-
-
-def check_entity(entity, dim: int, scene_dir=None) -> list[tuple[tuple, str]]:
-    """Scene-check findings for an FEM entity: (path below the entity, message)."""
-    if dim != 3:
-        return [(("material", "type"), f"{entity.material.type} entities need a 3D scene (sim.dim: 3)")]
-    m = entity.morph
-    needs_tetgen = isinstance(m, (SphereShape, CylinderShape))
-    if isinstance(m, MeshShape):
-        try:
-            needs_tetgen = _read_tets(m, scene_dir) is None
-        except Exception:  # unreadable: reported by the morph checks
-            needs_tetgen = False
-    if needs_tetgen:
-        import importlib.util
-
-        if importlib.util.find_spec("tetgen") is None:
-            return [
-                (
-                    ("morph", "type"),
-                    f"{m.type} morphs of FEM entities are tetrahedralised with TetGen, whose "
-                    "Python package 'tetgen' (pyvista/tetgen, AGPL-3.0) is not installed: pip install tetgen; "
-                    "or give a tetrahedral mesh file (.msh, .vtu, .mesh) as a Mesh morph, or use a Box morph",
-                )
-            ]
-    return []
