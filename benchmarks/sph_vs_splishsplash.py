@@ -38,7 +38,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench import genesis_python, machine
+from bench import genesis_python, machine  # noqa: E402  (after the sys.path insert above)
 
 SPL_RUN = r"""
 import sys, time

@@ -1,8 +1,13 @@
 """Initial SPH densities SPlisHSPlasH computes for the (stretched) lattice next to the walls, for a given
 boundary method and wall gap: one step of 1e-7 s, density of frame 1 (computed from the initial positions)."""
 
-import sys, os, json, subprocess, numpy as np
-from make_scene import scene, SY
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+from make_scene import SY, scene
 from vtkread import read_vtk
 
 bhm = int(sys.argv[1])

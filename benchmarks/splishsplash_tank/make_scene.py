@@ -13,7 +13,8 @@ centres to the mesh walls and floor, `sy` = vertical stretch of the lattice appl
              The 'effective floor' r*sy below the first row is at y = 0.
 """
 
-import json, sys
+import json
+import sys
 
 r = 0.0025
 SY = 1.0008514038524843

@@ -11,7 +11,12 @@ Since m_j = rho0 V_j, X_i = rho0 p_i / rho_i^2, i.e. p_i = X_i rho_i^2 / rho0 [P
 (dt = the step that produced the frame; ~ rho0 X_i since rho_i ~ rho0). (Cross-check printed: the line slope against rho0 g, and the pressure acceleration.)
 """
 
-import sys, json, glob, os, numpy as np
+import glob
+import json
+import os
+import sys
+
+import numpy as np
 from vtkread import read_vtk
 
 rho0, g = 1000.0, 9.81

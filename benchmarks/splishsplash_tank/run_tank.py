@@ -8,7 +8,12 @@ Env: SY=<factor> stretches the initial lattice vertically (y -> SY*y);
      VISC_SETTLE=<nu>:<t_end> optional viscous settling phase (not used for the reported runs).
 Needs LD_PRELOAD=/lib/x86_64-linux-gnu/libGLdispatch.so.0 (the wheel's bundled libGLdispatch segfaults on import)."""
 
-import os, sys, time, shutil, numpy as np
+import os
+import shutil
+import sys
+import time
+
+import numpy as np
 import pysplishsplash as sph
 
 scene = os.path.abspath(sys.argv[1])
