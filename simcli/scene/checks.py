@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from simcli.scene.source import LoadedScene, sort_lines
+from simcli.scene.lines import sort_lines
+
+if TYPE_CHECKING:  # pragma: no cover - the loader calls check_scene
+    from simcli.scene.loader import LoadedScene
 
 # Bytes of solver state per MPM particle and per grid node, f32 (f64 doubles them).
 # Particle: x, v (dim each), C, F (dim^2 each), volume, mass, material id, fixed flag,
@@ -129,7 +133,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             )
             continue
         if e.family == "PBD":  # sheets, polylines and open meshes: the PBD family checks its own morphs
-            from simcli.solvers.pbd.checks import check_entity
+            from simcli.solvers.pbd.config import check_entity
 
             for p, msg in check_entity(e, dim, loaded.scene_dir, lo if ok_dom else None, hi, s.solvers.pbd):
                 err(base + p, msg)
@@ -138,7 +142,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             err(mpath + ("type",), "SF.Smoke morphs are Box, Sphere or Cylinder (Mesh is not available)")
             continue
         if e.family == "FEM":  # 3D only; TetGen needed for Sphere, Cylinder and surface meshes
-            from simcli.solvers.fem.checks import check_entity as fem_check
+            from simcli.solvers.fem.mesh import check_entity as fem_check
 
             found = fem_check(e, dim, loaded.scene_dir)
             for p, msg in found:
@@ -173,7 +177,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             elif e.family == "SPH":
                 n_sph += estimate_particle_count(m, sph.particle_size, dim, loaded.scene_dir)
             elif e.family == "FEM":
-                from simcli.geometry.tetmesh import estimate_counts
+                from simcli.solvers.fem.mesh import estimate_counts
 
                 nv, nt = estimate_counts(e, s.solvers.fem, loaded.scene_dir)
                 fem_v, fem_t = fem_v + nv, fem_t + nt
@@ -239,7 +243,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         need += (n_sph * per_particle + n_bnd * per_boundary + sph_cells * _SPH_BYTES_PER_CELL) * fp
         n_particles += n_sph
     if fem_t:
-        from simcli.solvers.fem.checks import estimate_bytes as fem_bytes
+        from simcli.solvers.fem.mesh import estimate_bytes as fem_bytes
 
         need += fem_bytes(fem_v, fem_t, s.solvers.fem.integrator, s.sim.precision)
     avail = _available_memory()

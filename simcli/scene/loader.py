@@ -9,6 +9,7 @@ from __future__ import annotations
 import difflib
 import re
 import typing
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -16,14 +17,38 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from simcli.errors import SceneError
+from simcli.scene.lines import sort_lines  # also imported from here (sweep.model)
 from simcli.scene.materials import PLANNED_TYPES, material_type_names
 from simcli.scene.models import Scene
 from simcli.scene.overrides import apply_overrides, parse_set
 
-# Re-exported: Located, LoadedScene, sort_lines and the YAML 1.2 loader live in the leaf module
-# simcli.scene.source, which scene.checks and scene.overrides import without importing this module.
-from simcli.scene.source import LoadedScene, Located, Path_, sort_lines  # noqa: F401
-from simcli.scene.source import YAML12Loader as _Loader
+Path_ = tuple  # a key path: str keys and int list indices
+
+
+@dataclass
+class Located:
+    """Plain YAML data plus the source position of every key and value."""
+
+    data: Any
+    file: str
+    key_pos: dict[Path_, tuple[int, int]] = field(default_factory=dict)  # 1-based line, column of a key
+    value_pos: dict[Path_, tuple[int, int]] = field(default_factory=dict)
+    override_src: dict[Path_, str] = field(default_factory=dict)  # path -> "--set k=v" text
+
+    def where(self, path: Path_, prefer_key: bool = False) -> str:
+        """``file:line:col`` of the deepest known node on ``path``."""
+        p = tuple(path)
+        while True:
+            if p in self.override_src:
+                return self.override_src[p]
+            table = (self.key_pos, self.value_pos) if prefer_key else (self.value_pos, self.key_pos)
+            for t in table:
+                if p in t:
+                    line, col = t[p]
+                    return f"{self.file}:{line}:{col}"
+            if not p:
+                return f"{self.file}:1:1"
+            p = p[:-1]
 
 
 def _mark(node) -> tuple[int, int]:
@@ -60,6 +85,24 @@ def _walk(loader, node, path: Path_, loc: Located, errors: list[str]) -> Any:
             items.append(_walk(loader, item, path + (i,), loc, errors))
         return items
     return loader.construct_object(node, deep=True)
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 floats: PyYAML (YAML 1.1) reads 1e5 or -1e-3 as strings."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+    |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""",
+        re.VERBOSE,
+    ),
+    list("-+0123456789."),
+)
 
 
 def read_yaml_file(path: Path) -> Located:
@@ -321,6 +364,21 @@ def format_validation_error(exc: ValidationError, loc: Located) -> list[str]:
 
 
 # ----------------------------------------------------------------- entry points
+
+
+@dataclass
+class LoadedScene:
+    scene: Scene
+    path: Path
+    located: Located
+
+    @property
+    def scene_dir(self) -> Path:
+        return self.path.parent
+
+    @property
+    def name(self) -> str:
+        return self.scene.name or self.path.stem
 
 
 def load_scene(path: str | Path, sets: list[str] | tuple[str, ...] = (), check: bool = True) -> LoadedScene:

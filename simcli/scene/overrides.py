@@ -7,8 +7,6 @@ from typing import Any
 
 import yaml
 
-from simcli.scene.source import YAML12Loader
-
 
 def split_path(dotted: str) -> tuple:
     """'entities.0.material.E' -> ('entities', 0, 'material', 'E')."""
@@ -26,7 +24,9 @@ def parse_set(text: str) -> tuple[tuple, Any]:
     key, raw = text.split("=", 1)
     path = split_path(key.strip())
     try:
-        value = yaml.load(raw, Loader=YAML12Loader) if raw.strip() != "" else None
+        from simcli.scene.loader import _Loader
+
+        value = yaml.load(raw, Loader=_Loader) if raw.strip() != "" else None
     except yaml.YAMLError as e:
         raise ValueError(f"value is not valid YAML: {e}") from None
     return path, value
