@@ -230,9 +230,9 @@ def tetrahedralise(verts: np.ndarray, tris: np.ndarray, max_volume: float, min_d
         import tetgen  # noqa: PLC0415
     except ImportError:
         raise MeshError(
-            f"{name}: tetrahedralising a surface needs the 'tetgen' package (pyvista/tetgen, AGPL-3.0), which is "
-            "not installed: pip install tetgen. Alternatively mesh the shape yourself (e.g. gmsh) and give the "
-            "tetrahedral mesh file (.msh, .vtu, .mesh) as a Mesh morph, or use a Box morph."
+            f"{name}: tetrahedralising a surface needs the 'tetgen' package (pyvista/tetgen, AGPL-3.0), "
+            "which is not installed: pip install tetgen. Alternatively mesh the shape yourself (e.g. gmsh) "
+            "and give the tetrahedral mesh file (.msh, .vtu, .mesh) as a Mesh morph, or use a Box morph."
         ) from None
     del tetgen  # only its presence is checked here: it runs in a child process
     check_closed(np.asarray(tris), name)

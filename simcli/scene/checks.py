@@ -199,9 +199,10 @@ def check_scene(loaded: LoadedScene) -> list[str]:
     if sph.pressure_solver == "DFSPH" and not sph.clamp_pressure and len(sph_rho) > 1:
         err(
             ("solvers", "sph", "clamp_pressure"),
-            "DFSPH with clamp_pressure: false (its conjugate-gradient solve) does not support liquids of different "
-            f"rest densities (rho: {sph_rho}): its pressure operator is symmetric only for one rest density. Use "
-            "clamp_pressure: true (a free surface), pressure_solver: WCSPH, or one rho for every SPH.Liquid",
+            "DFSPH with clamp_pressure: false (its conjugate-gradient solve) does not support liquids of "
+            f"different rest densities (rho: {sph_rho}): its pressure operator is symmetric only for one "
+            "rest density. Use clamp_pressure: true (a free surface), pressure_solver: WCSPH, or one rho "
+            "for every SPH.Liquid",
         )
     if errors:
         return sort_lines(errors)
@@ -264,9 +265,9 @@ def check_scene(loaded: LoadedScene) -> list[str]:
     elif need > MEMORY_FRACTION * avail and "SPH" in s.families and "MPM" not in s.families:
         err(
             ("solvers", "sph", "particle_size"),
-            f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {n_bnd:,} boundary "
-            f"particles, {sph_cells:,} neighbour-grid cells) but only {avail / 2**30:.1f} GiB is available; raise "
-            f"solvers.sph.particle_size or shrink the domain",
+            f"scene too large: needs about {need / 2**30:.1f} GiB ({n_particles:,} particles, {n_bnd:,} "
+            f"boundary particles, {sph_cells:,} neighbour-grid cells) but only {avail / 2**30:.1f} GiB is "
+            "available; raise solvers.sph.particle_size or shrink the domain",
         )
     elif need > MEMORY_FRACTION * avail:
         err(

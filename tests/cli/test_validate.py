@@ -154,7 +154,8 @@ def test_example_configs_validate():
 
 
 def test_sph_scene_too_large_names_the_sph_setting(tmp_path):
-    """An SPH scene too large for memory: the error names solvers.sph.particle_size and counts boundary particles
+    """An SPH scene too large for memory: the error names solvers.sph.particle_size and counts boundary
+    particles
     and neighbour-grid cells, not MPM's grid."""
     text = """version: 1
 sim: {dim: 3, dt: 1.0e-3, substeps: 1, duration: 0.01}

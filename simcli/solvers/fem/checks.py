@@ -41,9 +41,9 @@ def check_entity(entity, dim: int, scene_dir=None) -> list[tuple[tuple, str]]:
             return [
                 (
                     ("morph", "type"),
-                    f"{m.type} morphs of FEM entities are tetrahedralised with TetGen, whose "
-                    "Python package 'tetgen' (pyvista/tetgen, AGPL-3.0) is not installed: pip install tetgen; "
-                    "or give a tetrahedral mesh file (.msh, .vtu, .mesh) as a Mesh morph, or use a Box morph",
+                    f"{m.type} morphs of FEM entities are tetrahedralised with TetGen, whose Python package "
+                    "'tetgen' (pyvista/tetgen, AGPL-3.0) is not installed: pip install tetgen; or give a "
+                    "tetrahedral mesh file (.msh, .vtu, .mesh) as a Mesh morph, or use a Box morph",
                 )
             ]
     return []

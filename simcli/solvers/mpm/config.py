@@ -38,13 +38,14 @@ class MPMOptions(_Options):
     particle_size: float | None = Field(
         None,
         gt=0,
-        description="Particle spacing of the sampling lattice [m]. Default 0.64/grid_density (0.01 m at 64 cells/m).",
+        description="Particle spacing of the sampling lattice [m]. Default 0.64/grid_density (0.01 m at 64 "
+        "cells/m).",
     )
     sampling: Literal["lattice", "jitter", "poisson"] = Field(
         "lattice",
-        description="Particle sampling: regular lattice; lattice with a random jitter; or Poisson-disk "
-        "(blue noise, no lattice directions: for sand and snow). Poisson-disk samples keep a minimum distance "
-        "of 0.80 (2D) or 0.87 (3D) particle_size and hold about as many particles as the lattice.",
+        description="Particle sampling: regular lattice; lattice with a random jitter; or Poisson-disk (blue "
+        "noise, no lattice directions: for sand and snow). Poisson-disk samples keep a minimum distance of "
+        "0.80 (2D) or 0.87 (3D) particle_size and hold about as many particles as the lattice.",
     )
     thin_parts: Literal["warn", "layer"] = Field(
         "warn",
@@ -136,11 +137,11 @@ class MPMSand(_Solid):
     )
     cone: Literal["plane_strain", "compression"] = Field(
         "plane_strain",
-        description="How the Drucker-Prager cone |dev tau| + alpha tr(tau) <= 0 is fitted to the Mohr-Coulomb "
-        "friction angle. plane_strain: the material fails at friction_angle under plane strain (slopes, heaps, "
-        "column collapses; alpha = sqrt(2) sin(phi) / 3). compression: Klar et al. 2016 and Genesis, exact in "
-        "triaxial compression (alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi))); under plane strain it acts like "
-        "a larger angle (44 deg for 30) and never yields in shear beyond 41.8 deg.",
+        description="How the Drucker-Prager cone |dev tau| + alpha tr(tau) <= 0 is fitted to the "
+        "Mohr-Coulomb friction angle. plane_strain: the material fails at friction_angle under plane strain "
+        "(slopes, heaps, column collapses; alpha = sqrt(2) sin(phi) / 3). compression: Klar et al. 2016 and "
+        "Genesis, exact in triaxial compression (alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi))); under plane "
+        "strain it acts like a larger angle (44 deg for 30) and never yields in shear beyond 41.8 deg.",
     )
 
     @property

@@ -341,7 +341,8 @@ class SFSolver(Solver):
         return fld.to_numpy().astype(np.float64)[(slice(1, -1),) * self.dim]
 
     def _cell_faces(self, d: int) -> tuple[tuple, tuple]:
-        """Index tuples picking, from an array of the faces normal to axis d, each cell's low and high face."""
+        """Index tuples picking, from an array of the faces normal to axis d, each cell's low and high
+        face."""
         lo = [slice(None)] * self.dim
         hi = [slice(None)] * self.dim
         lo[d] = slice(0, -1)
