@@ -66,7 +66,8 @@ pp = np.pad(p, 1, mode="edge")
 nb = (pp[2:, 1:-1, 1:-1] + pp[:-2, 1:-1, 1:-1] + pp[1:-1, 2:, 1:-1] + pp[1:-1, :-2, 1:-1]
       + pp[1:-1, 1:-1, 2:] + pp[1:-1, 1:-1, :-2])
 r = nb - 6.0 * p - div
-print("GENESIS_SF_RESIDUAL " + json.dumps({"relative_residual": float(np.linalg.norm(r) / np.linalg.norm(div))}))
+print("GENESIS_SF_RESIDUAL "
+      + json.dumps({"relative_residual": float(np.linalg.norm(r) / np.linalg.norm(div))}))
 """
 
 # Runs a command and reports the peak RSS of that child alone (KiB on Linux).
@@ -285,8 +286,8 @@ def main() -> None:
             flush=True,
         )
         if py and gargs is not None and sid in GRID_SCENES:
-            # equal pressure-solve accuracy: Genesis's residual after its 200 Jacobi sweeps, then simcli's MGPCG
-            # stopped on the same relative residual (same scene, dt, threads; warm kernel cache)
+            # equal pressure-solve accuracy: Genesis's residual after its 200 Jacobi sweeps, then simcli's
+            # MGPCG stopped on the same relative residual (same scene, dt, threads; warm kernel cache)
             rel = genesis_sf_residual(py, gargs, args.threads)
             sets = [
                 "solvers.sf.pressure_solver=mgpcg",
@@ -311,8 +312,9 @@ def main() -> None:
 
     lines = [
         (
-            "| scene | code | particles (vertices for meshes, cells for grids) | first step cold [s] | first step warm "
-            "[s] | compile [s] | steps/s | substeps/s | particle- (cell-) substeps/s | peak memory [MB] | speed-up |"
+            "| scene | code | particles (vertices for meshes, cells for grids) | first step cold [s] | first "
+            "step warm [s] | compile [s] | steps/s | substeps/s | particle- (cell-) substeps/s | peak memory "
+            "[MB] | speed-up |"
         ),
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
@@ -325,16 +327,17 @@ def main() -> None:
             ratio = ""
             if code.startswith("simcli") and "genesis" in r:
                 ratio = (
-                    f"{w['particle_substeps_per_s'] / r['genesis']['particle_substeps_per_s']:.2f}x throughput, "
+                    f"{w['particle_substeps_per_s'] / r['genesis']['particle_substeps_per_s']:.2f}x "
+                    "throughput, "
                     f"{r['genesis_cold']['time_to_first_step_s'] / c['time_to_first_step_s']:.1f}x faster "
-                    f"cold start"
+                    "cold start"
                 )
             label = {"simcli_mgpcg": "simcli (MGPCG, Genesis's residual)"}.get(code, code)
             lines.append(
                 f"| {r['id']} | {label} | {w['particles']} | {fmt(c['time_to_first_step_s'])} | "
                 f"{fmt(w['time_to_first_step_s'])} | {fmt(w['compile_s'])} | {fmt(w.get('steps_per_s'))} | "
-                f"{fmt(w['substeps_per_s'])} | {fmt(w['particle_substeps_per_s'])} | {fmt(w['peak_mb'], 4)} | "
-                f"{ratio} |"
+                f"{fmt(w['substeps_per_s'])} | {fmt(w['particle_substeps_per_s'])} | {fmt(w['peak_mb'], 4)} "
+                f"| {ratio} |"
             )
         if "genesis_residual" in r:
             s_, m_ = r["simcli"], r["simcli_mgpcg"]
@@ -366,33 +369,39 @@ def main() -> None:
         stamp = time.strftime("%Y-%m-%d")
         if args.backend == "cpu":
             intro = (
-                "Regenerate with `python benchmarks/bench.py` (needs Genesis in ~/genesis-venv or $GENESIS_PYTHON "
-                "for the side-by-side rows; see ../shared/bench/README.md).\n\n"
-                "On a GPU (one H100, CUDA, the same scenes plus B2 at a million particles, and the validation "
-                "set on CUDA): [PERFORMANCE_GPU.md](PERFORMANCE_GPU.md).\n\n"
+                "Regenerate with `python benchmarks/bench.py` (needs Genesis in ~/genesis-venv or "
+                "$GENESIS_PYTHON for the side-by-side rows; see ../shared/bench/README.md).\n"
+                "\n"
+                "On a GPU (one H100, CUDA, the same scenes plus B2 at a million particles, and the "
+                "validation set on CUDA): [PERFORMANCE_GPU.md](PERFORMANCE_GPU.md).\n"
+                "\n"
                 f"Measured {stamp} on: {machine()}. Threads: {args.threads} for both codes; simcli backend "
                 f"{args.backend}, f32. Same scene, dt, substeps and thread count as Genesis's "
-                "`genesis_bench.py`.\n\n"
+                "`genesis_bench.py`.\n"
+                "\n"
             )
         else:
             intro = (
-                f"simcli on the GPU. Regenerate on a machine with one with `python benchmarks/bench.py --backend "
-                f"{args.backend} --no-genesis --out docs/PERFORMANCE_GPU.md` (add `B2W1M B2D1M` for B2 at a "
-                "million particles). Genesis was not run here: the CPU rows of PERFORMANCE.md are the "
-                "side-by-side comparison.\n\n"
+                "simcli on the GPU. Regenerate on a machine with one with `python benchmarks/bench.py "
+                f"--backend {args.backend} --no-genesis --out docs/PERFORMANCE_GPU.md` (add `B2W1M B2D1M` "
+                "for B2 at a million particles). Genesis was not run here: the CPU rows of PERFORMANCE.md "
+                "are the side-by-side comparison.\n"
+                "\n"
                 f"Measured {stamp} on: {machine()}. simcli backend {args.backend}, f32; the same scene files "
-                "as the CPU benchmarks.\n\n"
+                "as the CPU benchmarks.\n"
+                "\n"
             )
         text = (
             "# Performance"
             + ("" if args.backend == "cpu" else f" on the GPU ({args.backend})")
             + "\n\n"
             + intro
-            + "*First step*: from the start of the process's Python code (imports included) to the end of the first "
-            "step; cold = empty kernel cache. *Compile*: simcli's first substep (kernel compilation); Genesis's "
-            "`scene.build()`. *Substeps/s*: steady state, after warm-up. *Peak memory*: peak RSS of the process. "
-            "`python benchmarks/bench.py B5` re-measures B5 only: the other scenes' rows are kept from the last "
-            "report.\n\n" + table + "\n"
+            + "*First step*: from the start of the process's Python code (imports included) to the end of "
+            "the first step; cold = empty kernel cache. *Compile*: simcli's first substep (kernel "
+            "compilation); Genesis's `scene.build()`. *Substeps/s*: steady state, after warm-up. *Peak "
+            "memory*: peak RSS of the process. `python benchmarks/bench.py B5` re-measures B5 only: the "
+            "other scenes' rows are kept from the last report.\n"
+            "\n" + table + "\n"
         )
         # hand-written paragraphs under the table (how a scene was run, caveats) are kept; the generated
         # pressure-solve notes are not (they were regenerated above)
@@ -431,7 +440,8 @@ def _hand_notes(path: Path) -> list[str]:
 
 
 def _later_sections(path: Path) -> str:
-    """The report's "## " sections after the table, as they are (none are generated outside PERFORMANCE.md)."""
+    """The report's "## " sections after the table, as they are (none are generated outside
+    PERFORMANCE.md)."""
     lines = path.read_text().splitlines()
     for i, line in enumerate(lines):
         if line.startswith("## "):

@@ -38,13 +38,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench import genesis_python, machine
+from bench import genesis_python, machine  # noqa: E402  (after the sys.path insert above)
 
 SPL_RUN = r"""
 import sys, time
 import pysplishsplash as sph
 base = sph.Exec.SimulatorBase()
-base.init(["spl", "--no-gui", "--no-cache", "--stopAt", sys.argv[1], "--output-dir", sys.argv[2], sys.argv[3]], "bench")
+base.init(["spl", "--no-gui", "--no-cache", "--stopAt", sys.argv[1], "--output-dir", sys.argv[2],
+           sys.argv[3]], "bench")
 t0 = time.perf_counter()
 base.run()
 print("WALL", time.perf_counter() - t0)
@@ -60,7 +61,8 @@ scene = gs.Scene(sim_options=gs.options.SimOptions(dt=4e-3, substeps=10),
                  sph_options=gs.options.SPHOptions(lower_bound=(-0.5, -0.5, 0.0), upper_bound=(0.5, 0.5, 1.0),
                                                    particle_size=0.02, pressure_solver=solver_name),
                  show_viewer=False)
-ent = scene.add_entity(material=gs.materials.SPH.Liquid(), morph=gs.morphs.Box(pos=(-0.3, 0.0, 0.25), size=(0.36, 0.9, 0.46)))
+ent = scene.add_entity(material=gs.materials.SPH.Liquid(),
+                       morph=gs.morphs.Box(pos=(-0.3, 0.0, 0.25), size=(0.36, 0.9, 0.46)))
 scene.build()
 for _ in range(3):
     scene.step()
@@ -257,15 +259,16 @@ def main() -> None:
         for name, r in rows:
             lines.append(
                 f"| {name} | {r['particles']} | {fmt(r['sim_time'])} | {fmt(r['stepping_s'])} | "
-                f"{fmt(1e3 * r['dt_mean'])} | {fmt(r['density_iterations'])} / {fmt(r['divergence_iterations'])} | "
-                f"{fmt(pss(r))} | {fmt(pss(r) / base) + 'x' if base else '-'} |"
+                f"{fmt(1e3 * r['dt_mean'])} | {fmt(r['density_iterations'])} / "
+                f"{fmt(r['divergence_iterations'])} | {fmt(pss(r))} | "
+                f"{fmt(pss(r) / base) + 'x' if base else '-'} |"
             )
         lines += [
             "",
             "Both stop each solve at an average density error of 0.01 % (divergence 0.1 %); simcli's "
             f"largest per-step average density error was {fmt(ours['solver_density_error_percent_max'])} %. "
-            "SPlisHSPlasH's one-off volume-map construction (its boundary method) is excluded, as is simcli's "
-            "compilation.",
+            "SPlisHSPlasH's one-off volume-map construction (its boundary method) is excluded, as is "
+            "simcli's compilation.",
             "",
         ]
 
@@ -327,9 +330,10 @@ def main() -> None:
                     kept[0] += " (kept from an earlier run with Genesis: this run had --no-genesis)"
                 lines += kept + [""]
     text = (
-        "## SPH beside SPlisHSPlasH and Genesis\n\n"
-        f"Regenerate with `python benchmarks/sph_vs_splishsplash.py` (measured {time.strftime('%Y-%m-%d')} on "
-        f"{machine()}; {args.threads} threads for every code, "
+        "## SPH beside SPlisHSPlasH and Genesis\n"
+        "\n"
+        f"Regenerate with `python benchmarks/sph_vs_splishsplash.py` (measured {time.strftime('%Y-%m-%d')} "
+        f"on {machine()}; {args.threads} threads for every code, "
         + ("one run" if args.repeat == 1 else f"the fastest of {args.repeat} alternating runs")
         + ", in sequence).\n\n"
         + "\n".join(lines)

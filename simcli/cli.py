@@ -208,7 +208,8 @@ def _validate_sweep(path: Path, quiet: bool) -> int:
 )
 def schema(out: Path | None) -> None:
     """Write the JSON Schema of scene files (generated from the same models as validation)."""
-    from simcli.scene.schema import schema_text, write_schemas
+    from simcli.scene.schema import schema_text
+    from simcli.sweep.schema import write_schemas
 
     if out is None:
         sys.stdout.write(schema_text())

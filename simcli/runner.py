@@ -33,10 +33,8 @@ from simcli.progress import Progress, plural
 from simcli.runsignals import RunSignals
 from simcli.scene.loader import LoadedScene
 from simcli.scene.models import resolved_scene_dict
+from simcli.solvers.base import RUNAWAY_CFL  # the runaway guard's limit; the families read it there
 
-# A substep whose CFL number (max speed * substep / dx) exceeds this is a blow-up: MPM's
-# transfers assume particles move less than a cell per substep.
-RUNAWAY_CFL = 2.0
 AUTO_MAX_SUBSTEPS = 100_000
 
 
@@ -292,7 +290,8 @@ class Runner:
             if found is None:
                 self._owns_out = False
                 print(
-                    f"simcli: error: --resume: no checkpoint in {self.out / 'checkpoints'}; run without --resume",
+                    f"simcli: error: --resume: no checkpoint in {self.out / 'checkpoints'}; run without "
+                    "--resume",
                     file=sys.stderr,
                 )
                 return EXIT_USAGE, None
@@ -453,7 +452,8 @@ class Runner:
         stepping0 = self.timings["stepping_s"]
         self._step0 = step  # steps of this process are counted from here (a resumed run: its checkpoint)
         substeps_done = 0
-        # smallest and largest substep taken [s] (over the whole run: a resumed run continues the checkpoint's)
+        # smallest and largest substep taken [s] (over the whole run: a resumed run continues the
+        # checkpoint's)
         saved = ckpt[1].get("dt_range") if ckpt is not None else None
         dt_range = self._dt_range = [float(x) for x in saved] if saved else [math.inf, 0.0]
         adaptive = sim.substeps == "auto" and sim.auto_check == "substep"
@@ -609,8 +609,9 @@ class Runner:
 
     @staticmethod
     def _stable_dt(solvers, fallback: float) -> float:
-        """The smallest stable substep the solvers report [s]. A NaN (a solver whose state is no longer finite:
-        the frame check at the end of the frame reports it, with advice) gives ``fallback`` instead of an
+        """The smallest stable substep the solvers report [s]. A NaN (a solver whose state is no longer
+        finite: the frame check at the end of the frame reports it, with advice) gives ``fallback`` instead of
+        an
         unreadable error here."""
         vals = [float(s.stable_dt()) for s in solvers]
         return fallback if any(math.isnan(v) for v in vals) else min(vals)
@@ -713,7 +714,8 @@ class Runner:
                 what = (
                     f"{st.n_bad} particle(s) with NaN/Inf"
                     if not st.finite
-                    else f"a particle speed of {st.max_speed:.3g} m/s (it crosses {cfl:.1f} cells per substep)"
+                    else f"a particle speed of {st.max_speed:.3g} m/s (it crosses {cfl:.1f} cells per "
+                    "substep)"
                 )
                 if s.family == "sph":
                     if subs == "auto":
@@ -733,7 +735,10 @@ class Runner:
                         f"auto, or lower the stiffness E of '{name}'"
                     )
                 if isinstance(subs, int) and math.isfinite(cfl) and cfl > 0:
-                    advice += f"; substeps >= {int(math.ceil(subs * cfl / 0.5))} would keep the CFL number below 0.5"
+                    advice += (
+                        f"; substeps >= {int(math.ceil(subs * cfl / 0.5))} would keep the CFL number "
+                        "below 0.5"
+                    )
                 raise NumericalError(
                     f"numerical failure in entity '{name}' before frame {frame} (step {step}, "
                     f"t = {step * sim.dt:.6g} s): {what}. Every earlier frame is kept. "

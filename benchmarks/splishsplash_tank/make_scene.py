@@ -13,7 +13,8 @@ centres to the mesh walls and floor, `sy` = vertical stretch of the lattice appl
              The 'effective floor' r*sy below the first row is at y = 0.
 """
 
-import json, sys
+import json
+import sys
 
 r = 0.0025
 SY = 1.0008514038524843
@@ -82,8 +83,9 @@ def scene(bhm, gap, dtmax=0.0005, sy=1.0, init_dt=0.0001, stop=3.0, fps=10):
 
 
 def wcsph(bhm, gap, dt):
-    """The tuned tank with SPlisHSPlasH's WCSPH (simulationMethod 0) at simcli's WCSPH defaults (Tait k = 50 kPa,
-    n = 7) and a fixed step dt (simcli's automatic step on this tank: about 0.1 ms). SPlisHSPlasH's WCSPH walls
+    """The tuned tank with SPlisHSPlasH's WCSPH (simulationMethod 0) at simcli's WCSPH defaults (Tait k = 50
+    kPa, n = 7) and a fixed step dt (simcli's automatic step on this tank: about 0.1 ms). SPlisHSPlasH's WCSPH
+    walls
     push with the particle's pressure mirrored, (p_i / rho_i^2 + p_i / rho0^2) (TimeStepWCSPH.cpp)."""
     sc = scene(bhm, gap, sy=SY, dtmax=dt, init_dt=dt)
     c = sc["Configuration"]
@@ -106,13 +108,15 @@ if __name__ == "__main__":
     # as requested, with a 0.5 ms time-step cap (SPlisHSPlasH's default cap 5 ms blows up, see *_dt5e-3)
     write("tank2d_akinci_spec.json", scene(0, r))
     write("tank2d_volmap_spec.json", scene(2, r))
-    # as requested with SPlisHSPlasH's default time-step settings (initial 1 ms, cap 5 ms): exactly what was run
+    # as requested with SPlisHSPlasH's default time-step settings (initial 1 ms, cap 5 ms): exactly what was
+    # run
     write("tank2d_akinci_spec_dt5e-3.json", scene(0, r, dtmax=0.005, init_dt=None))
     write("tank2d_volmap_spec_dt5e-3.json", scene(2, r, dtmax=0.005, init_dt=None))
     # tuned start (run with SY=1.0008514038524843)
     write("tank2d_akinci_tuned.json", scene(0, GAP_AKINCI, sy=SY))
     write("tank2d_volmap_tuned.json", scene(2, GAP_VOLMAP, sy=SY))
-    # time-step sensitivity of the tuned start: cap (and initial step) 1, 2 ms and SPlisHSPlasH's default cap 5 ms
+    # time-step sensitivity of the tuned start: cap (and initial step) 1, 2 ms and SPlisHSPlasH's default cap
+    # 5 ms
     for dt in (0.001, 0.002, 0.005):
         write(f"tank2d_akinci_tuned_dt{dt:g}.json", scene(0, GAP_AKINCI, sy=SY, dtmax=dt, init_dt=dt))
     write("tank2d_volmap_tuned_dt0.005.json", scene(2, GAP_VOLMAP, sy=SY, dtmax=0.005, init_dt=0.005))

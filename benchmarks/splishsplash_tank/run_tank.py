@@ -2,13 +2,19 @@
 Usage: python run_tank.py scene.json outdir
 Runs the scene (VTK export of particles every 0.1 s is done by SPlisHSPlasH itself into outdir/vtk),
 and additionally logs per time step: t, dt, DFSPH pressure iterations, divergence iterations
-(steps.csv), and, for every step in which SPlisHSPlasH wrote a VTK frame, dumps to frames.npz (time, dt of that step, positions, velocity,
-density) -- dt is needed to convert the exported 'p / rho^2' to a pressure (see measure.py).
-Env: SY=<factor> stretches the initial lattice vertically (y -> SY*y);
+(steps.csv), and, for every step in which SPlisHSPlasH wrote a VTK frame, dumps to frames.npz (time, dt of
+that step, positions, velocity, density) -- dt is needed to convert the exported 'p / rho^2' to a pressure
+(see measure.py). Env: SY=<factor> stretches the initial lattice vertically (y -> SY*y);
      VISC_SETTLE=<nu>:<t_end> optional viscous settling phase (not used for the reported runs).
-Needs LD_PRELOAD=/lib/x86_64-linux-gnu/libGLdispatch.so.0 (the wheel's bundled libGLdispatch segfaults on import)."""
+Needs LD_PRELOAD=/lib/x86_64-linux-gnu/libGLdispatch.so.0 (the wheel's bundled libGLdispatch segfaults on
+import)."""
 
-import os, sys, time, shutil, numpy as np
+import os
+import shutil
+import sys
+import time
+
+import numpy as np
 import pysplishsplash as sph
 
 scene = os.path.abspath(sys.argv[1])
@@ -38,11 +44,13 @@ print(
     flush=True,
 )
 print(
-    f"[driver] initial min={X0.min(0)} max={X0.max(0)} nx={len(np.unique(X0[:, 0].round(6)))} ny={len(np.unique(X0[:, 1].round(6)))}",
+    f"[driver] initial min={X0.min(0)} max={X0.max(0)} nx={len(np.unique(X0[:, 0].round(6)))} "
+    f"ny={len(np.unique(X0[:, 1].round(6)))}",
     flush=True,
 )
 
-# optional settling phase: VISC_SETTLE="nu:t_end" -> kinematic viscosity nu until t_end, then the scene's value
+# optional settling phase: VISC_SETTLE="nu:t_end" -> kinematic viscosity nu until t_end, then the scene's
+# value
 visc = fm.getViscosityBase()
 nu_scene = visc.getValueFloat(visc.VISCOSITY_COEFFICIENT)
 print(f"[driver] viscosity method {fm.getViscosityMethod()}, coefficient {nu_scene}", flush=True)
@@ -67,7 +75,8 @@ def cb():
         for a in ("SOLVER_ITERATIONS", "SOLVER_ITERATIONS_V")
     ]
     steps.append((t, h, *its))  # WCSPH has no solver iterations (0)
-    # SPlisHSPlasH has just exported VTK frame k+1 in this step (its own frame timing): record the state and dt
+    # SPlisHSPlasH has just exported VTK frame k+1 in this step (its own frame timing): record the state and
+    # dt
     k = len(frames)
     if os.path.exists(os.path.join(out, "vtk", f"ParticleData_Fluid_{k + 1}.vtk")):
         frames[k] = dict(

@@ -47,12 +47,14 @@ for d in sys.argv[1:]:
     print("   t     floor p [Pa]  interior [Pa]  wall-layer ratio  mean speed [cm/s]  ymin [mm]  |x|max [mm]")
     for r in rows:
         print(
-            f"  {r[0]:5.2f}  {r[1]:9.1f}  {r[2]:9.1f}  {r[3]:7.3f}  {100 * r[4]:8.3f}  {1000 * r[5]:7.2f}  {1000 * r[6]:7.2f}"
+            f"  {r[0]:5.2f}  {r[1]:9.1f}  {r[2]:9.1f}  {r[3]:7.3f}  {100 * r[4]:8.3f}  {1000 * r[5]:7.2f}  "
+            f"{1000 * r[6]:7.2f}"
         )
     w = np.array([r for r in rows if 2.0 - 1e-6 <= r[0] <= 3.0 + 1e-3])
     ref = rho0 * g * 0.1
     print(
-        f"  2-3 s ({len(w)} frames): floor {w[:, 1].mean():.1f} Pa ({100 * (w[:, 1].mean() / ref - 1):+.2f}% vs rho0 g H = {ref:.0f}), "
-        f"interior {w[:, 2].mean():.1f} Pa ({100 * (w[:, 2].mean() / ref - 1):+.2f}%), wall-layer ratio {w[:, 3].mean():.3f}, "
-        f"largest mean speed {100 * w[:, 4].max():.3f} cm/s"
+        f"  2-3 s ({len(w)} frames): floor {w[:, 1].mean():.1f} Pa ({100 * (w[:, 1].mean() / ref - 1):+.2f}% "
+        f"vs rho0 g H = {ref:.0f}), interior {w[:, 2].mean():.1f} Pa "
+        f"({100 * (w[:, 2].mean() / ref - 1):+.2f}%), wall-layer ratio {w[:, 3].mean():.3f}, largest mean "
+        f"speed {100 * w[:, 4].max():.3f} cm/s"
     )

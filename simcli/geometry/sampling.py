@@ -55,6 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simcli.geometry.body import Body
 from simcli.geometry.mesh import (
     MeshError,
     MeshFileNotFoundError,
@@ -66,7 +67,6 @@ from simcli.geometry.mesh import (
 )
 from simcli.geometry.regions import check_shape_dim, points_in_regions, points_in_shape, shape_volume
 from simcli.scene.morphs import BoxShape, CylinderShape, MeshShape, SphereShape
-from simcli.solvers.base import Body
 
 __all__ = [
     "JITTER",
@@ -204,11 +204,11 @@ def sample_morph(
                 )
             else:
                 warnings.append(
-                    f"mesh '{morph.file}': parts thinner than the particle spacing ({h:g} m) got no particles "
-                    f"(about {100 * res.missed_volume / volume:.1f}% of the volume, "
-                    f"{res.missed_volume:.3g} m^3); "
-                    "their mass is carried by the other particles; lower particle_size to resolve them, or "
-                    "set solvers.mpm.thin_parts: layer to give them one layer of particles"
+                    f"mesh '{morph.file}': parts thinner than the particle spacing ({h:g} m) got no "
+                    f"particles (about {100 * res.missed_volume / volume:.1f}% of the volume, "
+                    f"{res.missed_volume:.3g} m^3); their mass is carried by the other particles; lower "
+                    "particle_size to resolve them, or set solvers.mpm.thin_parts: layer to give them one "
+                    "layer of particles"
                 )
     else:
         volume = shape_volume(morph, dim)
@@ -355,7 +355,8 @@ def entity_rng(seed: int, index: int) -> np.random.Generator:
 
 
 def sample_scene(scene, scene_dir: PathLike | None = None, seed: int | None = None) -> list[Body]:
-    """Bodies of every particle entity (MPM, SPH), in entity order (each entity jittered by its own generator)."""
+    """Bodies of every particle entity (MPM, SPH), in entity order (each entity jittered by its own
+    generator)."""
     if seed is None:
         seed = scene.sim.seed
     scene_dir = Path(scene_dir) if scene_dir is not None else None
@@ -438,7 +439,8 @@ def poisson_disk(lo, hi, radius: float, rng, trials: int = POISSON_TRIALS, insid
 
 
 def _poisson_fill(morph, h: float, dim: int, scene_dir, rng) -> tuple[np.ndarray, float]:
-    """Poisson-disk points inside the morph (POISSON_MARGIN h from an analytic shape's faces) and its volume."""
+    """Poisson-disk points inside the morph (POISSON_MARGIN h from an analytic shape's faces) and its
+    volume."""
     r = POISSON_RADIUS[dim] * h
     m = POISSON_MARGIN * h
     if isinstance(morph, MeshShape):

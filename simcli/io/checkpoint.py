@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .frames import atomic_file, guard
+from .atomic import atomic_file, guard
 
 log = logging.getLogger(__name__)
 

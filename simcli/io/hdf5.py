@@ -34,10 +34,10 @@ import numpy as np
 
 from simcli.errors import OutputError
 
-from .frames import guard, output_error
+from .atomic import guard, output_error
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .frames import EntityMeta
+    from .meta import EntityMeta
 
 FORMAT = "simcli-frames"
 FORMAT_VERSION = 1

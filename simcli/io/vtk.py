@@ -24,10 +24,10 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from .frames import atomic_write_bytes, atomic_write_text, ensure_dir, guard
+from .atomic import atomic_write_bytes, atomic_write_text, ensure_dir, guard
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .frames import EntityMeta
+    from .meta import EntityMeta
 
 # zlib level: float data barely compresses further at higher levels, which cost 2-10x the time
 COMPRESSION_LEVEL = 1

@@ -35,10 +35,10 @@ from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 
-from .frames import atomic_write_text
+from .atomic import atomic_write_text
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .frames import EntityMeta
+    from .meta import EntityMeta
 
 TOPOLOGY = {"tets": "Tetrahedron", "triangles": "Triangle", "lines": "Polyline"}
 

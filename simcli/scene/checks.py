@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from simcli.scene.loader import LoadedScene, sort_lines
+from simcli.scene.lines import sort_lines
+
+if TYPE_CHECKING:  # pragma: no cover - the loader calls check_scene
+    from simcli.scene.loader import LoadedScene
 
 
 def check_scene(loaded: LoadedScene) -> list[str]:
@@ -155,9 +159,10 @@ def check_scene(loaded: LoadedScene) -> list[str]:
     if sph.pressure_solver == "DFSPH" and not sph.clamp_pressure and len(sph_rho) > 1:
         err(
             ("solvers", "sph", "clamp_pressure"),
-            "DFSPH with clamp_pressure: false (its conjugate-gradient solve) does not support liquids of different "
-            f"rest densities (rho: {sph_rho}): its pressure operator is symmetric only for one rest density. Use "
-            "clamp_pressure: true (a free surface), pressure_solver: WCSPH, or one rho for every SPH.Liquid",
+            "DFSPH with clamp_pressure: false (its conjugate-gradient solve) does not support liquids of "
+            f"different rest densities (rho: {sph_rho}): its pressure operator is symmetric only for one "
+            "rest density. Use clamp_pressure: true (a free surface), pressure_solver: WCSPH, or one rho "
+            "for every SPH.Liquid",
         )
     from simcli.scene.limits import check_limits  # bounds, names, stability, overlaps (docs/LIMITS.md)
 

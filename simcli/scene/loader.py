@@ -20,6 +20,7 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from simcli.errors import SceneError
+from simcli.scene.lines import sort_lines  # also imported from here (sweep.model)
 from simcli.scene.materials import PLANNED_TYPES, material_type_names
 from simcli.scene.models import Scene
 from simcli.scene.overrides import apply_overrides, parse_set
@@ -482,16 +483,6 @@ def format_validation_error(exc: ValidationError, loc: Located) -> list[str]:
         prefer_key = items[0][0]["type"] == "extra_forbidden"
         lines.append(f"{loc.where(path, prefer_key=prefer_key)}: {_dotted(path)}: {msg}")
     return sort_lines(lines)
-
-
-def _line_key(line: str):
-    m = re.match(r"^(.*?):(\d+):(\d+): ", line)
-    return (0, "", 0, 0) if m is None else (1, m.group(1), int(m.group(2)), int(m.group(3)))
-
-
-def sort_lines(lines: list[str]) -> list[str]:
-    """In file order (--set lines first), so a user can fix them top to bottom."""
-    return sorted(lines, key=_line_key)
 
 
 # ----------------------------------------------------------------- entry points

@@ -42,12 +42,13 @@ class Sim(Strict):
     )
     auto_check: Literal["frame", "substep"] = Field(
         "frame",
-        description="With substeps: auto, how often the stable substep is re-evaluated. frame: once per output "
-        "frame, and every step of the frame is split into that many equal substeps (a step's substep count is "
-        "the smallest that keeps each within the limit). substep: before every substep, from the state at that "
-        "moment, as SPlisHSPlasH's adaptive step; each substep is as large as the limits allow, and the last "
-        "ones of a step are made equal so that the step ends on its boundary (use a long sim.dt, e.g. the "
-        "output interval, so that few substeps are shortened). Costs one reduction per substep.",
+        description="With substeps: auto, how often the stable substep is re-evaluated. frame: once per "
+        "output frame, and every step of the frame is split into that many equal substeps (a step's substep "
+        "count is the smallest that keeps each within the limit). substep: before every substep, from the "
+        "state at that moment, as SPlisHSPlasH's adaptive step; each substep is as large as the limits "
+        "allow, and the last ones of a step are made equal so that the step ends on its boundary (use a long "
+        "sim.dt, e.g. the output interval, so that few substeps are shortened). Costs one reduction per "
+        "substep.",
     )
     duration: float | None = Field(
         None, gt=0, description="Simulated time [s]. Give duration or steps, not both (default 1 s)."
@@ -105,9 +106,10 @@ class Boundary(Strict):
     type: Literal["slip", "sticky", "separate", "open", "periodic"] = Field(
         "slip",
         description="slip: normal velocity zeroed, tangential kept (minus Coulomb friction); sticky: all "
-        "velocity zeroed (or set to the face velocity); separate: like slip but only when moving into the wall. "
-        "Grid fluids (SF) only: open (outflow: zero pressure on the face, fluid leaves or enters freely); "
-        "periodic (leaving through this face re-enters through the opposite one; give both faces of an axis).",
+        "velocity zeroed (or set to the face velocity); separate: like slip but only when moving into the "
+        "wall. Grid fluids (SF) only: open (outflow: zero pressure on the face, fluid leaves or enters "
+        "freely); periodic (leaving through this face re-enters through the opposite one; give both faces of "
+        "an axis).",
     )
     friction: float = Field(
         0.0,
@@ -276,10 +278,10 @@ class Output(Strict):
     )
     fields: Literal["default"] | list[str] = Field(
         "default",
-        description="Per-particle fields to write: 'default' (position, velocity) or a list from "
-        "position, velocity, J, stress (von Mises [Pa]), material_id (MPM); position, velocity, density "
-        "[kg/m^3], pressure [Pa], material_id (SPH); position, velocity, displacement [m], reaction (force of "
-        "the supports on pinned vertices [N]), density [kg/m^3] (PBD).",
+        description="Per-particle fields to write: 'default' (position, velocity) or a list from position, "
+        "velocity, J, stress (von Mises [Pa]), material_id (MPM); position, velocity, density [kg/m^3], "
+        "pressure [Pa], material_id (SPH); position, velocity, displacement [m], reaction (force of the "
+        "supports on pinned vertices [N]), density [kg/m^3] (PBD).",
     )
 
 

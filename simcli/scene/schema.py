@@ -1,9 +1,9 @@
-"""JSON Schema export (``simcli schema``): generated from the same pydantic models."""
+"""JSON Schema export (``simcli schema``): generated from the same pydantic models. Writing the schema
+files of every file type (scene and sweep) is ``simcli.sweep.schema.write_schemas``."""
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 from simcli.scene.models import Scene
 
@@ -29,20 +29,3 @@ def scene_schema() -> dict:
 
 def schema_text() -> str:
     return schema_json(scene_schema())
-
-
-def write_schemas(out_dir: Path) -> list[Path]:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    written = []
-    p = out_dir / "scene.schema.json"
-    p.write_text(schema_text(), encoding="utf-8")
-    written.append(p)
-    try:  # the sweep schema exists once simcli.sweep is there
-        from simcli.sweep.model import sweep_schema_text
-
-        q = out_dir / "sweep.schema.json"
-        q.write_text(sweep_schema_text(), encoding="utf-8")
-        written.append(q)
-    except ImportError:
-        pass
-    return written

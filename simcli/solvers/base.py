@@ -1,8 +1,9 @@
 """The interface every solver family implements, and the data it exchanges.
 
-No Taichi import here: ``Body`` is produced by ``simcli.geometry.sampling`` and
-consumed by the solvers, and both the config side (validate, schema) and the
-writers must be able to import this module without starting Taichi.
+No Taichi import here (only inside ``Solver.sync``): the config side (validate, schema) and the
+writers must be able to import this module without starting Taichi. ``Body``, the sampled initial
+state the solvers consume, lives in ``simcli.geometry.body`` (it is produced by
+``simcli.geometry.sampling``) and is re-exported here as part of the solver interface.
 
 Lifecycle (see docs/ARCHITECTURE.md):
 
@@ -20,8 +21,25 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from simcli.geometry.body import Body
+
+__all__ = [
+    "RUNAWAY_CFL",
+    "Body",
+    "FrameStats",
+    "Solver",
+    "frame_stats_per_body",
+    "initial_positions",
+    "upload_state_array",
+]
+
 if TYPE_CHECKING:  # pragma: no cover
-    from simcli.scene.models import Entity, Scene
+    from simcli.scene.models import Scene
+
+# A substep whose CFL number (max speed * substep / length_scale()) exceeds this is a blow-up: MPM's
+# transfers assume particles move less than a cell per substep. The runner's runaway guard applies it;
+# it lives here, below the runner, so that a family may read it (SF scales its length_scale by it).
+RUNAWAY_CFL = 2.0
 
 
 @dataclass
@@ -63,43 +81,6 @@ def upload_state_array(fld, state: dict, key: str, shape: tuple, dtype, family: 
     if arr.shape != shape:
         raise ValueError(f"{family} state {key!r}: shape {arr.shape}, expected {shape}")
     fld.from_numpy(arr)
-
-
-@dataclass
-class Body:
-    """One entity's sampled initial state (numpy, float64).
-
-    ``x`` (n, dim) positions [m], ``v`` (n, dim) velocities [m/s], ``volume`` (n,)
-    particle volumes [m^3], ``mass`` (n,) particle masses [kg] (rho x body volume / n,
-    so the total mass is exact), ``fixed`` (n,) bool: held in place.
-    """
-
-    name: str
-    entity: Entity
-    x: np.ndarray
-    v: np.ndarray
-    volume: np.ndarray
-    mass: np.ndarray
-    fixed: np.ndarray
-
-    def __post_init__(self) -> None:
-        self.x = np.ascontiguousarray(self.x, dtype=np.float64)
-        n = self.x.shape[0]
-        if self.x.ndim != 2:
-            raise ValueError(f"Body {self.name!r}: x must be (n, dim), got shape {self.x.shape}")
-        dim = self.x.shape[1]
-        self.v = np.ascontiguousarray(self.v, dtype=np.float64).reshape(n, dim)
-        self.volume = np.ascontiguousarray(self.volume, dtype=np.float64).reshape(n)
-        self.mass = np.ascontiguousarray(self.mass, dtype=np.float64).reshape(n)
-        self.fixed = np.ascontiguousarray(self.fixed, dtype=bool).reshape(n)
-
-    @property
-    def n(self) -> int:
-        return int(self.x.shape[0])
-
-    @property
-    def dim(self) -> int:
-        return int(self.x.shape[1])
 
 
 class Solver:

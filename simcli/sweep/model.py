@@ -66,9 +66,9 @@ class Sweep(BaseModel):
     name: str | None = Field(
         None,
         min_length=1,
-        description="Run name template: {dotted.key} is replaced by the run's value of that key (a varied key "
-        "or any key of the base scene), {index} by the run number; Python format specs work ({sim.dt:.0e}). "
-        "Names must differ between runs. Default: the run index.",
+        description="Run name template: {dotted.key} is replaced by the run's value of that key (a varied "
+        "key or any key of the base scene), {index} by the run number; Python format specs work "
+        "({sim.dt:.0e}). Names must differ between runs. Default: the run index.",
     )
     grid: dict[str, Values] = Field(
         default_factory=dict,
@@ -84,14 +84,15 @@ class Sweep(BaseModel):
     output: str | None = Field(
         None,
         min_length=1,
-        description="Folder of the sweep, relative to the working directory; run i writes <output>/<its name>/. "
-        "Default: out/<sweep file name without extension>.",
+        description="Folder of the sweep, relative to the working directory; run i writes <output>/<its "
+        "name>/. Default: out/<sweep file name without extension>.",
     )
     metrics: list[str] = Field(
         default_factory=list,
-        description="Extra columns for `simcli sweep collect`: dotted paths into run.json (throughput.steps_per_s), "
-        "or measure.<quantity>.<entity>[.<axis>][.final|max|min|mean]: a verification measurement of sim.h5 "
-        "(com, min_coord, max_speed, kinetic_energy, ...) reduced over the frames (default: the last frame).",
+        description="Extra columns for `simcli sweep collect`: dotted paths into run.json "
+        "(throughput.steps_per_s), or measure.<quantity>.<entity>[.<axis>][.final|max|min|mean]: a "
+        "verification measurement of sim.h5 (com, min_coord, max_speed, kinetic_energy, ...) reduced over "
+        "the frames (default: the last frame).",
     )
 
 
@@ -248,7 +249,10 @@ def _format_model_errors(exc: ValidationError, loc: Located) -> list[str]:
                 f"{type(err.get('input')).__name__})"
             )
         elif t == "list_type" and path[:1] in (("grid",), ("zip",)):
-            msg = f"expected a list of values (got {err.get('input')!r}); write [{err.get('input')!r}] for one value"
+            msg = (
+                f"expected a list of values (got {err.get('input')!r}); "
+                f"write [{err.get('input')!r}] for one value"
+            )
         else:
             msg = _describe(err, loc.data, path)
         line = f"{loc.where(path, prefer_key=prefer_key)}: {_sweep_key(path)}: {msg}"

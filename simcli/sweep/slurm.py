@@ -98,13 +98,14 @@ def sbatch_script(
         'export OMP_NUM_THREADS="$threads" SIMCLI_THREADS="$threads"',
         'task="${SLURM_ARRAY_JOB_ID}_${SLURM_ARRAY_TASK_ID}"',
         (
-            'echo "simcli sweep: array element $task on $(hostname), attempt $((${SLURM_RESTART_COUNT:-0} + 1)),'
-            ' $(date -Is)" >&2'
+            'echo "simcli sweep: array element $task on $(hostname), attempt $((${SLURM_RESTART_COUNT:-0} + '
+            '1)), $(date -Is)" >&2'
         ),
         "",
         "# Slurm sends USR1 (--signal=B:...) to this shell only: run the task in the background and",
         "# pass the signal on, so it checkpoints and exits 75 before the time limit.",
-        f'{q(python)} -m simcli sweep run {q(str(sweep_path))} --task "$SLURM_ARRAY_TASK_ID" --threads "$threads" &',
+        f'{q(python)} -m simcli sweep run {q(str(sweep_path))} --task "$SLURM_ARRAY_TASK_ID" --threads '
+        '"$threads" &',
         "child=$!",
         "trap 'kill -USR1 \"$child\" 2>/dev/null' USR1",
         "trap 'kill -TERM \"$child\" 2>/dev/null' TERM",
@@ -116,7 +117,8 @@ def sbatch_script(
         "",
         'if [ "$code" -eq 75 ]; then',
         '    echo "simcli sweep: $task interrupted after a checkpoint; requeueing it to resume" >&2',
-        '    scontrol requeue "$task" || echo "simcli sweep: requeue of $task failed; resubmit to resume" >&2',
+        '    scontrol requeue "$task" || echo "simcli sweep: requeue of $task failed; resubmit to resume" '
+        ">&2",
         "fi",
         'exit "$code"',
         "",

@@ -197,7 +197,8 @@ def _run_locked(ls: LoadedSweep, run: Run, out: Path, tag: str, threads: int | N
     if status == "done" and rj.get("exit_code") == EXIT_OK:
         if rec.get("fingerprint") not in (None, fp):
             _log(
-                f"{tag}: warning: the base scene changed since this run finished; remove {out} to run it again"
+                f"{tag}: warning: the base scene changed since this run finished; remove {out} to run it "
+                "again"
             )
         _log(
             f"{tag}: already done ({rj.get('steps_done', '?')} steps, t = {rj.get('sim_time', '?')} s); "

@@ -87,8 +87,10 @@ class ErrorSpec(_M):
         "period_mean_rel",
     ] = Field(
         "max_rel",
-        description="How measured and reference series are compared. mean_value_*: compare the "
-        "time averages over the window (an oscillation about a static state); midrange_rel: (max + min) / 2 over the window; period_mean_rel: the time average over the largest whole number of oscillation periods in the window (the static state of an undamped oscillation).",
+        description="How measured and reference series are compared. mean_value_*: compare the time averages "
+        "over the window (an oscillation about a static state); midrange_rel: (max + min) / 2 over the "
+        "window; period_mean_rel: the time average over the largest whole number of oscillation periods in "
+        "the window (the static state of an undamped oscillation).",
     )
     window: list[float] | None = Field(None, description="Time window [t0, t1] compared [s].")
     scale: float | None = Field(None, description="Normalisation for *_rel metrics (default |reference|).")

@@ -81,8 +81,9 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse):
         for r in rs:
             state = "pass" if r.passed else ("FAIL" if r.passed is False else "-")
             click.echo(
-                f"verify:   level {r.level} ({r.resolution}): error {r.error if r.error is None else f'{r.error:.4g}'}"
-                f" tol {r.tolerance:g} {state} [{r.wall_s:.1f} s] {r.message}",
+                f"verify:   level {r.level} ({r.resolution}): error "
+                f"{r.error if r.error is None else f'{r.error:.4g}'} tol {r.tolerance:g} {state} "
+                f"[{r.wall_s:.1f} s] {r.message}",
                 err=True,
             )
         results.extend(rs)
@@ -102,12 +103,14 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse):
             img = f"\n![convergence and work-precision](img/{dest.name})\n"
         cmd = "simcli verify " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "simcli verify"
         report.write_text(
-            "# Validation\n\n"
+            "# Validation\n"
+            "\n"
             f"Regenerate with `{cmd}`. Generated {time.strftime('%Y-%m-%d')}; total wall time "
-            f"{time.perf_counter() - t0:.0f} s. Each case is a scene plus a `.case.yaml` in configs/validation/ "
-            "(measurement, reference, tolerance). With --refine, only the finest level (or the case's "
-            "refine_tolerance_level) is judged against the tolerance; order = observed order of convergence "
-            "between successive levels.\n\n" + table + img
+            f"{time.perf_counter() - t0:.0f} s. Each case is a scene plus a `.case.yaml` in "
+            "configs/validation/ (measurement, reference, tolerance). With --refine, only the finest level "
+            "(or the case's refine_tolerance_level) is judged against the tolerance; order = observed order "
+            "of convergence between successive levels.\n"
+            "\n" + table + img
         )
         click.echo(f"wrote {report}", err=True)
     failed = [r for r in results if r.passed is False]

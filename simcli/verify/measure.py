@@ -7,29 +7,13 @@ entity name and the case's ``params``/``axis`` and returns ``(t, values)``.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import h5py
 import numpy as np
 
-MEASUREMENTS: dict[str, Callable] = {}
-
-
-def measurement(name: str):
-    def deco(fn):
-        MEASUREMENTS[name] = fn
-        return fn
-
-    return deco
-
-
-def _entity(f: h5py.File, entity: str | None) -> tuple[str, h5py.Group]:
-    names = list(f["entities"].keys())
-    if entity is None:
-        entity = names[0]
-    if entity not in names:
-        raise KeyError(f"entity '{entity}' not in sim.h5 (has {', '.join(names)})")
-    return entity, f["entities"][entity]
+# the registry and its helper live in a leaf module that the family measurement modules import too
+from simcli.verify.registry import MEASUREMENTS, measurement  # noqa: F401  (MEASUREMENTS re-exported)
+from simcli.verify.registry import entity_group as _entity
 
 
 def _positions(g: h5py.Group) -> np.ndarray:
@@ -620,4 +604,4 @@ def slide_stop_time(f, entity, direction=(1.0, 0.0), level=0.1, **_):
 
 
 # the PBD family's measurements register themselves in MEASUREMENTS on import
-from simcli.solvers.pbd import measures as _pbd_measures  # noqa: E402,F401
+from simcli.verify import pbd_measures as _pbd_measures  # noqa: E402,F401

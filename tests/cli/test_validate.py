@@ -127,18 +127,18 @@ def test_missing_file_and_non_mapping(tmp_path):
     assert code == 65 and f"{path}:1:1" in out
 
 
-def test_validate_is_fast_and_never_imports_taichi(tmp_path):
+def test_validate_never_imports_taichi(tmp_path):
+    # how fast it answers is a benchmark (benchmarks/timings.py), not a test
     p = tmp_path / "scene.yaml"
     p.write_text(GOOD)
     code = (
-        "import sys, time; t=time.perf_counter(); from simcli.cli import cli\n"
+        "import sys; from simcli.cli import cli\n"
         "try:\n    cli(['validate', sys.argv[1]])\nexcept SystemExit as e:\n    rc = e.code\n"
-        "print(rc, 'taichi' in sys.modules, time.perf_counter() - t)"
+        "print(rc, 'taichi' in sys.modules)"
     )
     r = subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True, timeout=60)
-    rc, imported, secs = r.stdout.split()
+    rc, imported = r.stdout.split()
     assert rc == "0" and imported == "False", r.stderr
-    assert float(secs) < 1.0
 
 
 def test_example_configs_validate():
@@ -154,7 +154,8 @@ def test_example_configs_validate():
 
 
 def test_sph_scene_too_large_names_the_sph_setting(tmp_path):
-    """An SPH scene too large for memory: the error names solvers.sph.particle_size and counts boundary particles
+    """An SPH scene too large for memory: the error names solvers.sph.particle_size and counts boundary
+    particles
     and neighbour-grid cells, not MPM's grid."""
     text = """version: 1
 sim: {dim: 3, dt: 1.0e-3, substeps: 1, duration: 0.01}

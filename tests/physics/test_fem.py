@@ -26,7 +26,7 @@ from simcli.backend import init_taichi
 init_taichi("cpu", "f64")
 from simcli.scene.loader import load_scene
 from simcli.solvers.fem.solver import FEMSolver
-from simcli.solvers.fem.mesh import signed_volumes
+from simcli.geometry.tetmesh import signed_volumes
 
 root = sys.argv[1]
 what = sys.argv[2]
@@ -42,7 +42,9 @@ for model in (("linear", "linear_corotated", "stable_neohookean") if what == "pa
 
 # the muscle patch: linear in the fast set, the nonlinear models with the slow dynamics
 for model in (("linear",) if what == "patch" else ("linear_corotated", "stable_neohookean")):
-    sc = load_scene(root + "/configs/validation/fem_muscle_patch.yaml", [f"entities.0.material.model={model}"]).scene
+    sc = load_scene(
+        root + "/configs/validation/fem_muscle_patch.yaml", [f"entities.0.material.model={model}"]
+    ).scene
     s = FEMSolver(sc, []); s.build(); s.substep(sc.sim.dt)
     x0, x = s.x0, s.positions(); u = x - x0
     i = x0[:, 0] > 0.5; j = x0[:, 1] > 0.5

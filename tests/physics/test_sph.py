@@ -1,7 +1,8 @@
 """Physical invariants of the SPH solver with stated tolerances: neighbour search against brute force,
 DFSPH's density error in every substep, momentum conservation of the symmetric pressure and viscous
 forces, no particle through walls or colliders, output in entity order, restart bit-for-bit. (Hydrostatic
-pressure and the dam break are validation cases: configs/validation/sph_*.) Scenes are built with Scene.model_validate and sampled by
+pressure and the dam break are validation cases: configs/validation/sph_*.) Scenes are built with
+Scene.model_validate and sampled by
 simcli.geometry.sampling; each solver compiles its kernels once (a few seconds): tests share runs."""
 
 import numpy as np
@@ -359,8 +360,8 @@ def test_shifting_moves_down_the_concentration_gradient(ti_f32):
 
 
 def test_dfsph_without_free_surface_converges(ti_f32):
-    """DFSPH in a closed box filled with liquid (clamp_pressure false: the unprojected pressure problem, solved
-    by preconditioned conjugate gradients): a compressing velocity field, no gravity; every solve of 20
+    """DFSPH in a closed box filled with liquid (clamp_pressure false: the unprojected pressure problem,
+    solved by preconditioned conjugate gradients): a compressing velocity field, no gravity; every solve of 20
     substeps stops at its tolerance (0.1 % divergence, 0.01 % density), none at the cap, velocities finite."""
     d = {
         "sim": {"dim": 2, "dt": 1e-3, "substeps": 1, "gravity": [0.0, 0.0]},
@@ -473,8 +474,8 @@ def test_gradient_correction_needs_dfsph():
 
 
 def test_morris_laplacian_exact_for_quadratics_on_the_lattice():
-    """The Morris et al. (1997) viscosity constant: lap f = c sum_j V_j (f_i - f_j) (x_ij . grad W_ij) / (r^2 +
-    0.01 h^2) gives lap(x^2 + 3 y^2) = 8 on the lattice with the solver's lattice-normalised volume, for
+    """The Morris et al. (1997) viscosity constant: lap f = c sum_j V_j (f_i - f_j) (x_ij . grad W_ij) / (r^2
+    + 0.01 h^2) gives lap(x^2 + 3 y^2) = 8 on the lattice with the solver's lattice-normalised volume, for
     supports 2 and 3 in 2D and 3D; and within 2.5% of the
     Laplacian of a Taylor-Green field on a jittered packing, where Monaghan's operator is 8% off."""
     from simcli.solvers.sph.kernels import VISC_EPS, cubic_gradW, lattice_sum, morris_laplacian_constant
@@ -586,7 +587,8 @@ def test_extrapolated_wall_pressure_is_reproducible(ti_f32):
 def test_dfsph_error_sum_does_not_overflow(ti_f32):
     """The density solve's error is summed in 40-bit fixed point; a liquid sampled partly inside a collider
     starts with particles at 6 rho0 whose errors, unclamped, overflowed the 64-bit sum to a negative
-    average, which stopped the solve at once. Each particle now counts at most 100%: the average stays >= 0."""
+    average, which stopped the solve at once. Each particle now counts at most 100%: the average stays
+    >= 0."""
     import yaml
 
     scene = yaml.safe_load(
@@ -665,8 +667,9 @@ def test_every_particle_inside_a_collider_is_a_scene_error():
 
 
 def test_push_out_removes_what_it_cannot_push_into_the_domain(ti_f32):
-    """A collider flush with a domain wall: particles whose nearest collider face is that wall cannot be pushed
-    out (they would land on the wall, still inside the collider), so push_out removes them, with a warning;
+    """A collider flush with a domain wall: particles whose nearest collider face is that wall cannot be
+    pushed out (they would land on the wall, still inside the collider), so push_out removes them, with a
+    warning;
     the others are pushed onto the collider's faces inside the domain, and none stays inside."""
     from simcli.geometry.sampling import sample_scene
     from simcli.scene.models import Scene

@@ -200,13 +200,14 @@ def test_index_lists():
         ("base: tiny.yaml\nversion: 2\n", r"sweep\.yaml:2:10: version: expected 1"),
         (
             "base: tiny.yaml\ngrid: {entities.3.material.E: [1]}\n",
-            r"sweep\.yaml:2:8: grid\.entities\.3\.material\.E: cannot set it in .*tiny\.yaml: index 3 out of range",
+            r"sweep\.yaml:2:8: grid\.entities\.3\.material\.E: cannot set it in .*tiny\.yaml: "
+            r"index 3 out of range",
         ),
         (
             'base: tiny.yaml\nname: "E{entities.0.material.EE}"\ngrid: {entities.0.material.E: [1, 2]}\n',
             (
-                r"sweep\.yaml:2:7: name: \{entities\.0\.material\.EE\} is neither a varied key nor a key of the base "
-                r"scene \(did you mean 'entities\.0\.material\.E'\?\)"
+                r"sweep\.yaml:2:7: name: \{entities\.0\.material\.EE\} is neither a varied key nor a key of "
+                r"the base scene \(did you mean 'entities\.0\.material\.E'\?\)"
             ),
         ),
         ('base: tiny.yaml\nname: "E{oops"\n', r"sweep\.yaml:2:7: name: bad template"),
@@ -292,8 +293,8 @@ def test_example_sweep_in_configs_is_valid():
 
 
 def test_committed_sweep_schema_is_current(tmp_path):
-    from simcli.scene.schema import write_schemas
     from simcli.sweep.model import sweep_schema_text
+    from simcli.sweep.schema import write_schemas
     from tests.sweep.conftest import ROOT
 
     committed = (ROOT / "schemas" / "sweep.schema.json").read_text()

@@ -159,7 +159,7 @@ def energy(model, F, mu, lam):
 def law_kernels(ti_f32):
     import taichi as ti
 
-    from simcli.solvers.mpm.constitutive import LAWS
+    from simcli.solvers.mpm.laws import LAWS
 
     n = 16
     out = {}

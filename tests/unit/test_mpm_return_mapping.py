@@ -58,7 +58,8 @@ class Harness:
     def __init__(self, material, dim=3, n=64):
         import taichi as ti
 
-        from simcli.solvers.mpm.constitutive import LAWS, elastic_moduli, law_key
+        from simcli.solvers.mpm.constitutive import elastic_moduli, law_key
+        from simcli.solvers.mpm.laws import LAWS
 
         self.ti = ti
         self.n, self.dim = n, dim

@@ -12,8 +12,9 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simcli.scene.material_base import _Solid
+from simcli.scene.meshing import MIN_DIHEDRAL
 from simcli.scene.morphs import Region
-from simcli.solvers.mpm.config import MuscleGroup, MuscleGroups  # groups and signals are MPM.Muscle's
+from simcli.scene.muscle import MuscleGroup, MuscleGroups  # groups and signals shared with MPM.Muscle
 
 Vec = list[float]
 
@@ -25,15 +26,15 @@ class _Options(BaseModel):
 class FEMOptions(_Options):
     integrator: Literal["explicit", "implicit"] = Field(
         "explicit",
-        description="explicit: symplectic Euler with lumped vertex masses (substep limited by the elastic wave "
-        "speed: use substeps: auto). implicit: backward Euler, each substep minimises the incremental potential "
-        "with Newton's method, PCG (3x3 block-Jacobi) linear solves and Armijo back-tracking.",
+        description="explicit: symplectic Euler with lumped vertex masses (substep limited by the elastic "
+        "wave speed: use substeps: auto). implicit: backward Euler, each substep minimises the incremental "
+        "potential with Newton's method, PCG (3x3 block-Jacobi) linear solves and Armijo back-tracking.",
     )
     resolution: float = Field(
         20.0,
         gt=0,
-        description="Box morphs: cells per metre of the structured tetrahedral subdivision (each cell is split "
-        "into 6 tetrahedra); at least one cell per axis.",
+        description="Box morphs: cells per metre of the structured tetrahedral subdivision (each cell is "
+        "split into 6 tetrahedra); at least one cell per axis.",
     )
     max_volume: float | None = Field(
         None,
@@ -42,11 +43,11 @@ class FEMOptions(_Options):
         "tetrahedralisation (default: about resolution^-3 / 6, i.e. Box-like element sizes).",
     )
     min_dihedral: float = Field(
-        10.0,
+        MIN_DIHEDRAL,
         ge=0,
         lt=70,
-        description="Sphere, Cylinder and surface Mesh morphs: smallest dihedral angle [deg] the tetrahedraliser "
-        "aims for (TetGen's -q quality bound).",
+        description="Sphere, Cylinder and surface Mesh morphs: smallest dihedral angle [deg] the "
+        "tetrahedraliser aims for (TetGen's -q quality bound).",
     )
     surface_resolution: float | None = Field(
         None,
@@ -57,8 +58,9 @@ class FEMOptions(_Options):
     newton_tol: float = Field(
         1.0e-4,
         gt=0,
-        description="Implicit: Newton stops when the residual (incremental-potential gradient, free vertices) "
-        "has fallen below newton_tol times its value at the start of the substep, or below newton_atol.",
+        description="Implicit: Newton stops when the residual (incremental-potential gradient, free "
+        "vertices) has fallen below newton_tol times its value at the start of the substep, or below "
+        "newton_atol.",
     )
     newton_atol: float = Field(
         1.0e-2,
@@ -81,10 +83,10 @@ class FEMOptions(_Options):
     )
     preconditioner: Literal["block_jacobi", "rotated_rest"] = Field(
         "rotated_rest",
-        description="Implicit: PCG preconditioner. block_jacobi: the exact 3x3 diagonal blocks of the projected "
-        "Hessian (three dP/dF applications per element corner each Newton step). rotated_rest: the rest-shape "
-        "small-strain stiffness's diagonal blocks turned by each element's rotation R (F = R S), plus the mass "
-        "and contact terms: much cheaper to build, a little weaker far from rest.",
+        description="Implicit: PCG preconditioner. block_jacobi: the exact 3x3 diagonal blocks of the "
+        "projected Hessian (three dP/dF applications per element corner each Newton step). rotated_rest: the "
+        "rest-shape small-strain stiffness's diagonal blocks turned by each element's rotation R (F = R S), "
+        "plus the mass and contact terms: much cheaper to build, a little weaker far from rest.",
     )
     line_search: bool = Field(
         True,
@@ -95,16 +97,16 @@ class FEMOptions(_Options):
         0.0,
         ge=0,
         description="Stiffness-proportional (Rayleigh beta) damping [s]: viscous stress beta (2 mu sym(L) + "
-        "lambda tr(L) I), L the spatial velocity gradient and mu, lambda the material's Lame parameters, i.e. "
-        "beta times the small-strain stiffness. Rigid motion, free fall and rigid rotation are not damped. "
-        "Both integrators (implicit: L from the substep's displacement and F at its start).",
+        "lambda tr(L) I), L the spatial velocity gradient and mu, lambda the material's Lame parameters, "
+        "i.e. beta times the small-strain stiffness. Rigid motion, free fall and rigid rotation are not "
+        "damped. Both integrators (implicit: L from the substep's displacement and F at its start).",
     )
     mass_damping: float = Field(
         0.0,
         ge=0,
-        description="Mass-proportional (Rayleigh alpha) damping [1/s]: force -alpha m v on every vertex. Unlike "
-        "damping it also slows rigid motion and free fall (terminal speed g / alpha). Both integrators; a mode "
-        "of angular frequency w gets the damping ratio (alpha / w + damping x w) / 2.",
+        description="Mass-proportional (Rayleigh alpha) damping [1/s]: force -alpha m v on every vertex. "
+        "Unlike damping it also slows rigid motion and free fall (terminal speed g / alpha). Both "
+        "integrators; a mode of angular frequency w gets the damping ratio (alpha / w + damping x w) / 2.",
     )
     contact_stiffness: float = Field(
         1.0e3,

@@ -156,7 +156,8 @@ class ImplicitIntegrator:
                     if fr[c] == 0:
                         xi[c] = xr[i][c] + vfix[i][c] * (t + dt)
                 x[i] = xi
-                # the step to free flight's backward-Euler solution, mass damping included (held components kept)
+                # the step to free flight's backward-Euler solution, mass damping included (held components
+                # kept)
                 d[i] = (x[i] + dt * (v[i] + dt * gravity[None]) / (1.0 + ray_a * dt) - xi) * fr
 
         @ti.kernel

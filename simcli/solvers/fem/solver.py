@@ -15,8 +15,8 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.geometry.regions import points_in_regions, points_in_shape
+from simcli.geometry.tetmesh import boundary_faces, mesh_for_entity, signed_volumes
 from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
-from simcli.solvers.fem.mesh import boundary_faces, mesh_for_entity, signed_volumes
 from simcli.solvers.fem.models import LAWS, lame_for
 from simcli.solvers.taichi_funcs import make_body_frame_stats
 
@@ -161,7 +161,8 @@ class FEMSolver(Solver):
 
     def rest_diagonal_blocks(self) -> np.ndarray:
         """Per element corner a, the 3x3 diagonal block V (mu |g_a|^2 I + (mu + lam) g_a g_a^T) of the
-        small-strain stiffness at rest (the materials' own Lame parameters), g_a the shape-function gradient."""
+        small-strain stiffness at rest (the materials' own Lame parameters), g_a the shape-function
+        gradient."""
         G = np.concatenate([-self.B.sum(axis=1, keepdims=True), self.B], axis=1)  # (m, 4, 3): rows of B
         mu = np.array([self.materials[k].mu for k in self.mid])
         lam = np.array([self.materials[k].lam for k in self.mid])
@@ -332,7 +333,8 @@ class FEMSolver(Solver):
 
         @ti.func
         def active_dP(e, dF):
-            """dP of the active stress for the increment dF, activation clamped at 0 (positive semi-definite)."""
+            """dP of the active stress for the increment dF, activation clamped at 0 (positive
+            semi-definite)."""
             ka = ti.max(el_k[e] * act[el_group[e]], 0.0)
             f0 = el_fiber[e]
             return ka * (dF @ f0).outer_product(f0)
@@ -446,7 +448,8 @@ class FEMSolver(Solver):
 
     # -------------------------------------------------------------- stepping
     def substep(self, dt: float) -> None:
-        # activation at the substep's start (explicit) or end (implicit: backward Euler's forces are at t + dt)
+        # activation at the substep's start (explicit) or end (implicit: backward Euler's forces are at t +
+        # dt)
         self._update_activation(self.time + (dt if self.implicit else 0.0))
         self.integrator.substep(dt, self.time)
         self.time += dt

@@ -19,7 +19,7 @@ Each law is a small ``@ti.data_oriented`` class:
   p2g reads it instead of decomposing F again.
 
 The plastic laws live in ``plasticity.py``, liquid and muscle in ``fluid_muscle.py``; the
-registry :data:`LAWS` at the end of this module lists them all. The solver compiles in only the
+registry ``LAWS`` in ``laws.py`` lists them all. The solver compiles in only the
 laws of the materials present (``ti.static`` unrolling).
 """
 
@@ -369,39 +369,3 @@ def law_key(material: Any) -> str:
 
 def _np_dtype(dtype: Any):
     return np.float64 if dtype == ti.f64 else np.float32
-
-
-def _registry() -> dict[str, type[ConstitutiveLaw]]:
-    from simcli.solvers.mpm.fluid_muscle import (
-        LiquidLaw,
-        MuscleCorotatedLaw,
-        MuscleNeoHookeanLaw,
-        ViscousLiquidLaw,
-    )
-    from simcli.solvers.mpm.plasticity import ClampLaw, SandLaw, SnowLaw, VonMisesLaw
-
-    return {
-        law.key: law
-        for law in (
-            CorotatedLaw,
-            NeoHookeanLaw,
-            VonMisesLaw,
-            ClampLaw,
-            SandLaw,
-            SnowLaw,
-            LiquidLaw,
-            ViscousLiquidLaw,
-            MuscleCorotatedLaw,
-            MuscleNeoHookeanLaw,
-        )
-    }
-
-
-def __getattr__(name: str):
-    # Registry: law key -> law (LAWS). Built on first use: the plastic, liquid and muscle laws
-    # live in modules that import the base classes above.
-    if name == "LAWS":
-        laws = _registry()
-        globals()["LAWS"] = laws
-        return laws
-    raise AttributeError(name)

@@ -52,7 +52,8 @@ from simcli.solvers.base import (
     upload_state_array,
 )
 from simcli.solvers.mpm.boundary import GridBoundary
-from simcli.solvers.mpm.constitutive import LAWS, ConstitutiveLaw, elastic_moduli, law_key
+from simcli.solvers.mpm.constitutive import ConstitutiveLaw, elastic_moduli, law_key
+from simcli.solvers.mpm.laws import LAWS
 from simcli.solvers.mpm.transfer import FlipTransfer
 from simcli.solvers.taichi_funcs import make_body_of, make_finite
 

@@ -26,8 +26,8 @@ class PBDOptions(_Options):
     particle_size: float = Field(
         0.01,
         gt=0,
-        description="Particle diameter [m]: the contact thickness of cloth vertices against colliders and walls "
-        "(half of it on each side of the sheet).",
+        description="Particle diameter [m]: the contact thickness of cloth vertices against colliders and "
+        "walls (half of it on each side of the sheet).",
     )
     stretch_iterations: int = Field(
         4,
@@ -61,9 +61,9 @@ class PBDOptions(_Options):
     )
     collisions: bool = Field(
         True,
-        description="Particle-particle contact between PBD vertices and particles (cloth self-collision, bodies against "
-        "each other) at a distance of the two radii (particle_size for cloth), with Coulomb friction; vertices "
-        "of one body closer than that in the rest shape are exempt.",
+        description="Particle-particle contact between PBD vertices and particles (cloth self-collision, "
+        "bodies against each other) at a distance of the two radii (particle_size for cloth), with Coulomb "
+        "friction; vertices of one body closer than that in the rest shape are exempt.",
     )
 
 
@@ -185,10 +185,10 @@ class PBDLiquid(_PBDBase):
     artificial_pressure: float = Field(
         1.0e-4,
         ge=0,
-        description="k of the artificial pressure s_corr = -k (W(r) / W(0.2 h))^4 / S0 [-] "
-        "(Macklin and Mueller's eq. 13, here relative to an interior particle's sum |grad C|^2 S0). It is a "
-        "position offset per iteration, so its velocity grows as 1 / substep: Macklin's k = 0.1 (for a 1/60 s "
-        "step) blows a 0.2 ms-substep column apart.",
+        description="k of the artificial pressure s_corr = -k (W(r) / W(0.2 h))^4 / S0 [-] (Macklin and "
+        "Mueller's eq. 13, here relative to an interior particle's sum |grad C|^2 S0). It is a position "
+        "offset per iteration, so its velocity grows as 1 / substep: Macklin's k = 0.1 (for a 1/60 s step) "
+        "blows a 0.2 ms-substep column apart.",
     )
 
 

@@ -367,7 +367,8 @@ class PBDSolver(Solver):
             return project
 
         def volume_func(cs):
-            """Tet volume C = V - V0, V = (x2 - x1) x (x3 - x1) . (x4 - x1) / 6 (Macklin et al. 2016 sec. 5)."""
+            """Tet volume C = V - V0, V = (x2 - x1) x (x3 - x1) . (x4 - x1) / 6 (Macklin et al. 2016
+            sec. 5)."""
             idx, rest, comp, lam = cs.f_idx, cs.f_rest, cs.f_comp, cs.f_lam
 
             @ti.func

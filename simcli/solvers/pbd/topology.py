@@ -248,10 +248,10 @@ def mesh_for_entity(e, scene_dir=None, opts=None) -> PBDMesh:
             meshed=False,
         )
     if mat.type == "PBD.Elastic" and m.type != "Line":
-        from simcli.solvers.fem.config import FEMOptions
-        from simcli.solvers.fem.mesh import mesh_for_entity as fem_mesh
+        from simcli.geometry.tetmesh import mesh_for_entity as tet_mesh
+        from simcli.scene.meshing import Meshing
 
-        tm = fem_mesh(e, FEMOptions(resolution=opts.tet_resolution), scene_dir)
+        tm = tet_mesh(e, Meshing(resolution=opts.tet_resolution), scene_dir)
         x, tets = tm.x, tm.tets
         vol = tet_volumes(x, tets)
         mass = np.zeros(len(x))

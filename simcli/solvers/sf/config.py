@@ -41,8 +41,9 @@ class SFOptions(_Options):
         False,
         description="Advection-reflection (Zehnder, Narain & Thomaszewski 2018): each substep advects and "
         "projects over dt/2, reflects the velocity about the divergence-free space (subtracts the pressure "
-        "gradient a second time), then advects and projects over dt/2 again. Loses far less kinetic energy to "
-        "the advect/project splitting than Stam's step (whose loss grows with dt), at about twice the cost.",
+        "gradient a second time), then advects and projects over dt/2 again. Loses far less kinetic energy "
+        "to the advect/project splitting than Stam's step (whose loss grows with dt), at about twice the "
+        "cost.",
     )
     pressure_solver: Literal["jacobi", "mgpcg"] = Field(
         "mgpcg",
@@ -61,9 +62,9 @@ class SFOptions(_Options):
     relative_tolerance: float = Field(
         0.0,
         ge=0,
-        description="Also stop the pressure solve when the residual 2-norm is at or below this fraction of the "
-        "right-hand side's, ||r|| / ||div u*|| [-] (the share of the step's divergence left; comparable across "
-        "discretisations). 0 = off.",
+        description="Also stop the pressure solve when the residual 2-norm is at or below this fraction of "
+        "the right-hand side's, ||r|| / ||div u*|| [-] (the share of the step's divergence left; comparable "
+        "across discretisations). 0 = off.",
     )
     max_iterations: int = Field(
         2000,
@@ -103,9 +104,9 @@ class SFOptions(_Options):
         0.0,
         ge=0,
         description="Stop the run at steady state: after each written frame, the largest change of any face "
-        "velocity since the previous frame divided by the time between them [m/s^2]; the run ends (status done, "
-        "run.json stopped_steady) once it is at or below this. The run's duration (or steps) is the cap. "
-        "0 = off.",
+        "velocity since the previous frame divided by the time between them [m/s^2]; the run ends (status "
+        "done, run.json stopped_steady) once it is at or below this. The run's duration (or steps) is the "
+        "cap. 0 = off.",
     )
 
     def cells(self, lower: list[float], upper: list[float]) -> tuple[list[int], list[float]]:

@@ -29,7 +29,14 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
+from simcli.solvers.base import (
+    RUNAWAY_CFL,
+    Body,
+    FrameStats,
+    Solver,
+    frame_stats_per_body,
+    upload_state_array,
+)
 from simcli.solvers.sf.advection import Advector
 from simcli.solvers.sf.boundary import Boundary
 from simcli.solvers.sf.diffusion import Diffusion
@@ -313,8 +320,6 @@ class SFSolver(Solver):
         # The runner flags a blow-up when a substep's CFL number (speed x dt / length_scale) exceeds its
         # RUNAWAY_CFL, a particle-method limit. Semi-Lagrangian advection is stable at any CFL number:
         # scale the length so that the guard fires at solvers.sf.max_cfl instead.
-        from simcli.runner import RUNAWAY_CFL
-
         return min(self.layout.dx) * self.opts.max_cfl / RUNAWAY_CFL
 
     # ------------------------------------------------------------------ output
@@ -336,7 +341,8 @@ class SFSolver(Solver):
         return fld.to_numpy().astype(np.float64)[(slice(1, -1),) * self.dim]
 
     def _cell_faces(self, d: int) -> tuple[tuple, tuple]:
-        """Index tuples picking, from an array of the faces normal to axis d, each cell's low and high face."""
+        """Index tuples picking, from an array of the faces normal to axis d, each cell's low and high
+        face."""
         lo = [slice(None)] * self.dim
         hi = [slice(None)] * self.dim
         lo[d] = slice(0, -1)

@@ -158,9 +158,10 @@ def inside_normal_numpy(spec, x: np.ndarray) -> np.ndarray:
 def collider_particles(spec, lo, hi, h: float, dim: int, layers: int = LAYERS) -> BoundaryParticles:
     """Lattice points of the collider's solid within ``layers x h`` of its surface, inside the domain box
     padded by the same depth (the liquid never sees further). A Box gets a lattice fitted to its size, as the
-    domain walls do: per axis a whole number of cells of spacing close to h (the box's extent over round(extent
-    / h)), points at the cells' centres, volume the product of the spacings, so that every face has its first
-    layer half a spacing inside it (a lattice of spacing h anchored at one face left the far face's first layer
+    domain walls do: per axis a whole number of cells of spacing close to h (the box's extent over
+    round(extent / h)), points at the cells' centres, volume the product of the spacings, so that every face
+    has its first layer half a spacing inside it (a lattice of spacing h anchored at one face left the far
+    face's first layer
     anywhere between 0 and h inside: a liquid there saw up to 2.4x the wall density of the near face)."""
     pad = layers * h
     blo = np.asarray(lo, dtype=np.float64) - pad

@@ -29,9 +29,9 @@ class SPHOptions(_Options):
         2.0,
         ge=1.5,
         le=4.0,
-        description="Kernel support radius in particle sizes [-]. 2 (Genesis's and SPlisHSPlasH's choice, about "
-        "33 neighbours in 3D) is fastest; 3 makes the SPH viscosity operator accurate to 3% instead of 30-40% "
-        "on a lattice (use it where viscous decay matters) at 3.4x the neighbours in 3D.",
+        description="Kernel support radius in particle sizes [-]. 2 (Genesis's and SPlisHSPlasH's choice, "
+        "about 33 neighbours in 3D) is fastest; 3 makes the SPH viscosity operator accurate to 3% instead of "
+        "30-40% on a lattice (use it where viscous decay matters) at 3.4x the neighbours in 3D.",
     )
     pressure_solver: Literal["WCSPH", "DFSPH"] = Field(
         "WCSPH",
@@ -65,46 +65,46 @@ class SPHOptions(_Options):
     gradient_correction: bool = Field(
         False,
         description="DFSPH: kernel gradient correction (Bonet & Lok 1999) in both pressure solves. Each "
-        "particle's gradient is grad W_ij times L_i = (sum_j V_j grad W_ij (x_j - x_i)^T, walls included)^-1, so "
-        "the density rate of a linear velocity field is exact on a disordered packing, and the pressure "
-        "force is its adjoint, -sum_j V_j (k_i L_i + k_j L_j) grad W_ij (pairwise antisymmetric: momentum "
-        "conserving). Without it DFSPH's projection removes part of a smooth vortex every substep as the "
-        "packing changes (Taylor-Green: 0.047 1/s of numerical decay at Re = infinity, 0.007 with it). "
-        "Particles whose moment matrix has determinant below 0.5 (a deficient neighbourhood: free "
-        "surface, splash) keep the plain gradient. For confined flows; validated there only.",
+        "particle's gradient is grad W_ij times L_i = (sum_j V_j grad W_ij (x_j - x_i)^T, walls "
+        "included)^-1, so the density rate of a linear velocity field is exact on a disordered packing, and "
+        "the pressure force is its adjoint, -sum_j V_j (k_i L_i + k_j L_j) grad W_ij (pairwise "
+        "antisymmetric: momentum conserving). Without it DFSPH's projection removes part of a smooth vortex "
+        "every substep as the packing changes (Taylor-Green: 0.047 1/s of numerical decay at Re = infinity, "
+        "0.007 with it). Particles whose moment matrix has determinant below 0.5 (a deficient neighbourhood: "
+        "free surface, splash) keep the plain gradient. For confined flows; validated there only.",
     )
     viscosity_operator: Literal["monaghan", "morris"] = Field(
         "monaghan",
         description="Liquid-liquid viscosity term. monaghan: 2 (dim + 2) nu sum_j V_j (v_ij . x_ij) / (r^2 + "
-        "0.01 h^2) grad W_ij (Monaghan 2005, SPlisHSPlasH's standard; conserves angular momentum), accurate on "
-        "a lattice but 85-103% of the Laplacian on a disordered packing. morris: nu c sum_j V_j (x_ij . grad "
-        "W_ij) / (r^2 + 0.01 h^2) v_ij (Morris et al. 1997, each component's Laplacian), c normalised on the "
-        "lattice so that it is exact for quadratic fields: 99.6-100% of the Laplacian on the same packings, "
-        "but not angular-momentum conserving. Walls use the monaghan form either way.",
+        "0.01 h^2) grad W_ij (Monaghan 2005, SPlisHSPlasH's standard; conserves angular momentum), accurate "
+        "on a lattice but 85-103% of the Laplacian on a disordered packing. morris: nu c sum_j V_j (x_ij . "
+        "grad W_ij) / (r^2 + 0.01 h^2) v_ij (Morris et al. 1997, each component's Laplacian), c normalised "
+        "on the lattice so that it is exact for quadratic fields: 99.6-100% of the Laplacian on the same "
+        "packings, but not angular-momentum conserving. Walls use the monaghan form either way.",
     )
     wall_pressure: Literal["auto", "akinci", "extrapolated"] = Field(
         "auto",
         description="Pressure force between the liquid and walls / colliders (boundary particles). akinci: "
         "-sum_b rho0 V_b (p_i / rho_i^2) grad W_ib (Akinci et al. 2012; SPlisHSPlasH's and Genesis's), the "
         "liquid's own pressure alone: at rest the particles next to a wall then carry 1.7x the hydrostatic "
-        "pressure (2.15x in corners). extrapolated (DFSPH with clamp_pressure: true only): the wall particles "
-        "get a pressure of their own, the average of the liquid's next to them plus the hydrostatic difference "
-        "(Adami et al. 2012; Band et al. 2018), and push with p_i / rho_i^2 + p_b / rho0^2: the wall layer's "
-        "pressure is within 1% of the liquid's field, and a DFSPH liquid at rest settles at fine resolution "
-        "too; about 18% more time per substep on benchmark B2 (docs/SPH.md). With WCSPH it made a tank at rest "
-        "unstable, and DFSPH's conjugate-gradient solve (clamp_pressure: false) needs Akinci's symmetric term. "
-        "auto: extrapolated where it applies, akinci elsewhere.",
+        "pressure (2.15x in corners). extrapolated (DFSPH with clamp_pressure: true only): the wall "
+        "particles get a pressure of their own, the average of the liquid's next to them plus the "
+        "hydrostatic difference (Adami et al. 2012; Band et al. 2018), and push with p_i / rho_i^2 + p_b / "
+        "rho0^2: the wall layer's pressure is within 1% of the liquid's field, and a DFSPH liquid at rest "
+        "settles at fine resolution too; about 18% more time per substep on benchmark B2 (docs/SPH.md). With "
+        "WCSPH it made a tank at rest unstable, and DFSPH's conjugate-gradient solve (clamp_pressure: false) "
+        "needs Akinci's symmetric term. auto: extrapolated where it applies, akinci elsewhere.",
     )
     inside_colliders: Literal["auto", "push_out", "remove"] = Field(
         "auto",
         description="Liquid particles sampled inside a collider (an entity's morph overlapping a collider). "
-        "push_out: each is moved onto the collider's surface at the start (the liquid's mass is kept; where the "
-        "overlap is deeper than a particle several land on one spot, and the liquid there starts compressed and "
-        "expands violently); one whose nearest collider face lies on or beyond a domain wall cannot be pushed "
-        "into the domain and is removed, with a warning. remove: they are not simulated (a warning gives how many and their mass per "
-        "entity; run.json solvers.sph.removed_inside_colliders). auto: remove with DFSPH, whose density solve "
-        "diverges on particles pushed onto one spot (docs/SPH.md, gaps), push_out with WCSPH (its substep "
-        "follows the sound speed of the compression).",
+        "push_out: each is moved onto the collider's surface at the start (the liquid's mass is kept; where "
+        "the overlap is deeper than a particle several land on one spot, and the liquid there starts "
+        "compressed and expands violently); one whose nearest collider face lies on or beyond a domain wall "
+        "cannot be pushed into the domain and is removed, with a warning. remove: they are not simulated (a "
+        "warning gives how many and their mass per entity; run.json solvers.sph.removed_inside_colliders). "
+        "auto: remove with DFSPH, whose density solve diverges on particles pushed onto one spot "
+        "(docs/SPH.md, gaps), push_out with WCSPH (its substep follows the sound speed of the compression).",
     )
     clamp_pressure: bool = Field(
         True,
@@ -122,18 +122,18 @@ class SPHOptions(_Options):
         ge=0,
         le=0.5,
         description="Particle shifting (Xu et al. 2009; Lind et al. 2012) [-]: after each substep a particle "
-        "moves by -shifting x particle_size^2 x grad C (C = sum_j V_j W_ij, the particle concentration, walls "
-        "included; at most 0.1 particle_size per substep), its velocity unchanged, so particles stay evenly "
-        "spread instead of clumping or disordering. Not applied in the deficient support of a free surface "
-        "(rho < 0.95 rho0). For confined flows (Taylor-Green: 0.2 with no background pressure); 0 (off) for "
-        "liquids at rest under gravity, where it works against the hydrostatic compression.",
+        "moves by -shifting x particle_size^2 x grad C (C = sum_j V_j W_ij, the particle concentration, "
+        "walls included; at most 0.1 particle_size per substep), its velocity unchanged, so particles stay "
+        "evenly spread instead of clumping or disordering. Not applied in the deficient support of a free "
+        "surface (rho < 0.95 rho0). For confined flows (Taylor-Green: 0.2 with no background pressure); 0 "
+        "(off) for liquids at rest under gravity, where it works against the hydrostatic compression.",
     )
     cfl: float = Field(
         0.4,
         gt=0,
         le=1,
-        description="CFL number for substeps: auto [-]: substep <= cfl x particle_size / v, with v the largest "
-        "particle speed (plus the sound speed sqrt(stiffness exponent / rho) for WCSPH).",
+        description="CFL number for substeps: auto [-]: substep <= cfl x particle_size / v, with v the "
+        "largest particle speed (plus the sound speed sqrt(stiffness exponent / rho) for WCSPH).",
     )
     max_substep: float = Field(
         5.0e-3,
@@ -155,14 +155,14 @@ class SPHOptions(_Options):
             self.pressure_solver != "DFSPH" or not self.clamp_pressure
         ):
             raise ValueError(
-                "wall_pressure: extrapolated needs pressure_solver: DFSPH with clamp_pressure: true (with WCSPH's "
-                "explicit pressure it made a tank at rest unstable; DFSPH's conjugate-gradient solve for "
-                "clamp_pressure: false needs a symmetric operator): set wall_pressure: akinci"
+                "wall_pressure: extrapolated needs pressure_solver: DFSPH with clamp_pressure: true (with "
+                "WCSPH's explicit pressure it made a tank at rest unstable; DFSPH's conjugate-gradient solve "
+                "for clamp_pressure: false needs a symmetric operator): set wall_pressure: akinci"
             )
         if self.background_pressure > 0 and self.clamp_pressure:
             raise ValueError(
-                "background_pressure is for a liquid that fills a closed box (clamp_pressure: false): with a free "
-                "surface (clamp_pressure: true) it pushes the surface particles off the liquid. Set "
+                "background_pressure is for a liquid that fills a closed box (clamp_pressure: false): with a "
+                "free surface (clamp_pressure: true) it pushes the surface particles off the liquid. Set "
                 "clamp_pressure: false or background_pressure: 0"
             )
         return self
@@ -207,10 +207,11 @@ class SPHLiquid(_Material):
     gamma: float = Field(
         0.0,
         ge=0,
-        description="Surface tension / cohesion coefficient gamma of Akinci et al. (2013) (cohesion kernel plus "
-        "curvature term; 0 disables it). An empirical coefficient of their force model, not a physical "
+        description="Surface tension / cohesion coefficient gamma of Akinci et al. (2013) (cohesion kernel "
+        "plus curvature term; 0 disables it). An empirical coefficient of their force model, not a physical "
         "surface tension in N/m: its effect depends on the particle size (and in 2D on the kernel's "
-        "normalisation), so calibrate it against a measured quantity (a drop's oscillation, a contact angle).",
+        "normalisation), so calibrate it against a measured quantity (a drop's oscillation, a contact "
+        "angle).",
     )
 
 

@@ -20,19 +20,20 @@ SPH for incompressible and viscous fluids"), as in SPlisHSPlasH's DFSPH.cpp. A s
   gradient; D = G^T, so A is symmetric positive semi-definite), alpha as the preconditioner: the relaxed
   Jacobi iteration diverged on that problem at support 3 and hit its cap at support 2.
 * gradient_correction (Bonet & Lok 1999): grad W_ij becomes L_i grad W_ij in the density rate (exact for a
-  linear velocity field on any full neighbourhood) and the velocity update its adjoint, -dt sum_j V_j (k_i L_i +
-  k_j L_j) grad W_ij (pairwise antisymmetric, so momentum is conserved, and still D = G^T for the CG solve).
+  linear velocity field on any full neighbourhood) and the velocity update its adjoint, -dt sum_j V_j (k_i L_i
+  + k_j L_j) grad W_ij (pairwise antisymmetric, so momentum is conserved, and still D = G^T for the CG solve).
   Without it the projection dissipates a smooth vortex as the packing changes (docs/SPH.md, Taylor-Green).
 * Warm start: each solve starts from the previous substep's total stiffness: the density solve's k times
   DENSITY_WARM = 0.9 (a liquid at rest needs the same k for any dt; the full k, as SPlisHSPlasH, kept a
-  resting liquid from settling), the divergence solve's k dt / dt_now halved (as in SPlisHSPlasH). The very first density solve starts from each column's hydrostatic k = |g| depth.
+  resting liquid from settling), the divergence solve's k dt / dt_now halved (as in SPlisHSPlasH). The very
+  first density solve starts from each column's hydrostatic k = |g| depth.
 * Non-pressure accelerations (gravity, viscosity, surface tension) are computed from this substep's
   divergence-free velocities and applied once, before the density solve. Nothing of a previous substep's
   acceleration is re-applied (Genesis 1.4.5 advects with the acceleration stored by the previous substep).
 * Walls (wall_pressure: extrapolated, wall_pressure.py): the boundary particles' own k, the Shepard average of
-  the liquid's next to them plus the hydrostatic difference, in the velocity update as -dt sum_b V_b (k_i + k_b)
-  grad W_ib; each iteration moves k_b by the average of its increments, the hydrostatic part acts once per
-  substep with gravity. The default with a free surface (wall_pressure: auto); akinci has k_i alone.
+  the liquid's next to them plus the hydrostatic difference, in the velocity update as -dt sum_b V_b (k_i +
+  k_b) grad W_ib; each iteration moves k_b by the average of its increments, the hydrostatic part acts once
+  per substep with gravity. The default with a free surface (wall_pressure: auto); akinci has k_i alone.
 * Pressure output: p_i = (k_i + k_i^div) rho_i^2 / rho0 with the total stiffness of both solves, the
   pressure whose symmetric SPH force equals their velocity corrections over the substep.
 * The error of an iteration is summed in 40-bit fixed point (an integer add is associative), so the
@@ -46,16 +47,17 @@ import math
 
 FIXED = float(2**40)  # fixed-point scale of the error sums
 # a particle's error counts at most this much in the sum (100% of rho0): a sum of n such terms stays below
-# 2^63 / 2^40 = 8.4e6 for n < 8 million. Unclamped, the overlapped particles of a liquid sampled inside a collider
-# (densities of 6 rho0, stiffness of 1e11) overflowed the sum to a negative error and stopped the solve.
+# 2^63 / 2^40 = 8.4e6 for n < 8 million. Unclamped, the overlapped particles of a liquid sampled inside a
+# collider (densities of 6 rho0, stiffness of 1e11) overflowed the sum to a negative error and stopped the
+# solve.
 ERR_CLAMP = 1.0
 WARM = 0.5  # fraction of the previous divergence stiffness a warm start applies (SPlisHSPlasH)
 # fraction of the previous density stiffness a warm start applies. With all of it (1.0, as SPlisHSPlasH) a
 # liquid at rest never settled: the 2D hydrostatic tank kept 4-6 cm/s of particle noise for 4 s (0.97: the
-# same); with 0.9 the noise decays as in WCSPH (1.4 cm/s at 0.5-1 s, 0.7 at 1-2 s, 0.3 at 2 s), and cold starts
-# (0) decay alike at 300 iterations per substep. A slightly damped warm start keeps the stiffness from carrying
-# stale components from substep to substep. Cost: 20% more density iterations in a dam break (3.15 -> 3.77
-# per substep), none at B2's fixed steps. docs/SPH.md, hydrostatic tank.
+# same); with 0.9 the noise decays as in WCSPH (1.4 cm/s at 0.5-1 s, 0.7 at 1-2 s, 0.3 at 2 s), and cold
+# starts (0) decay alike at 300 iterations per substep. A slightly damped warm start keeps the stiffness from
+# carrying stale components from substep to substep. Cost: 20% more density iterations in a dam break (3.15 ->
+# 3.77 per substep), none at B2's fixed steps. docs/SPH.md, hydrostatic tank.
 DENSITY_WARM = 0.9
 RELAX = 0.5  # Jacobi relaxation: the unclamped (projected) iteration diverges without it
 BFAC = 1.0  # boundary term of the velocity update: k_i alone, as Akinci et al. 2012 and SPlisHSPlasH

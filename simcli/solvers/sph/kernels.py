@@ -41,7 +41,8 @@ def cubic_gradW(x: np.ndarray, h: float, dim: int) -> np.ndarray:
 
 
 def _lattice(support_factor: float, dim: int) -> np.ndarray:
-    """Points of the lattice of spacing 1 within ceil(support_factor) of the origin along each axis, (m, dim)."""
+    """Points of the lattice of spacing 1 within ceil(support_factor) of the origin along each axis,
+    (m, dim)."""
     n = int(np.ceil(support_factor))
     ax = np.arange(-n, n + 1, dtype=np.float64)
     return np.stack([c.ravel() for c in np.meshgrid(*[ax] * dim, indexing="ij")], axis=1)
@@ -62,8 +63,9 @@ VISC_EPS = 0.01  # regularisation of the viscosity terms: r^2 + VISC_EPS h^2 in 
 
 def morris_laplacian_constant(support_factor: float, dim: int) -> float:
     """c of the Morris et al. (1997) Laplacian, lap f_i = c sum_j V_j (f_i - f_j) (x_ij . grad W_ij) / (r^2 +
-    VISC_EPS h^2), such that it is exact for a quadratic field on the lattice of spacing 1 (with the rest volume
-    V = 1 / lattice_sum that the solver gives lattice particles): 2.085 in 2D at support 3, where the textbook
+    VISC_EPS h^2), such that it is exact for a quadratic field on the lattice of spacing 1 (with the rest
+    volume V = 1 / lattice_sum that the solver gives lattice particles): 2.085 in 2D at support 3, where the
+    textbook
     2 is 4% weak (the regularisation and the finite support). Scale-free: the same for any spacing."""
     g = _lattice(support_factor, dim)
     r2 = (g * g).sum(1)

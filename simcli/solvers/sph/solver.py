@@ -155,7 +155,10 @@ class SPHSolver(Solver):
                 from simcli.errors import SceneError
 
                 hint = "" if push else " or set solvers.sph.inside_colliders: push_out"
-                msg = f"entity '{b.name}': every particle lies inside a collider; move the entity out of the collider"
+                msg = (
+                    f"entity '{b.name}': every particle lies inside a collider; "
+                    "move the entity out of the collider"
+                )
                 raise SceneError([msg + hint])
             if k:
                 mass = float(k) * b.entity.material.rho * self._rest_volume(scene)
@@ -168,9 +171,9 @@ class SPHSolver(Solver):
                     else "solvers.sph.inside_colliders: remove, the default with DFSPH"
                 )
                 self.warnings.append(
-                    f"{b.name}: {k} of {b.n} particles were sampled inside a collider and removed ({mass:.4g} "
-                    f"{unit}, {100.0 * k / b.n:.3g}%; {why}). Move the entity out of the collider to keep them"
-                    + ("" if push else ", or set inside_colliders: push_out")
+                    f"{b.name}: {k} of {b.n} particles were sampled inside a collider and removed "
+                    f"({mass:.4g} {unit}, {100.0 * k / b.n:.3g}%; {why}). Move the entity out of the "
+                    "collider to keep them" + ("" if push else ", or set inside_colliders: push_out")
                 )
             keep = ~drop
             out.append(
@@ -238,8 +241,8 @@ class SPHSolver(Solver):
         dfsph = self.opts.pressure_solver == "DFSPH"
         self.alpha = scal() if dfsph else None
         # extrapolated wall pressure (wall_pressure.py): each liquid particle's boundary neighbours follow its
-        # liquid ones in its neighbour list (up to nbw_end), and it flags the boundary particles it reaches, so
-        # that only those list their liquid neighbours
+        # liquid ones in its neighbour list (up to nbw_end), and it flags the boundary particles it reaches,
+        # so that only those list their liquid neighbours
         self.ext_walls = dfsph and self.opts.wall_model == "extrapolated"
         self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
         self.bflag = ti.field(ti.i32, shape=max(1, self.nbp)) if self.ext_walls else None
@@ -334,7 +337,8 @@ class SPHSolver(Solver):
         self._cache: dict = {}
         self._density_only()  # the density stable_dt reads before the first substep
         if not dfsph:
-            pressure_from_density()  # frame 0's pressure: Tait's of that density (DFSPH's exists after a solve)
+            # frame 0's pressure: Tait's of that density (DFSPH's exists after a solve)
+            pressure_from_density()
         self.frame_check()
 
     def _upload(self) -> None:
@@ -369,8 +373,9 @@ class SPHSolver(Solver):
     def _hydrostatic_stiffness(self, xs: np.ndarray, mids: np.ndarray) -> np.ndarray:
         """The DFSPH density solve's first warm start: the stiffness k = p / rho0 = |g| depth of a liquid at
         rest, depth measured below the top of each particle's column (bins of one particle size across the
-        gravity direction; with several liquids p integrates each one's rho0 g down the column). A column released at rest has this pressure from its first instant (incompressible
-        liquid); without it the first substeps must build it from zero with a Jacobi solver, which needs
+        gravity direction; with several liquids p integrates each one's rho0 g down the column). A column
+        released at rest has this pressure from its first instant (incompressible liquid); without it the
+        first substeps must build it from zero with a Jacobi solver, which needs
         O(layers^2) iterations."""
         g = np.asarray(self.scene.sim.gravity_vec, dtype=np.float64)
         gn = float(np.linalg.norm(g))
@@ -388,8 +393,8 @@ class SPHSolver(Solver):
         if len(self.materials) == 1:
             depth = top[col] + 0.5 * self.ps - height
             return gn * depth
-        # several liquids: integrate rho0 g down each column (trapezoid between neighbours in the column, half a
-        # particle size of the top particle's own liquid above it), then k_i = p_i / rho0_i
+        # several liquids: integrate rho0 g down each column (trapezoid between neighbours in the column, half
+        # a particle size of the top particle's own liquid above it), then k_i = p_i / rho0_i
         rho0 = np.array([m.rho for m in self.materials], dtype=np.float64)[mids]
         o = np.lexsort((-height, col))  # by column, then from the top down
         c, h, r = col[o], height[o], rho0[o]
@@ -507,11 +512,12 @@ class SPHSolver(Solver):
                             r_i += mass_of(j) * w
                             sumsq += Vg.dot(Vg)
                         else:
-                            # number density rho0_i sum_j V_j W_ij (SPlisHSPlasH): continuous across an interface
-                            # of two rest densities, where the mass sum gives the lighter liquid a false excess
+                            # number density rho0_i sum_j V_j W_ij (SPlisHSPlasH): continuous across an
+                            # interface of two rest densities, where the mass sum gives the lighter liquid a
+                            # false excess
                             r_i += rho0_i * volume_of(j) * w
-                            # the pressure operator's diagonal with the momentum-conserving pair force (dfsph.py):
-                            # V_j (m_i / rho0_j) |grad W_ij|^2
+                            # the pressure operator's diagonal with the momentum-conserving pair force
+                            # (dfsph.py): V_j (m_i / rho0_j) |grad W_ij|^2
                             sumsq += (mass_of(i) / mat_rho0[mid[j]]) * Vg.dot(g)
                         if ti.static(kgc):
                             Mom -= Vg.outer_product(d)
@@ -601,7 +607,8 @@ class SPHSolver(Solver):
         @ti.func
         def non_pressure(i, with_pressure: ti.template()):
             """gravity + viscosity + surface tension [m/s^2]; with_pressure: plus WCSPH's symmetric pressure
-            force, -sum_j m_j (p_i / rho_i^2 + p_j / rho_j^2) grad W_ij, in the same pass over the neighbours."""
+            force, -sum_j m_j (p_i / rho_i^2 + p_j / rho_j^2) grad W_ij, in the same pass over the
+            neighbours."""
             a = gravity[None]
             if ti.static(has_visc or has_tension or with_pressure):
                 xi, vi = x[i], v[i]
@@ -639,17 +646,17 @@ class SPHSolver(Solver):
                             ap -= mj * (dpi + p[j] / (rj * rj)) * g
                         else:
                             # several materials: Solenthaler & Pajarola's (2008) density-contrast form,
-                            # -(1 / m_i) sum_j (p_i / delta_i^2 + p_j / delta_j^2) grad W with delta = rho / m, a
-                            # consistent -grad p / rho_i across an interface (m_j p_j / rho_j^2 weighted the
-                            # lighter liquid's pressure by rho_i / rho_j there); the same for one material
+                            # -(1 / m_i) sum_j (p_i / delta_i^2 + p_j / delta_j^2) grad W with delta = rho /
+                            # m, a consistent -grad p / rho_i across an interface (m_j p_j / rho_j^2 weighted
+                            # the lighter liquid's pressure by rho_i / rho_j there); the same for one material
                             mi = mass_of(i)
                             ap -= (mi * dpi + (mj * mj / mi) * p[j] / (rj * rj)) * g
                     if ti.static(has_visc or has_tension):
                         if ti.static(has_visc):
                             vis = mj / rj  # one material: times nu_i below
                             if ti.static(not uniform):
-                                # several materials: the pair's mean dynamic viscosity over rho_i rho_j, symmetric
-                                # in i and j so that momentum is conserved (Morris et al. 1997)
+                                # several materials: the pair's mean dynamic viscosity over rho_i rho_j,
+                                # symmetric in i and j so that momentum is conserved (Morris et al. 1997)
                                 vis *= 0.5 * (nu * rho0 + mat_nu[mid[j]] * mat_rho0[mid[j]]) / ri
                             if ti.static(morris):
                                 avm += vis * (d.dot(g) / (r2 + eps_visc)) * (vi - v[j])
@@ -663,9 +670,9 @@ class SPHSolver(Solver):
                                     at -= kij * (mj * Ckern(r) / r * d + (ni - nrm[j]))
                                 else:
                                     # several materials: Akinci's pair term with symmetric coefficients (the
-                                    # pair's mean gamma, (rho0_i + rho0_j) / (rho_i + rho_j), the curvature term
-                                    # weighted 2 m_j / (m_i + m_j)), so that momentum is conserved; equal to
-                                    # Akinci's for equal materials
+                                    # pair's mean gamma, (rho0_i + rho0_j) / (rho_i + rho_j), the curvature
+                                    # term weighted 2 m_j / (m_i + m_j)), so that momentum is conserved; equal
+                                    # to Akinci's for equal materials
                                     mi = mass_of(i)
                                     kij = (
                                         (0.5 * (gam + mat_gamma[mid[j]]))
@@ -681,7 +688,9 @@ class SPHSolver(Solver):
                     a += visc_c * nu * av + gam * at + ap
                     if ti.static(morris):
                         a += morris_c * nu * avm
-                else:  # the pair coefficients are inside av, avm and at; the walls' viscosity is the liquid's own
+                else:
+                    # the pair coefficients are inside av, avm and at; the walls' viscosity is the liquid's
+                    # own
                     if ti.static(has_noslip):
                         a += visc_c * nu * (Mv[i] @ vi - mw[i])
                     a += visc_c * av + at + ap
@@ -743,8 +752,9 @@ class SPHSolver(Solver):
 
         @ti.kernel
         def dt_stats():
-            """stable_dt's inputs in one launch (before every substep with sim.auto_check: substep): the largest
-            finite particle speed, and for WCSPH the largest rho / rho0 (global reductions, cheaper than
+            """stable_dt's inputs in one launch (before every substep with sim.auto_check: substep): the
+            largest finite particle speed, and for WCSPH the largest rho / rho0 (global reductions, cheaper
+            than
             frame_stats' per-body atomics)."""
             stat_dt[0] = 0.0
             stat_dt[1] = 0.0

@@ -1,10 +1,9 @@
-"""Extrapolated wall pressure for DFSPH (``solvers.sph.wall_pressure: extrapolated``, the default for DFSPH with
-a free surface, ``auto``): each boundary particle
-near the liquid gets a pressure of its own, the Shepard average of its liquid neighbours' pressures plus the
-hydrostatic difference between them and it (Adami et al. 2012, "A generalized wall boundary condition for
-smoothed particle hydrodynamics", eq. 27; for DFSPH as Band et al. 2018, "MLS pressure extrapolation for the
-boundary handling in divergence-free SPH", with a Shepard instead of an MLS fit). In DFSPH's stiffness
-k = p / rho0::
+"""Extrapolated wall pressure for DFSPH (``solvers.sph.wall_pressure: extrapolated``, the default for DFSPH
+with a free surface, ``auto``): each boundary particle near the liquid gets a pressure of its own, the Shepard
+average of its liquid neighbours' pressures plus the hydrostatic difference between them and it (Adami et al.
+2012, "A generalized wall boundary condition for smoothed particle hydrodynamics", eq. 27; for DFSPH as Band
+et al. 2018, "MLS pressure extrapolation for the boundary handling in divergence-free SPH", with a Shepard
+instead of an MLS fit). In DFSPH's stiffness k = p / rho0::
 
     k_b = sum_f k_f W_bf / sum_f W_bf  +  max(0, sum_f g . (x_b - x_f) W_bf / sum_f W_bf)
 
@@ -51,8 +50,9 @@ def make_wall_pressure(S):
     Wk, h2 = S.Wk, S.h2
     gravity, rows, row_cell, overflow = S.gravity, S.rows, S.row_cell, S.overflow
     bflag = S.bflag
-    # several materials: the walls carry a pressure, the Shepard average of rho0_f k_f (plus rho0_f g . (x_b - x_f)),
-    # which liquid particle i feels as the stiffness p_b / rho0_i; with one material simply the average of k_f
+    # several materials: the walls carry a pressure, the Shepard average of rho0_f k_f (plus rho0_f g . (x_b -
+    # x_f)), which liquid particle i feels as the stiffness p_b / rho0_i; with one material simply the average
+    # of k_f
     uniform, mat_rho0, mid = S.uniform, S.mat_rho0, S.mid
 
     bval = ti.field(f, shape=nbp)  # the boundary particle's k increment of the current iteration

@@ -5,15 +5,16 @@ launch per substep::
 
 Pressure: p_i = k ((rho_i / rho0)^n - 1) (+ background pressure), clamped at zero for a free surface.
 Force (momentum-conserving, symmetric): a_i = -sum_j m_j (p_i / rho_i^2 + p_j / rho_j^2) grad W_ij, and from
-boundary particles (Akinci et al. 2012, eq. 10) a_i = -sum_b rho0 V_b (p_i / rho_i^2) grad W_ib. (Full pressure
-mirroring, 2 p_i / rho_i^2, balances a uniform pressure exactly at a wall, but made a tank at rest with
-water's viscosity unstable in our tests; Akinci's single term is a stable penalty.)
-Time integration: symplectic Euler (v, then x with the new v).
+boundary particles (Akinci et al. 2012, eq. 10) a_i = -sum_b rho0 V_b (p_i / rho_i^2) grad W_ib. (Full
+pressure mirroring, 2 p_i / rho_i^2, balances a uniform pressure exactly at a wall, but made a tank at rest
+with water's viscosity unstable in our tests; Akinci's single term is a stable penalty.) Time integration:
+symplectic Euler (v, then x with the new v).
 """
 
 
 def make_wcsph(S):
-    """The substep kernel of WCSPH for solver ``S`` (fields and shared funcs built by ``SPHSolver``), and a kernel
+    """The substep kernel of WCSPH for solver ``S`` (fields and shared funcs built by ``SPHSolver``), and a
+    kernel
     that sets the pressure from the current density (the output before the first substep)."""
     ti = S.ti
     f = S.f
@@ -40,7 +41,8 @@ def make_wcsph(S):
 
     @ti.kernel
     def pressure_from_density():
-        """Tait's pressure of the current density: frame 0's pressure, before the first substep computes it."""
+        """Tait's pressure of the current density: frame 0's pressure, before the first substep
+        computes it."""
         for i in range(n):
             equation_of_state(i)
 

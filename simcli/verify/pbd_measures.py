@@ -1,11 +1,11 @@
-"""Validation measurements of PBD runs (registered in simcli.verify.measure's registry): each takes the
+"""Validation measurements of PBD runs (registered in simcli.verify.registry's MEASUREMENTS): each takes the
 open sim.h5, the entity name and the case's params and returns (t, values)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from simcli.verify.measure import _entity, measurement
+from simcli.verify.registry import entity_group, measurement
 
 
 @measurement("pbd_period")
@@ -13,7 +13,7 @@ def pbd_period(f, entity, vertex=1, anchor=0, **_):
     """Mean oscillation period [s] of the distance between two vertices (``vertex`` and ``anchor``):
     the mean spacing of its upward crossings of its mid-range, times from linear interpolation
     (output every step). One value, at the last frame's time."""
-    _, g = _entity(f, entity)
+    _, g = entity_group(f, entity)
     x = np.asarray(g["position"][...], dtype=np.float64)
     t = np.asarray(f["time"][...], dtype=np.float64)
     d = np.linalg.norm(x[:, vertex] - x[:, anchor], axis=1)
@@ -28,7 +28,7 @@ def pbd_period(f, entity, vertex=1, anchor=0, **_):
 @measurement("pbd_sag")
 def pbd_sag(f, entity, axis=2, **_):
     """Sag [m]: height of the highest vertex at the start (the supports) minus the lowest vertex now."""
-    _, g = _entity(f, entity)
+    _, g = entity_group(f, entity)
     x = np.asarray(g["position"][...], dtype=np.float64)
     return f["time"][...], x[0, :, axis].max() - x[:, :, axis].min(axis=1)
 
@@ -37,7 +37,7 @@ def pbd_sag(f, entity, axis=2, **_):
 def pbd_support_force(f, entity, axis=2, **_):
     """Total force [N] the supports exert on the body along ``axis`` (sum of the `reaction` field, which is
     non-zero on pinned vertices only)."""
-    _, g = _entity(f, entity)
+    _, g = entity_group(f, entity)
     if "reaction" not in g:
         raise KeyError(
             "pbd_support_force needs the 'reaction' output field (output.fields: [position, "
@@ -50,7 +50,7 @@ def pbd_support_force(f, entity, axis=2, **_):
 @measurement("pbd_sphere_penetration")
 def pbd_sphere_penetration(f, entity, center, radius, **_):
     """How far the deepest vertex is inside a sphere of ``center`` and ``radius`` [m] (0 when none is)."""
-    _, g = _entity(f, entity)
+    _, g = entity_group(f, entity)
     x = np.asarray(g["position"][...], dtype=np.float64)
     d = np.linalg.norm(x - np.asarray(center, dtype=np.float64), axis=2).min(axis=1)
     return f["time"][...], np.maximum(0.0, float(radius) - d)

@@ -1,0 +1,49 @@
+"""``Body``: one entity's sampled initial state (numpy), what ``simcli.geometry.sampling`` produces and
+the particle solvers consume (re-exported by ``simcli.solvers.base``). No Taichi here."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from simcli.scene.models import Entity
+
+
+@dataclass
+class Body:
+    """One entity's sampled initial state (numpy, float64).
+
+    ``x`` (n, dim) positions [m], ``v`` (n, dim) velocities [m/s], ``volume`` (n,)
+    particle volumes [m^3], ``mass`` (n,) particle masses [kg] (rho x body volume / n,
+    so the total mass is exact), ``fixed`` (n,) bool: held in place.
+    """
+
+    name: str
+    entity: Entity
+    x: np.ndarray
+    v: np.ndarray
+    volume: np.ndarray
+    mass: np.ndarray
+    fixed: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.x = np.ascontiguousarray(self.x, dtype=np.float64)
+        n = self.x.shape[0]
+        if self.x.ndim != 2:
+            raise ValueError(f"Body {self.name!r}: x must be (n, dim), got shape {self.x.shape}")
+        dim = self.x.shape[1]
+        self.v = np.ascontiguousarray(self.v, dtype=np.float64).reshape(n, dim)
+        self.volume = np.ascontiguousarray(self.volume, dtype=np.float64).reshape(n)
+        self.mass = np.ascontiguousarray(self.mass, dtype=np.float64).reshape(n)
+        self.fixed = np.ascontiguousarray(self.fixed, dtype=bool).reshape(n)
+
+    @property
+    def n(self) -> int:
+        return int(self.x.shape[0])
+
+    @property
+    def dim(self) -> int:
+        return int(self.x.shape[1])
