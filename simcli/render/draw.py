@@ -141,7 +141,7 @@ class Painter:
             return (np.append(lo, 0) if run.dim == 2 else lo), (np.append(hi, 0) if run.dim == 2 else hi)
         n = run.n_frames
         pts = []
-        for k in sorted({0, n // 4, n // 2, (3 * n) // 4, n - 1}):
+        for k in sorted({int(i) for i in np.linspace(0, n - 1, min(n, 24))}):
             for e in read_frame(run, k):
                 if e.position is not None and len(e.position):
                     pts.append(e.position.min(axis=0))
