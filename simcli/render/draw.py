@@ -79,8 +79,9 @@ def _color_mode(mode: str, ents: list[EntityFrame]) -> str:
 
 
 def _grid_scalar(e: EntityFrame) -> tuple[np.ndarray, str] | None:
+    """What a grid's picture shows: its smoke (or dye, or heat) where it has any, else its speed."""
     for k in ("density", "dye", "smoke", "temperature"):
-        if k in e.fields:
+        if k in e.fields and np.ptp(e.fields[k]) > 0:
             return e.fields[k], k
     s = _speed(e)
     return (s, "speed [m/s]") if s is not None else None
@@ -281,6 +282,14 @@ class Painter:
                 cb = self.fig.colorbar(art, ax=ax, shrink=0.6, pad=0.02)
                 cb.set_label(label, fontsize=8)
                 cb.ax.tick_params(labelsize=7)
+                v = e.velocity
+                if label.startswith("speed") and v is not None and v.ndim == 3 and np.abs(v).max() > 0:
+                    ny, nx = v.shape[:2]
+                    xs = np.linspace(ext[0], ext[1], nx + 1)[:-1] + (ext[1] - ext[0]) / nx / 2
+                    ys = np.linspace(ext[2], ext[3], ny + 1)[:-1] + (ext[3] - ext[2]) / ny / 2
+                    ax.streamplot(
+                        xs, ys, v[..., 0], v[..., 1], color="white", linewidth=0.5, density=1.2, arrowsize=0.6
+                    )
             elif e.position is not None:
                 p = e.position[:, keep] if e.position.shape[1] > 2 else e.position
                 if e.kind == "particles":

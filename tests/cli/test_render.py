@@ -363,6 +363,59 @@ entities:
   - {name: cloth, material: {type: PBD.Cloth, rho: 0.2}, morph: {type: Rectangle, center: [0, 0, 0.5], size: [0.5, 0.5], resolution: 8}}
 output: {every: 2, formats: [hdf5]}
 """,
+    "mpm_3d": """
+sim: {dim: 3, dt: 2.0e-3, substeps: 4, steps: 4}
+domain: {lower: [0, 0, 0], upper: [1, 1, 1]}
+solvers: {mpm: {grid_density: 16}}
+colliders: [{type: Box, lower: [0.1, 0.1, 0.0], upper: [0.3, 0.3, 0.2]}]
+entities:
+  - {name: sand, material: {type: MPM.Sand, E: 1.0e5, rho: 1600}, morph: {type: Box, lower: [0.4, 0.4, 0.3], upper: [0.6, 0.6, 0.5]}}
+output: {every: 2, formats: [hdf5]}
+""",
+    "sph_2d": """
+sim: {dim: 2, dt: 1.0e-3, substeps: auto, steps: 4}
+domain: {lower: [0, 0], upper: [1, 1]}
+solvers: {sph: {particle_size: 0.02}}
+entities:
+  - {name: water, material: {type: SPH.Liquid, rho: 1000}, morph: {type: Box, lower: [0.4, 0.3], upper: [0.6, 0.5]}}
+output: {every: 2, formats: [hdf5]}
+""",
+    "sph_3d": """
+sim: {dim: 3, dt: 1.0e-3, substeps: auto, steps: 4}
+domain: {lower: [0, 0, 0], upper: [1, 1, 1]}
+solvers: {sph: {particle_size: 0.04}}
+entities:
+  - {name: water, material: {type: SPH.Liquid, rho: 1000}, morph: {type: Box, lower: [0.4, 0.4, 0.3], upper: [0.6, 0.6, 0.5]}}
+output: {every: 2, formats: [hdf5]}
+""",
+    "fem_3d": """
+sim: {dim: 3, dt: 2.0e-3, substeps: auto, steps: 4}
+domain: {lower: [0, 0, 0], upper: [1, 1, 1]}
+solvers: {fem: {integrator: explicit, resolution: 20}}
+entities:
+  - {name: block, material: {type: FEM.Elastic, E: 1.0e4, rho: 1000}, morph: {type: Box, lower: [0.4, 0.4, 0.3], upper: [0.6, 0.6, 0.5]}}
+output: {every: 2, formats: [hdf5]}
+""",
+    "sf_2d": """
+sim: {dim: 2, dt: 0.02, substeps: 1, steps: 6}
+domain: {lower: [0, 0], upper: [1, 1], faces: {y+: {type: open}}}
+solvers: {sf: {resolution: 32}}
+entities:
+  - name: smoke
+    material: {type: SF.Smoke}
+    jets: [{position: [0.5, 0.2], radius: 0.1, velocity: [0, 1], density_rate: 5.0}]
+output: {every: 2, formats: [hdf5]}
+""",
+    "sf_3d": """
+sim: {dim: 3, dt: 0.02, substeps: 1, steps: 6}
+domain: {lower: [0, 0, 0], upper: [1, 1, 1], faces: {z+: {type: open}}}
+solvers: {sf: {resolution: 16}}
+entities:
+  - name: smoke
+    material: {type: SF.Smoke}
+    jets: [{position: [0.5, 0.5, 0.2], radius: 0.15, velocity: [0, 0, 1], density_rate: 5.0}]
+output: {every: 2, formats: [hdf5]}
+""",
 }
 
 
@@ -375,7 +428,14 @@ def _tiny_run(tmp_path, key):
     return out
 
 
-@pytest.mark.parametrize("key", ["mpm_2d", "pbd_3d"])
+_SLOW = pytest.mark.slow  # one compile per family: the default suite keeps two, -m slow runs the rest
+
+
+@pytest.mark.parametrize(
+    "key",
+    ["mpm_2d", "pbd_3d"]
+    + [pytest.param(k, marks=_SLOW) for k in ("mpm_3d", "sph_2d", "sph_3d", "fem_3d", "sf_2d", "sf_3d")],
+)
 def test_render_a_real_run(tmp_path, key):
     out = _tiny_run(tmp_path, key)
     r = _run(["render", str(out), "-o", str(tmp_path / "p.png")])
@@ -386,6 +446,12 @@ def test_render_a_real_run(tmp_path, key):
     run = open_run(out)
     e = read_frame(run, run.n_frames - 1)[0]
     p, img, to_px = _painted(out, color="entity")
-    centre = e.position.mean(0)
-    assert _near(img, to_px(centre), BLUE, radius=4, tol=120)  # the body is drawn where it is
+    if e.kind == "grid":  # the smoke the jet put in is drawn (bright) near the jet, the far corner is dark
+        jet = [0.5, 0.2]  # (x, y) in 2D; (x, z) of the side view of a 3D grid
+        hot = img[to_px(jet)[1], to_px(jet)[0]].astype(int)
+        cold = img[to_px([0.95, 0.95])[1], to_px([0.95, 0.95])[0]].astype(int)
+        assert hot.sum() > 150 and cold.sum() < 60, (hot, cold)
+    else:
+        centre = e.position.mean(0)
+        assert _near(img, to_px(centre), BLUE, radius=4, tol=120)  # the body is drawn where it is
     p.close()
