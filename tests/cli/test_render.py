@@ -455,3 +455,21 @@ def test_render_a_real_run(tmp_path, key):
         centre = e.position.mean(0)
         assert _near(img, to_px(centre), BLUE, radius=4, tol=120)  # the body is drawn where it is
     p.close()
+
+
+def test_auto_colour_is_height_once_the_particles_rest(tmp_path):
+    x = _block([0.3, 0.1], [0.7, 0.3], 10)
+    moving = np.tile([0.0, -2.0], (len(x), 1))
+    frames = [{"position": x + [0, 0.2], "velocity": moving}, {"position": x, "velocity": 0 * moving}]
+    meta = EntityMeta("heap", "particles", len(x), 2, {"position": (2, "m"), "velocity": (2, "m/s")})
+    out = _write_run(tmp_path / "out", 2, [(meta, frames)])
+    p, img, to_px = _painted(out, k=0)
+    assert p.color == "speed"
+    p.close()
+    p, img, to_px = _painted(out, k=1)
+    assert p.color == "height"
+    bottom = x[np.argmin(x[:, 1] + np.abs(x[:, 0] - 0.5))]  # particles in the middle column
+    top = x[np.argmax(x[:, 1] - np.abs(x[:, 0] - 0.5))]
+    low, high = (img[to_px(q)[1], to_px(q)[0]] for q in (bottom, top))
+    assert int(high.sum()) > int(low.sum()) + 100  # copper: the top of the heap brighter than its foot
+    p.close()
