@@ -11,7 +11,7 @@ from pathlib import Path
 import click
 
 from simcli import __version__
-from simcli.errors import EXIT_INVALID_SCENE, EXIT_OK, EXIT_USAGE, SceneError
+from simcli.errors import EXIT_INVALID_SCENE, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, SceneError
 
 _T0 = time.perf_counter()
 
@@ -305,6 +305,9 @@ def render(
     except RenderError as e:
         _err(f"simcli render: {e}")
         sys.exit(EXIT_USAGE)
+    except OSError as e:  # the picture or movie could not be written
+        _err(f"simcli render: {dest}: {e.strerror or e}")
+        sys.exit(EXIT_OUTPUT)
 
 
 @cli.command()
@@ -327,6 +330,9 @@ def plot(out: Path, dest: Path | None) -> None:
     except RenderError as e:
         _err(f"simcli plot: {e}")
         sys.exit(EXIT_USAGE)
+    except OSError as e:
+        _err(f"simcli plot: {e}")
+        sys.exit(EXIT_OUTPUT)
 
 
 def _register_optional() -> None:

@@ -340,6 +340,8 @@ def test_bad_requests_are_usage_errors(tmp_path):
     assert r.returncode == 2 and "sim.h5: not found" in r.stderr and "Traceback" not in r.stderr
     r = _run(["plot", str(empty)])
     assert r.returncode == 2 and "Traceback" not in r.stderr
+    r = _run(["render", str(out), "-o", str(tmp_path / "no" / "such" / "dir" / "a.png")])
+    assert r.returncode == 74 and "a.png" in r.stderr and "Traceback" not in r.stderr
 
 
 # -- real runs: one tiny scene per family ---------------------------------------------------------
