@@ -276,8 +276,12 @@ def info(as_json: bool) -> None:
 @click.option(
     "--frame", type=int, default=None, help="Frame of a picture (default: the last; -1 counts from the end)."
 )
-@click.option("--every", type=int, default=1, show_default=True, help="Movies: use every N-th frame.")
-@click.option("--fps", type=int, default=20, show_default=True, help="Movies: frames per second.")
+@click.option(
+    "--every", type=click.IntRange(min=1), default=1, show_default=True, help="Movies: use every N-th frame."
+)
+@click.option(
+    "--fps", type=click.IntRange(min=1), default=20, show_default=True, help="Movies: frames per second."
+)
 @click.option(
     "--color",
     type=click.Choice(["auto", "speed", "entity", "height"]),
@@ -285,7 +289,9 @@ def info(as_json: bool) -> None:
     show_default=True,
     help="Particles' colour; auto: speed (height once at rest), or entity when there are several.",
 )
-@click.option("--width", type=int, default=800, show_default=True, help="Width in pixels.")
+@click.option(
+    "--width", type=click.IntRange(min=160), default=800, show_default=True, help="Width in pixels."
+)
 def render(
     out: Path, dest: Path | None, frame: int | None, every: int, fps: int, color: str, width: int
 ) -> None:
