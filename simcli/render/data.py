@@ -165,10 +165,13 @@ def series(run: Run) -> dict[str, dict[str, np.ndarray]]:
                 for k in range(n):
                     a = np.asarray(v[k], dtype=float)
                     sp2 = (a * a).sum(axis=-1).reshape(-1)
+                    sp2 = sp2[np.isfinite(sp2)]
                     vmax[k] = np.sqrt(sp2.max()) if sp2.size else 0.0
                     vmean[k] = np.sqrt(sp2).mean() if sp2.size else 0.0
                     if mass is not None:
-                        ke[k] = 0.5 * float((np.asarray(mass[k], float).reshape(-1) * sp2).sum())
+                        ke[k] = 0.5 * float(
+                            np.nansum(np.asarray(mass[k], float).reshape(-1) * (a * a).sum(-1).reshape(-1))
+                        )
                     else:
                         ke[k] = 0.5 * float(sp2.mean()) if sp2.size else 0.0
                 s["max_speed"], s["mean_speed"] = vmax, vmean
@@ -176,7 +179,9 @@ def series(run: Run) -> dict[str, dict[str, np.ndarray]]:
             if "position" in g and str(g.attrs.get("kind")) != "grid":
                 p = g["position"]
                 n = min(nt, p.shape[0])
-                s["top"] = np.array([float(np.asarray(p[k])[:, -1].max()) for k in range(n)])
+                s["top"] = np.array(
+                    [float(np.nanmax(np.asarray(p[k])[:, -1], initial=-np.inf)) for k in range(n)]
+                )
             out[name] = s
         if "colliders" in f:
             for cname in f["colliders"]:

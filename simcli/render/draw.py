@@ -54,6 +54,9 @@ def _spacing(run: Run, name: str, n_now: int) -> float:
     if p is None or len(p) < 8:
         ext = float(np.prod(run.upper - run.lower))
         return (ext / max(n_now, 1)) ** (1 / run.dim) * 0.5
+    p = p[np.isfinite(p).all(axis=1)]
+    if len(p) < 8:
+        return (float(np.prod(run.upper - run.lower)) / max(n_now, 1)) ** (1 / run.dim) * 0.5
     ext = np.ptp(p, axis=0)
     ext = np.where(ext > 0, ext, ext[ext > 0].min() if (ext > 0).any() else 1.0)
     return float((np.prod(ext) / len(p)) ** (1 / run.dim))
@@ -67,7 +70,7 @@ def speed_limit(run: Run, frames: list[int]) -> float:
         for e in read_frame(run, k):
             s = _speed(e)
             if s is not None and s.size and e.kind != "grid":
-                hi = max(hi, float(np.percentile(s, 99)))
+                hi = max(hi, float(np.nanpercentile(s, 99)))
     return hi if hi > 0 else 1.0
 
 
@@ -144,9 +147,10 @@ class Painter:
         pts = []
         for k in sorted({int(i) for i in np.linspace(0, n - 1, min(n, 24))}):
             for e in read_frame(run, k):
-                if e.position is not None and len(e.position):
-                    pts.append(e.position.min(axis=0))
-                    pts.append(e.position.max(axis=0))
+                q = None if e.position is None else e.position[np.isfinite(e.position).all(axis=1)]
+                if q is not None and len(q):  # (emitters may park unused particles at NaN)
+                    pts.append(q.min(axis=0))
+                    pts.append(q.max(axis=0))
         for col in run.colliders:
             if col.get("type") != "Plane":
                 t = collider_triangles(col, lo, hi)
@@ -184,12 +188,14 @@ class Painter:
             # (99 % slower than 2 % of the run's speed scale) colour them by height instead
             sp = [_speed(e) for e in ents if e.kind == "particles" and e.velocity is not None]
             sp = np.concatenate(sp) if sp else np.zeros(0)
-            rest = sp.size > 0 and float(np.percentile(sp, 99)) < 0.02 * self.vmax
+            rest = sp.size > 0 and float(np.nanpercentile(sp, 99)) < 0.02 * self.vmax
             self.auto_height = bool(rest)
             self.color = "height" if rest else "speed"
         zs = [e.position[:, -1] for e in ents if e.kind == "particles" and e.position is not None]
         z0 = self.lo[run.dim - 1]
-        self._zspan = max(float(np.concatenate(zs).max()) - z0, 1e-9) if zs else 1.0
+        zs = np.concatenate(zs) if zs else np.zeros(0)
+        zs = zs[np.isfinite(zs)]
+        self._zspan = max(float(zs.max()) - z0, 1e-9) if zs.size else 1.0
         title = f"{run.name}   t = {t:.3f} s   (frame {k}/{run.n_frames - 1})"
         if self.view3d:
             self._draw3d(ents)

@@ -475,3 +475,17 @@ def test_auto_colour_is_height_once_the_particles_rest(tmp_path):
     low, high = (img[to_px(q)[1], to_px(q)[0]] for q in (bottom, top))
     assert int(high.sum()) > int(low.sum()) + 100  # copper: the top of the heap brighter than its foot
     p.close()
+
+
+def test_unused_particles_at_nan_are_skipped(tmp_path):
+    """An emitter's reserved particles may sit at NaN until emitted: the rest is still drawn."""
+    x = _block([0.4, 0.4], [0.6, 0.6], 8)
+    x = np.vstack([x, np.full((30, 2), np.nan)])
+    v = np.zeros_like(x)
+    meta = EntityMeta("jet", "particles", len(x), 2, {"position": (2, "m"), "velocity": (2, "m/s")})
+    out = _write_run(tmp_path / "out", 2, [(meta, [{"position": x, "velocity": v}] * 2)])
+    p, img, to_px = _painted(out, color="entity")
+    assert _near(img, to_px([0.5, 0.5]), BLUE, radius=4, tol=30)
+    p.close()
+    r = _run(["plot", str(out)])
+    assert r.returncode == 0, r.stderr
