@@ -262,6 +262,84 @@ def info(as_json: bool) -> None:
         _err(f"{k}: {v}")
 
 
+@cli.command()
+@click.argument("out", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option(
+    "-o",
+    "--output",
+    "dest",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="picture.png, or movie.mp4 / movie.gif for every frame (default: OUT/render.png).",
+)
+@click.option(
+    "--frame", type=int, default=None, help="Frame of a picture (default: the last; -1 counts from the end)."
+)
+@click.option(
+    "--every", type=click.IntRange(min=1), default=1, show_default=True, help="Movies: use every N-th frame."
+)
+@click.option(
+    "--fps", type=click.IntRange(min=1), default=20, show_default=True, help="Movies: frames per second."
+)
+@click.option(
+    "--color",
+    type=click.Choice(["auto", "speed", "entity", "height"]),
+    default="auto",
+    show_default=True,
+    help="Particles' colour; auto: speed (height once at rest), or entity when there are several.",
+)
+@click.option(
+    "--width", type=click.IntRange(min=160), default=800, show_default=True, help="Width in pixels."
+)
+def render(
+    out: Path, dest: Path | None, frame: int | None, every: int, fps: int, color: str, width: int
+) -> None:
+    """A quick-look picture (.png) or movie (.mp4, .gif) of the run in OUT, drawn off-screen from OUT/sim.h5
+    and the colliders of OUT/scene.yaml (needs matplotlib; .mp4 needs imageio-ffmpeg: simcli[render])."""
+    from simcli.render import RenderError, render_movie, render_picture
+
+    dest = dest if dest is not None else out / "render.png"
+    try:
+        if dest.suffix.lower() in (".mp4", ".gif"):
+            p, n = render_movie(out, dest, every=every, fps=fps, color=color, width=width)
+            _err(f"wrote {p} ({n} frames)")
+        elif dest.suffix.lower() == ".png":
+            _err(f"wrote {render_picture(out, dest, frame=frame, color=color, width=width)}")
+        else:
+            raise RenderError(f"{dest}: give a .png (picture), .mp4 or .gif (movie)")
+    except RenderError as e:
+        _err(f"simcli render: {e}")
+        sys.exit(EXIT_USAGE)
+    except OSError as e:  # the picture or movie could not be written
+        _err(f"simcli render: {dest}: {e.strerror or e}")
+        sys.exit(EXIT_OUTPUT)
+
+
+@cli.command()
+@click.argument("out", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option(
+    "-o",
+    "--output",
+    "dest",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Where to write the plot (default: OUT/plot.png).",
+)
+def plot(out: Path, dest: Path | None) -> None:
+    """Time series of the run in OUT: speeds, kinetic energy, height per frame (sim.h5), probes.csv,
+    and run.json's substeps, throughput and wall times."""
+    from simcli.render import RenderError, plot_run
+
+    try:
+        _err(f"wrote {plot_run(out, dest if dest is not None else out / 'plot.png')}")
+    except RenderError as e:
+        _err(f"simcli plot: {e}")
+        sys.exit(EXIT_USAGE)
+    except OSError as e:
+        _err(f"simcli plot: {e}")
+        sys.exit(EXIT_OUTPUT)
+
+
 def _register_optional() -> None:
     """Sub-command groups that live in their own packages."""
     for mod, attr in (("simcli.verify.cli", "verify"), ("simcli.sweep.cli", "sweep")):
