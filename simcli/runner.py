@@ -532,6 +532,8 @@ class Runner:
                 self.info["checkpoint"] = str(p)
                 self.timings["checkpoint_s"] += time.perf_counter() - t0
                 if interrupted:
+                    if probes:
+                        probes.flush(sink)  # the samples since the last frame, up to the checkpoint's step
                     self._sink = None
                     sink.close()
                     self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)

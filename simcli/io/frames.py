@@ -343,8 +343,9 @@ class FrameSink:
             self.seconds["vtk"] += perf_counter() - t0
         self.next_frame = frame + 1
 
-    def write_series(self, samples: dict[str, tuple[float, np.ndarray]]) -> None:
-        """Append one sample to each named series (sim.h5 only; nothing without hdf5 output)."""
+    def write_series(self, samples: dict[str, list[tuple[float, np.ndarray]]]) -> None:
+        """Append samples, name -> [(time, value), ...] in time order, to the named series (sim.h5 only;
+        nothing without hdf5 output)."""
         if self._h5 is not None:
             t0 = perf_counter()
             self._h5.write_series(samples)

@@ -507,21 +507,24 @@ class H5Writer:
             self._series[name] = (t, v)
 
     def write_series(self, samples: dict) -> None:
-        """Append (time, value) to each named series: the value first, flushed, then the time, flushed (a reader
-        that trusts len(time) never sees a missing value)."""
+        """Append samples, name -> [(time, value), ...], to the named series: the values first, flushed, then
+        the times, flushed (a reader that trusts len(time) never sees a missing value)."""
         f = self.f
         assert f is not None, "H5Writer not open"
         try:
-            for name, (_t, val) in samples.items():
+            for name, rows in samples.items():
                 tds, vds = self._series[name]
-                vds.resize(tds.shape[0] + 1, axis=0)
-                vds[tds.shape[0]] = val
+                n, k = tds.shape[0], len(rows)
+                vds.resize(n + k, axis=0)
+                vds[n : n + k] = np.asarray([v for _t, v in rows], dtype=np.float64).reshape(
+                    (k,) + vds.shape[1:]
+                )
             f.flush()
-            for name, (t, _val) in samples.items():
+            for name, rows in samples.items():
                 tds = self._series[name][0]
-                k = tds.shape[0]
-                tds.resize(k + 1, axis=0)
-                tds[k] = t
+                n, k = tds.shape[0], len(rows)
+                tds.resize(n + k, axis=0)
+                tds[n : n + k] = np.asarray([t for t, _v in rows], dtype=np.float64)
             f.flush()
         except (OSError, RuntimeError) as exc:
             err = output_error(self.path, exc)

@@ -56,7 +56,10 @@ class ProbeRecorder:
         for p, c in zip(self.probes, self.ncomp):
             self.columns += [p.name] if c == 1 else [f"{p.name}.{'xyz'[a]}" for a in range(c)]
         self._mass: dict[str, np.ndarray] = {}
-        self._sink = None
+        self._pending: list[tuple[str, float, np.ndarray]] = []  # samples not yet in sim.h5
+        self.flush_every = scene.output.every
+        self.ckpt_every = scene.checkpoint.every or scene.sim.n_steps + 1
+        self.n_steps = scene.sim.n_steps
         self.samples = 0
 
     # ------------------------------------------------------------------ output
@@ -223,16 +226,22 @@ class ProbeRecorder:
         return out
 
     def sample(self, step: int, sink=None) -> None:
-        """Sample the probes due at ``step`` (step % every == 0) and append them to probes.csv and sim.h5."""
+        """Sample the probes due at ``step`` (step % every == 0): at once into probes.csv (flushed), and into
+        sim.h5 at the next frame step, checkpoint step or the last step (:meth:`flush`)."""
         due = [i for i, k in enumerate(self.every) if step % k == 0]
-        if not due:
-            return
+        if due:
+            self._sample(step, due)
+        if sink is not None and (
+            step % self.flush_every == 0 or step % self.ckpt_every == 0 or step >= self.n_steps
+        ):
+            self.flush(sink)
+
+    def _sample(self, step: int, due: list[int]) -> None:
         t0 = time.perf_counter()
         t = step * self.dt
         vals = self.values(due)
-        cells = [
-            repr(float(f"{t:.12g}"))
-        ]  # step x dt without its round-off tail (0.036, not 0.036000000000000004)
+        # step x dt without its round-off tail (0.036, not 0.036000000000000004)
+        cells = [repr(float(f"{t:.12g}"))]
         for i, c in enumerate(self.ncomp):
             if i in vals:
                 cells += [_fmt(x) for x in np.atleast_1d(vals[i])]
@@ -243,7 +252,20 @@ class ProbeRecorder:
                 f.write(",".join(cells) + "\n")
         except OSError as e:
             raise OutputError(f"cannot write {self.path}: {e.strerror or e}") from None
-        if sink is not None:
-            sink.write_series({self.probes[i].name: (t, vals[i]) for i in due})
+        for i in due:
+            self._pending.append((self.probes[i].name, t, vals[i]))
         self.samples += 1
+        self.timings["probes_s"] += time.perf_counter() - t0
+
+    def flush(self, sink) -> None:
+        """Append the samples taken since the last flush to sim.h5 (at frame writes, checkpoints and the last
+        step: one HDF5 flush per frame, not per sample; probes.csv has every sample at once)."""
+        pending, self._pending = self._pending, []
+        if not pending:
+            return
+        t0 = time.perf_counter()
+        batch: dict[str, list] = {}
+        for name, t, v in pending:
+            batch.setdefault(name, []).append((t, v))
+        sink.write_series(batch)
         self.timings["probes_s"] += time.perf_counter() - t0
