@@ -254,7 +254,7 @@ class H5Writer:
         self._fd: int | None = None  # HDF5's file descriptor (sec2 driver)
         self._ident: tuple[int, int] | None = None  # (st_dev, st_ino) of the file we write
         self._size = 0  # its size after the last complete frame
-        self._series: dict[str, tuple[h5py.Dataset, h5py.Dataset]] = {}  # probes: name -> (time, value)
+        self._series: dict[str, tuple] = {}  # probes: name -> (time, value, samples held)
 
     # -- faults -----------------------------------------------------------------------------
     def _kept(self) -> str:
@@ -504,7 +504,7 @@ class H5Writer:
                     "value", shape=(0,) + shape, maxshape=(None,) + shape, chunks=(256,) + shape, dtype="f8"
                 )
                 v.attrs["unit"] = unit
-            self._series[name] = (t, v)
+            self._series[name] = (t, v, int(t.shape[0]))  # datasets and the samples they hold
 
     def write_series(self, samples: dict) -> None:
         """Append samples, name -> [(time, value), ...], to the named series: the values first, flushed, then
@@ -513,18 +513,22 @@ class H5Writer:
         assert f is not None, "H5Writer not open"
         try:
             for name, rows in samples.items():
-                tds, vds = self._series[name]
-                n, k = tds.shape[0], len(rows)
-                vds.resize(n + k, axis=0)
-                vds[n : n + k] = np.asarray([v for _t, v in rows], dtype=np.float64).reshape(
+                tds, vds, n = self._series[name]
+                k = len(rows)
+                vals = np.ascontiguousarray([v for _t, v in rows], dtype=np.float64).reshape(
                     (k,) + vds.shape[1:]
                 )
+                vds.resize(n + k, axis=0)
+                vds.write_direct(vals, dest_sel=np.s_[n : n + k])
             f.flush()
             for name, rows in samples.items():
-                tds = self._series[name][0]
-                n, k = tds.shape[0], len(rows)
+                tds, vds, n = self._series[name]
+                k = len(rows)
                 tds.resize(n + k, axis=0)
-                tds[n : n + k] = np.asarray([t for t, _v in rows], dtype=np.float64)
+                tds.write_direct(
+                    np.asarray([t for t, _v in rows], dtype=np.float64), dest_sel=np.s_[n : n + k]
+                )
+                self._series[name] = (tds, vds, n + k)
             f.flush()
         except (OSError, RuntimeError) as exc:
             err = output_error(self.path, exc)
