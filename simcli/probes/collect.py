@@ -19,10 +19,26 @@ from simcli.probes.recorder import CSV_NAME
 REDUCTIONS = ("final", "max", "min", "mean")
 
 
-def read_csv(path: Path) -> dict[str, np.ndarray]:
-    """Column -> values (NaN where a cell is empty), without the time column's name changed."""
+_CACHE: dict = {}  # (path, size, mtime) -> columns: collect reads each run's file once for all its columns
+
+
+def read_csv(path: Path) -> dict[str, list]:
+    """Column -> values (None where a cell is empty; rows cut short by a kill are skipped)."""
+    st = Path(path).stat()
+    key = (str(path), st.st_size, st.st_mtime_ns)
+    if key not in _CACHE:
+        if len(_CACHE) > 64:
+            _CACHE.clear()
+        _CACHE[key] = _read(path)
+    return _CACHE[key]
+
+
+def _read(path: Path) -> dict[str, list]:
     with open(path, newline="", encoding="utf-8") as f:
-        rows = list(csv.reader(f))
+        text = f.read()
+    if not text.endswith("\n"):  # the last row was cut short by a kill
+        text = text[: text.rfind("\n") + 1]
+    rows = list(csv.reader(text.splitlines()))
     if not rows:
         return {}
     header, body = rows[0], [r for r in rows[1:] if len(r) == len(rows[0])]

@@ -104,7 +104,8 @@ class HeightProbe(_Probe):
     )
     entity: str = Field(
         "*",
-        description="Entity read, or '*' (default): every SPH, MPM, PBD.Liquid and PBD.Particle entity. The "
+        description="Entity read (any SPH, MPM, PBD.Liquid or PBD.Particle entity), or '*' (default): every liquid "
+        "(SPH.Liquid, MPM.Liquid, PBD.Liquid). The "
         "height [m] is the coordinate of the highest particle within one particle spacing of the gauge's line "
         "plus half a spacing; NaN while the column is dry.",
     )
@@ -157,6 +158,17 @@ def answers(entity, probe) -> bool:
     return fam in TOTAL_FAMILIES[probe.quantity]
 
 
+LIQUID_TYPES = ("SPH.Liquid", "MPM.Liquid", "PBD.Liquid")
+
+
+def default_entity(entity, probe) -> bool:
+    """Whether ``entity: "*"`` includes ``entity``: every entity that answers, except that a height gauge reads
+    the liquids only (a floating block or a sand heap is read by naming it)."""
+    if probe.type == "height":
+        return entity.material.type in LIQUID_TYPES
+    return answers(entity, probe)
+
+
 def _who_answers(probe) -> str:
     if probe.type == "point":
         fams = POINT_FAMILIES[probe.quantity]
@@ -174,7 +186,7 @@ def probe_entities(scene, probe) -> list:
     """The scene entities a probe reads (after check_probes has passed)."""
     if probe.entity != "*":
         return [e for e in scene.entities if e.name == probe.entity]
-    ents = [e for e in scene.entities if answers(e, probe)]
+    ents = [e for e in scene.entities if default_entity(e, probe)]
     if probe.type == "point" and any(e.family == "SF" for e in ents) and len(ents) > 1:
         return []  # refused by check_probes
     return ents
@@ -248,8 +260,14 @@ def check_probes(scene, err) -> None:
                     f"{_who_answers(p)}",
                 )
             continue
-        ents = [e for e in scene.entities if answers(e, p)]
-        if not ents:
+        ents = [e for e in scene.entities if default_entity(e, p)]
+        if not ents and p.type == "height" and any(answers(e, p) for e in scene.entities):
+            err(
+                base + ("entity",),
+                "a height gauge reads the liquids (SPH.Liquid, MPM.Liquid, PBD.Liquid) unless it names an "
+                "entity, and this scene has none; name the entity whose surface it measures with entity: <name>",
+            )
+        elif not ents:
             present = ", ".join(sorted({e.material.type for e in scene.entities})) or "no entities"
             qpath = base + ("quantity",) if p.type != "height" else base + ("type",)
             err(

@@ -425,3 +425,42 @@ def test_fem_totals_follow_free_fall(tmp_path):
     drop = 0.3 - float(by_step[5][8])
     assert 0.5 * 9.81 * t**2 * (1 - 1e-3) < drop < 0.5 * 9.81 * t**2 * 1.25
     assert float(by_step[5][6]) == pytest.approx(0.0, abs=1e-9) and float(by_step[0][8]) == pytest.approx(0.3)
+
+
+def test_a_height_gauge_reads_the_liquids_unless_it_names_an_entity(tmp_path):
+    sand = textwrap.dedent("""\
+        version: 1
+        sim: {dim: 2, steps: 2}
+        domain: {lower: [0.0, 0.0], upper: [0.2, 0.2]}
+        entities:
+          - name: heap
+            material: {type: MPM.Sand}
+            morph: {type: Box, lower: [0.0, 0.0], upper: [0.2, 0.1]}
+        probes:
+          - {name: h, type: height, position: [0.1]}
+          - {name: h2, type: height, position: [0.1], entity: heap}
+        """)
+    lines = _validate(tmp_path, sand)
+    assert len(lines) == 1 and ":9:" in lines[0] and "name the entity whose surface it measures" in lines[0]
+    from simcli.probes.config import probe_entities
+    from simcli.scene.models import Scene
+
+    scene = Scene.model_validate(
+        {
+            "sim": {"dim": 2},
+            "entities": [
+                {
+                    "name": "w",
+                    "material": {"type": "MPM.Liquid"},
+                    "morph": {"type": "Box", "lower": [0, 0], "upper": [1, 0.5]},
+                },
+                {
+                    "name": "b",
+                    "material": {"type": "MPM.Elastic"},
+                    "morph": {"type": "Box", "lower": [0, 0.6], "upper": [1, 0.7]},
+                },
+            ],
+            "probes": [{"name": "h", "type": "height", "position": [0.5]}],
+        }
+    )
+    assert [e.name for e in probe_entities(scene, scene.probes[0])] == ["w"]  # not the floating block
