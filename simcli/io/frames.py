@@ -343,12 +343,12 @@ class FrameSink:
             self.seconds["vtk"] += perf_counter() - t0
         self.next_frame = frame + 1
 
-    def write_series(self, samples: dict[str, list[tuple[float, np.ndarray]]]) -> None:
+    def write_series(self, samples: dict[str, list[tuple[float, np.ndarray]]], flush: bool = True) -> None:
         """Append samples, name -> [(time, value), ...] in time order, to the named series (sim.h5 only;
-        nothing without hdf5 output)."""
+        nothing without hdf5 output); ``flush=False`` when write_frame comes next (it flushes them too)."""
         if self._h5 is not None:
             t0 = perf_counter()
-            self._h5.write_series(samples)
+            self._h5.write_series(samples, flush)
             self.seconds["hdf5"] += perf_counter() - t0
 
     def _prepare(self, data: dict) -> dict[str, dict[str, np.ndarray]]:

@@ -506,9 +506,10 @@ class H5Writer:
                 v.attrs["unit"] = unit
             self._series[name] = (t, v, int(t.shape[0]))  # datasets and the samples they hold
 
-    def write_series(self, samples: dict) -> None:
+    def write_series(self, samples: dict, flush: bool = True) -> None:
         """Append samples, name -> [(time, value), ...], to the named series: the values first, flushed, then
-        the times, flushed (a reader that trusts len(time) never sees a missing value)."""
+        the times, flushed (a reader that trusts len(time) never sees a missing value). ``flush=False`` when a
+        frame is written next, whose flushes write these too."""
         f = self.f
         assert f is not None, "H5Writer not open"
         try:
@@ -520,7 +521,8 @@ class H5Writer:
                 )
                 vds.resize(n + k, axis=0)
                 vds.write_direct(vals, dest_sel=np.s_[n : n + k])
-            f.flush()
+            if flush:
+                f.flush()
             for name, rows in samples.items():
                 tds, vds, n = self._series[name]
                 k = len(rows)
@@ -529,7 +531,8 @@ class H5Writer:
                     np.asarray([t for t, _v in rows], dtype=np.float64), dest_sel=np.s_[n : n + k]
                 )
                 self._series[name] = (tds, vds, n + k)
-            f.flush()
+            if flush:
+                f.flush()
         except (OSError, RuntimeError) as exc:
             err = output_error(self.path, exc)
             self.abandon()

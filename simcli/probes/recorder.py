@@ -231,10 +231,9 @@ class ProbeRecorder:
         due = [i for i, k in enumerate(self.every) if step % k == 0]
         if due:
             self._sample(step, due)
-        if sink is not None and (
-            step % self.flush_every == 0 or step % self.ckpt_every == 0 or step >= self.n_steps
-        ):
-            self.flush(sink)
+        frame = step % self.flush_every == 0  # the runner writes (and flushes) a frame right after
+        if sink is not None and (frame or step % self.ckpt_every == 0 or step >= self.n_steps):
+            self.flush(sink, h5_flush=not frame)
 
     def _sample(self, step: int, due: list[int]) -> None:
         t0 = time.perf_counter()
@@ -257,7 +256,7 @@ class ProbeRecorder:
         self.samples += 1
         self.timings["probes_s"] += time.perf_counter() - t0
 
-    def flush(self, sink) -> None:
+    def flush(self, sink, h5_flush: bool = True) -> None:
         """Append the samples taken since the last flush to sim.h5 (at frame writes, checkpoints and the last
         step: one HDF5 flush per frame, not per sample; probes.csv has every sample at once)."""
         pending, self._pending = self._pending, []
@@ -267,5 +266,5 @@ class ProbeRecorder:
         batch: dict[str, list] = {}
         for name, t, v in pending:
             batch.setdefault(name, []).append((t, v))
-        sink.write_series(batch)
+        sink.write_series(batch, flush=h5_flush)
         self.timings["probes_s"] += time.perf_counter() - t0
