@@ -421,7 +421,16 @@ class Runner:
             )
         t0 = time.perf_counter()
         attrs = {"name": self.name, "dt": sim.dt, "dim": sim.dim}
-        sink.open(entity_meta, scene_text, attrs, resume_frame=(frame + 1) if ckpt is not None else None)
+        from simcli.probes.recorder import make_recorder  # probes: (None without any)
+
+        probes = make_recorder(scene, solvers, self.out, self.timings)
+        sink.open(
+            entity_meta,
+            scene_text,
+            attrs,
+            resume_frame=(frame + 1) if ckpt is not None else None,
+            **(probes.open(step if ckpt is not None else None) if probes else {}),
+        )
         # the stable substep for the frame-0 check and the fixed-substep warning (not asked again on a resumed
         # auto run, whose check counts then match an uninterrupted run's)
         stable = self._stable_dt(solvers, sim.dt) if ckpt is None or sim.substeps != "auto" else sim.dt
@@ -430,6 +439,8 @@ class Runner:
             # with auto_check: substep would make any initial speed look like a runaway)
             self._check_frame(solvers, 0, sim.dt / substeps_now if substeps_now else min(sim.dt, stable))
             sink.write_frame(0, 0, 0.0, self._frame_data())
+            if probes:
+                probes.sample(0, sink)
         self.timings["output_s"] += time.perf_counter() - t0
         self.timings["startup_s"] = time.perf_counter() - self.t_process
 
@@ -497,6 +508,8 @@ class Runner:
             step += 1
             if "time_to_first_step_s" not in self.timings:
                 self.timings["time_to_first_step_s"] = time.perf_counter() - self.t_process
+            if probes:
+                probes.sample(step, sink)
             if step % every == 0 or step == n_steps:
                 t0 = time.perf_counter()
                 self._check_frame(solvers, frame + 1, sub_dt, step=step)
@@ -531,6 +544,8 @@ class Runner:
                 self.info["checkpoint"] = str(p)
                 self.timings["checkpoint_s"] += time.perf_counter() - t0
                 if interrupted:
+                    if probes:
+                        probes.flush(sink)  # the samples since the last frame, up to the checkpoint's step
                     self._sink = None
                     sink.close()
                     self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)

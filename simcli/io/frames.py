@@ -86,7 +86,12 @@ class FrameSink:
         scene_text: str,
         attrs: dict | None = None,
         resume_frame: int | None = None,
+        series: dict[str, tuple[int, str]] | None = None,
+        series_until: float | None = None,
     ) -> None:
+        """``series``: named time series (probes) written to sim.h5 as ``/probes/<name>/time`` and ``/value``
+        by :meth:`write_series`, name -> (components, unit); on a resume their samples after time
+        ``series_until`` are dropped."""
         names = [e.name for e in entities]
         if len(set(names)) != len(names):
             raise ValueError(f"entity names must be unique, got {names}")
@@ -101,7 +106,7 @@ class FrameSink:
                 from .xdmf import XdmfWriter
 
                 self._h5 = H5Writer(self.h5_path)
-                self._h5.open(self.entities, scene_text, attrs or {}, resume_frame)
+                self._h5.open(self.entities, scene_text, attrs or {}, resume_frame, series, series_until)
                 self._xdmf = XdmfWriter(self.out_dir / "sim.xdmf", self.h5_path.name, self.entities)
                 self._xdmf.reset(self._h5.times())
                 t1 = perf_counter()
@@ -142,6 +147,14 @@ class FrameSink:
             self._vtk.write_frame(frame, t, prepared)
             self.seconds["vtk"] += perf_counter() - t0
         self.next_frame = frame + 1
+
+    def write_series(self, samples: dict[str, list[tuple[float, np.ndarray]]], flush: bool = True) -> None:
+        """Append samples, name -> [(time, value), ...] in time order, to the named series (sim.h5 only;
+        nothing without hdf5 output); ``flush=False`` when write_frame comes next (it flushes them too)."""
+        if self._h5 is not None:
+            t0 = perf_counter()
+            self._h5.write_series(samples, flush)
+            self.seconds["hdf5"] += perf_counter() - t0
 
     def _prepare(self, data: dict) -> dict[str, dict[str, np.ndarray]]:
         out = {}

@@ -255,6 +255,7 @@ class H5Writer:
         self._fd: int | None = None  # HDF5's file descriptor (sec2 driver)
         self._ident: tuple[int, int] | None = None  # (st_dev, st_ino) of the file we write
         self._size = 0  # its size after the last complete frame
+        self._series: dict[str, tuple] = {}  # probes: name -> (time, value, samples held)
 
     # -- faults -----------------------------------------------------------------------------
     def _kept(self) -> str:
@@ -359,6 +360,7 @@ class H5Writer:
             except OSError:
                 pass
         self._ds = []
+        self._series = {}
         self._time = self._step = None
         try:
             f.close()
@@ -370,7 +372,13 @@ class H5Writer:
 
     # ------------------------------------------------------------------------------------
     def open(
-        self, entities: list[EntityMeta], scene_text: str, attrs: dict, resume_frame: int | None
+        self,
+        entities: list[EntityMeta],
+        scene_text: str,
+        attrs: dict,
+        resume_frame: int | None,
+        series: dict[str, tuple[int, str]] | None = None,
+        series_until: float | None = None,
     ) -> None:
         from simcli import __version__
 
@@ -391,6 +399,9 @@ class H5Writer:
             self.f = f
             with guard(self.path):
                 self._reopen(f, resume_frame)
+        if series:
+            with guard(self.path):
+                self._open_series(f, series, series_until if resume_frame is not None else None)
         with guard(self.path):
             f.attrs["format"] = FORMAT
             f.attrs["format_version"] = FORMAT_VERSION
@@ -473,6 +484,66 @@ class H5Writer:
         self._time, self._step = t, s
         self._times = [float(x) for x in t[:k]]
 
+    def _open_series(self, f: h5py.File, series: dict, until: float | None) -> None:
+        """/probes/<name>/time (samples,) and /value (samples[, components]), float64; created before the
+        file switches to SWMR mode; on a resume cut back to the samples at times <= ``until``."""
+        g = f.require_group("probes")
+        for name, (comps, unit) in series.items():
+            shape = (comps,) if comps > 1 else ()
+            if name in g and until is not None:
+                t, v = g[name]["time"], g[name]["value"]
+                if v.shape[1:] != shape:
+                    raise OutputError(
+                        f"cannot resume: {self.path} probe {name} has shape {v.shape}, expected (n,) + {shape}"
+                    )
+                times = t[: min(t.shape[0], v.shape[0])]
+                k = int(np.count_nonzero(times <= until))
+                t.resize(k, axis=0)
+                v.resize(k, axis=0)
+            else:
+                if name in g:
+                    del g[name]
+                pg = g.create_group(name)
+                t = pg.create_dataset("time", shape=(0,), maxshape=(None,), chunks=(256,), dtype="f8")
+                t.attrs["unit"] = "s"
+                v = pg.create_dataset(
+                    "value", shape=(0,) + shape, maxshape=(None,) + shape, chunks=(256,) + shape, dtype="f8"
+                )
+                v.attrs["unit"] = unit
+            self._series[name] = (t, v, int(t.shape[0]))  # datasets and the samples they hold
+
+    def write_series(self, samples: dict, flush: bool = True) -> None:
+        """Append samples, name -> [(time, value), ...], to the named series: the values first, flushed, then
+        the times, flushed (a reader that trusts len(time) never sees a missing value). ``flush=False`` when a
+        frame is written next, whose flushes write these too."""
+        f = self.f
+        assert f is not None, "H5Writer not open"
+        try:
+            for name, rows in samples.items():
+                tds, vds, n = self._series[name]
+                k = len(rows)
+                vals = np.ascontiguousarray([v for _t, v in rows], dtype=np.float64).reshape(
+                    (k,) + vds.shape[1:]
+                )
+                vds.resize(n + k, axis=0)
+                vds.write_direct(vals, dest_sel=np.s_[n : n + k])
+            if flush:
+                f.flush()
+            for name, rows in samples.items():
+                tds, vds, n = self._series[name]
+                k = len(rows)
+                tds.resize(n + k, axis=0)
+                tds.write_direct(
+                    np.asarray([t for t, _v in rows], dtype=np.float64), dest_sel=np.s_[n : n + k]
+                )
+                self._series[name] = (tds, vds, n + k)
+            if flush:
+                f.flush()
+        except (OSError, RuntimeError) as exc:
+            err = output_error(self.path, exc)
+            self.abandon()
+            raise OutputError(f"{err}; {self._kept()}") from exc
+
     # ------------------------------------------------------------------------------------
     def write_frame(self, frame: int, step: int, time: float, data: dict[str, dict[str, np.ndarray]]) -> None:
         f = self.f
@@ -519,4 +590,4 @@ class H5Writer:
             err = output_error(self.path, exc, "close")
             self.abandon()
             raise OutputError(f"{err}; {self._kept()}") from exc
-        self.f, self._fd, self._ds = None, None, []
+        self.f, self._fd, self._ds, self._series = None, None, [], {}

@@ -23,7 +23,7 @@ from simcli.errors import EXIT_USAGE, OutputError, SimcliError
 
 LOCK_NAME = ".simcli.lock"
 # what a run writes into OUT (what --overwrite removes; nothing else in the folder is touched)
-RUN_FILES = ("run.json", "scene.yaml", "sim.h5", "sim.xdmf")
+RUN_FILES = ("run.json", "scene.yaml", "sim.h5", "sim.xdmf", "probes.csv")
 RUN_DIRS = ("vtk", "checkpoints")
 
 

@@ -155,6 +155,10 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             )
 
     _check_faces_and_sf(s, err)
+    if s.probes:
+        from simcli.probes.config import check_probes
+
+        check_probes(s, err)
     sph_rho = sorted({e.material.rho for e in s.entities if e.family == "SPH"})
     if sph.pressure_solver == "DFSPH" and not sph.clamp_pressure and len(sph_rho) > 1:
         err(

@@ -367,6 +367,8 @@ def _clean_loc(loc: tuple, data: Any) -> Path_:
             out.append(p)
             cur = cur[p]
             continue
+        if isinstance(cur, dict) and isinstance(p, str) and p == cur.get("type"):
+            continue  # a discriminated union's tag: the item's own type value ('point', 'total', ...)
         if (
             isinstance(cur, dict)
             and isinstance(p, str)

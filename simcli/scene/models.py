@@ -10,6 +10,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from simcli.probes.config import Probe
 from simcli.scene.materials import Material
 from simcli.scene.morphs import Morph, Region
 from simcli.solvers.fem.config import FEMOptions
@@ -303,6 +304,11 @@ class Scene(Strict):
     entities: list[Entity] = Field(default_factory=list, description="Simulated bodies.")
     output: Output = Field(default_factory=Output, description="What is written, where and how often.")
     checkpoint: Checkpoint = Field(default_factory=Checkpoint, description="Restart files.")
+    probes: list[Probe] = Field(
+        default_factory=list,
+        description="Time series measured while the run goes (point, height gauge, total), sampled every N "
+        "steps, written to OUT/probes.csv and sim.h5 /probes/<name>/time, /value.",
+    )
 
     @property
     def families(self) -> set[str]:

@@ -357,7 +357,8 @@ def status(sweep_file: Path, as_json: bool) -> None:
     metavar="PATH",
     help="Another column: a dotted path into run.json (throughput.steps_per_s) or "
     "measure.<quantity>.<entity>[.<axis>][.final|max|min|mean] (a verification measurement of "
-    "sim.h5, e.g. measure.com.jelly.1). Repeatable; adds to the sweep file's metrics.",
+    "sim.h5, e.g. measure.com.jelly.1) or probe.<name>[.x|y|z][.final|max|min|mean] (a probe's column of "
+    "probes.csv; every probe is collected unasked). Repeatable; adds to the sweep file's metrics.",
 )
 def collect(sweep_file: Path, out: str | None, metrics: tuple[str, ...]) -> None:
     """One CSV row per run: index, name, state, every varied value, and the chosen metrics."""

@@ -92,7 +92,8 @@ class Sweep(BaseModel):
         description="Extra columns for `simcli sweep collect`: dotted paths into run.json "
         "(throughput.steps_per_s), or measure.<quantity>.<entity>[.<axis>][.final|max|min|mean]: a "
         "verification measurement of sim.h5 (com, min_coord, max_speed, kinetic_energy, ...) reduced over "
-        "the frames (default: the last frame).",
+        "the frames (default: the last frame), or probe.<name>[.x|y|z][.final|max|min|mean]: a probe's "
+        "column of OUT/probes.csv (every probe is collected without being named).",
     )
 
 

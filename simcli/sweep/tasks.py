@@ -529,7 +529,8 @@ REDUCTIONS = ("final", "max", "min", "mean")
 METRIC_HELP = (
     "a dotted path into run.json (throughput.steps_per_s), or measure.<quantity>.<entity>[.<axis>]"
     "[.final|max|min|mean]: a verification measurement of sim.h5 (simcli.verify.measure: com, "
-    "min_coord, max_speed, kinetic_energy, ...), reduced over the frames (default: the last frame)"
+    "min_coord, max_speed, kinetic_energy, ...), reduced over the frames (default: the last frame), or "
+    "probe.<name>[.x|y|z][.final|max|min|mean]: a probe's column of probes.csv"
 )
 
 
@@ -581,13 +582,16 @@ def measure_value(out: Path, metric: str) -> float:
 def collect_rows(ls: LoadedSweep, metrics: list[str]) -> tuple[list[str], list[list], list[str]]:
     """(header, rows, warnings): index, name, state, exit code, the varied values, the default
     run.json metrics, then ``metrics``, one row per run (empty cells where a value is missing)."""
+    from simcli.probes import collect as probe_cols  # probe.<name>[.<comp>].<reduction> (OUT/probes.csv)
+
     keys = list(ls.runs[0].params) if ls.runs else []
-    columns = list(dict.fromkeys(DEFAULT_METRICS + list(metrics)))
+    auto = probe_cols.columns(ls.run_dir(r) for r in ls.runs)  # every probe is picked up unasked
+    columns = list(dict.fromkeys(DEFAULT_METRICS + list(metrics) + auto))
     notes: list[str] = []
     for m in metrics:
-        if m.startswith("measure."):
+        if m.startswith("measure.") or m.startswith("probe."):
             try:
-                parse_measure(m)
+                (parse_measure if m.startswith("measure.") else probe_cols.parse)(m)
             except ValueError as e:
                 notes.append(str(e))
     found: set[str] = set()
@@ -610,6 +614,11 @@ def collect_rows(ls: LoadedSweep, metrics: list[str]) -> tuple[list[str], list[l
                         v = measure_value(out, m)
                     except Exception as e:  # noqa: BLE001 - a missing entity, an unknown quantity, a damaged file
                         failed.setdefault(m, f"{type(e).__name__}: {e}")
+            elif m.startswith("probe."):
+                try:
+                    v = probe_cols.value(out, m)
+                except (KeyError, ValueError, OSError) as e:
+                    failed.setdefault(m, f"{type(e).__name__}: {e}")
             else:
                 _, v = _dig(rj, m)
                 if isinstance(v, (list, dict)):

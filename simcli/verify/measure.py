@@ -101,6 +101,21 @@ def kinetic_energy(f, entity, mass=1.0, **_):
     return f["time"][...], 0.5 * mass * (v * v).sum(axis=2).mean(axis=1)
 
 
+@measurement("probe")
+def probe(f, entity=None, name=None, axis=None, **_):
+    """A probe's time series as the run sampled it (sim.h5 /probes/<name>/time, /value; scene key `probes`);
+    ``axis`` picks a component of a vector probe (default: its magnitude). ``entity`` is not used."""
+    if name is None or "probes" not in f or name not in f["probes"]:
+        have = ", ".join(f["probes"].keys()) if "probes" in f else "none"
+        raise KeyError(f"probe '{name}' not in sim.h5 (probes: {have}); give params: {{name: <probe name>}}")
+    g = f["probes"][name]
+    n = min(g["time"].shape[0], g["value"].shape[0])
+    t, v = g["time"][:n], np.asarray(g["value"][:n], dtype=np.float64)
+    if v.ndim == 2:
+        v = v[:, axis] if axis is not None else np.linalg.norm(v, axis=1)
+    return t, v
+
+
 def run_measurement(h5_path, quantity: str, entity: str | None, axis: int | None, params: dict):
     if quantity not in MEASUREMENTS:
         raise KeyError(f"unknown measurement '{quantity}' (known: {', '.join(sorted(MEASUREMENTS))})")
