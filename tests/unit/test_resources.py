@@ -1,5 +1,6 @@
-"""Memory and disk estimates (simcli/resources.py): from the scene alone, refused with exit 65 naming the
-key to change, and never by allocating what they estimate."""
+"""Memory and disk estimates (simcli/scene/resources.py, summing each family's solvers/<family>/resources.py):
+from the scene alone, refused with exit 65 naming the key to change, and never by allocating what they
+estimate."""
 
 from __future__ import annotations
 
@@ -13,9 +14,9 @@ import pytest
 from click.testing import CliRunner
 
 from benchmarks.memory_estimates import CASES
-from simcli import resources
 from simcli.cli import cli
 from simcli.runner import run_scene
+from simcli.scene import resources
 from simcli.scene.loader import load_scene
 
 CLOTH = """\
