@@ -228,7 +228,8 @@ def table(rows: list[dict]) -> str:
         "output est. MB | output written MB |\n|---|---|---|---:|---:|---:|---:|---:|\n"
     )
     body = "".join(
-        f"| {r['family']} | {r['size']} | {r['elements']} | {r['estimate_mb']:,.0f} | {r['measured_mb']:,.0f} | "
+        f"| {r['family']} | {r['size']} | {r['elements']} | {r['estimate_mb']:,.0f} | "
+        f"{r['measured_mb']:,.0f} | "
         f"{r['ratio']:.2f} | {r['disk_estimate_mb']:,.1f} | {r['disk_measured_mb']:,.1f} |\n"
         for r in rows
     )

@@ -176,7 +176,8 @@ class Runner:
             try:
                 return self._run(solver_factory)
             except BaseException:
-                self._abort_sink()  # sim.h5 closed now (or abandoned if it cannot be), not at interpreter exit
+                # sim.h5 closed now (or abandoned if it cannot be), not at interpreter exit
+                self._abort_sink()
                 raise
         except _StartupInterrupted as e:
             print(f"simcli: {e}", file=sys.stderr, flush=True)

@@ -143,7 +143,8 @@ def memory_problem(est: Estimate, avail: int | None = None) -> tuple[tuple, str]
     advice = big.advice if big is not None else "make the scene smaller"
     return key, (
         f"scene too large: needs about {est.total / 2**30:.2f} GiB ({est.elements_text()}; "
-        f"{est.baseline / 2**20:.0f} MiB of it Python and Taichi) but only {avail / 2**30:.2f} GiB is available "
+        f"{est.baseline / 2**20:.0f} MiB of it Python and Taichi) but only {avail / 2**30:.2f} GiB is "
+        "available "
         f"(limit {MEMORY_FRACTION:.0%} of it); {advice}"
     )
 
@@ -167,7 +168,10 @@ def disk_problem(scene, scene_dir, out: Path, frames_done: int = 0) -> tuple[boo
         f"the output needs about {need / 2**30:.2f} GiB ({frames:,} frames of {est.elements_text()}, "
         f"formats {', '.join(scene.output.formats)}) and {out} has {free / 2**30:.2f} GiB free"
     )
-    keys = "raise output.every, shorten sim.duration (or sim.steps), drop a format from output.formats or write fewer output.fields"
+    keys = (
+        "raise output.every, shorten sim.duration (or sim.steps), drop a format from output.formats or "
+        "write fewer output.fields"
+    )
     if need > DISK_FRACTION * free:
         return True, f"output.every: {what}; {keys}, or choose another folder with -o"
     return False, f"{what}: more than {DISK_WARN_FRACTION:.0%} of the free space"

@@ -26,7 +26,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from simcli.errors import SceneError
 
 REFERENCE_VAR = "${REFERENCE}"
-"""In ``reference.table``: the folder of the tables shipped with simcli (``simcli/verify/reference_data/``)."""
+"""In ``reference.table``: the folder of the tables shipped with simcli
+(``simcli/verify/reference_data/``)."""
 
 
 class _M(BaseModel):

@@ -201,7 +201,8 @@ def test_absurd_spacing_is_too_large_not_an_overflow(tmp_path, solvers, material
 
 def test_checkpoints_count_the_state_copy(tmp_path):
     """With checkpoint.every > 0 the estimate holds the checkpoint's numpy copy of the state (MPM, 3D, f32:
-    x, v, C, H and F in float64 plus Jp: 176 bytes a particle), and the disk estimate keeps checkpoint.keep."""
+    x, v, C, H and F in float64 plus Jp: 176 bytes a particle), and the disk estimate keeps
+    checkpoint.keep."""
     make = CASES["MPM"][0]
     plain = _estimate(tmp_path, make(100))
     text = make(100).replace("output: {every: 1,", "checkpoint: {every: 2, keep: 3}\noutput: {every: 1,")
