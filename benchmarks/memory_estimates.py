@@ -1,7 +1,7 @@
 """Memory and disk estimates against measured peaks: regenerates the table of docs/PERFORMANCE.md ("Memory").
 
 For each family, scenes of three sizes (about 10x apart) run a few steps with ``simcli run`` under
-``/usr/bin/time -v``; the table compares the estimate of simcli.resources (what `validate` and `run`
+``/usr/bin/time -v``; the table compares the estimate of simcli.scene.resources (what `validate` and `run`
 refuse with) with the measured peak resident set size, and the estimated output size with the bytes the
 run wrote. Runs are one at a time (the machine is shared).
 
@@ -171,8 +171,8 @@ def _du(path: Path) -> int:
 
 def estimate(family: str, size, d: Path):
     """(memory estimate, disk estimate, scene file) of a case, from the current code."""
-    from simcli.resources import estimate_disk, estimate_memory
     from simcli.scene.loader import load_scene
+    from simcli.scene.resources import estimate_disk, estimate_memory
 
     d.mkdir(parents=True, exist_ok=True)
     scene = d / "scene.yaml"
@@ -228,7 +228,8 @@ def table(rows: list[dict]) -> str:
         "output est. MB | output written MB |\n|---|---|---|---:|---:|---:|---:|---:|\n"
     )
     body = "".join(
-        f"| {r['family']} | {r['size']} | {r['elements']} | {r['estimate_mb']:,.0f} | {r['measured_mb']:,.0f} | "
+        f"| {r['family']} | {r['size']} | {r['elements']} | {r['estimate_mb']:,.0f} | "
+        f"{r['measured_mb']:,.0f} | "
         f"{r['ratio']:.2f} | {r['disk_estimate_mb']:,.1f} | {r['disk_measured_mb']:,.1f} |\n"
         for r in rows
     )

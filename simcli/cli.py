@@ -77,7 +77,8 @@ def run(
     signals = RunSignals().install()
     if resume and overwrite:
         _err(
-            "simcli: error: --resume continues the run in the output folder, --overwrite replaces it: give one"
+            "simcli: error: --resume continues the run in the output folder, --overwrite replaces it: "
+            "give one"
         )
         sys.exit(EXIT_USAGE)
     from simcli.scene.loader import load_scene
@@ -143,7 +144,8 @@ def validate(scenes: tuple[Path, ...], sets: tuple[str, ...], quiet: bool) -> No
         if not quiet:
             s = loaded.scene
             _err(
-                f"{path}: ok ({plural(len(s.entities), 'entity')}, dim {s.sim.dim}, {plural(s.sim.n_steps, 'step')})"
+                f"{path}: ok ({plural(len(s.entities), 'entity')}, dim {s.sim.dim}, "
+                f"{plural(s.sim.n_steps, 'step')})"
             )
     sys.exit(EXIT_INVALID_SCENE if bad else EXIT_OK)
 

@@ -176,7 +176,8 @@ class Runner:
             try:
                 return self._run(solver_factory)
             except BaseException:
-                self._abort_sink()  # sim.h5 closed now (or abandoned if it cannot be), not at interpreter exit
+                # sim.h5 closed now (or abandoned if it cannot be), not at interpreter exit
+                self._abort_sink()
                 raise
         except _StartupInterrupted as e:
             print(f"simcli: {e}", file=sys.stderr, flush=True)
@@ -301,7 +302,7 @@ class Runner:
             self._resume_from = str(path)
             self._check_resume_scene(meta, path)
         self._owns_out = True  # (a refused --resume leaves the previous run's run.json as it was)
-        from simcli.resources import disk_problem  # the output's size against the folder's free space
+        from simcli.scene.resources import disk_problem  # the output's size against the folder's free space
 
         found = disk_problem(scene, self.loaded.scene_dir, self.out, int(ckpt[1]["frame"]) + 1 if ckpt else 0)
         if found and found[0]:

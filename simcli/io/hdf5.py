@@ -179,7 +179,8 @@ def extend_to_eoa(path: Path | str) -> tuple[int, int] | None:
         os.truncate(path, end)
     except OSError as e:
         raise OutputError(
-            f"{path}: {sb['size']} bytes, shorter than the {end} HDF5 had allocated, and it cannot be extended: "
+            f"{path}: {sb['size']} bytes, shorter than the {end} HDF5 had allocated, and it cannot be "
+            "extended: "
             f"{e.strerror or e}"
         ) from None
     return sb["size"], end
@@ -309,7 +310,8 @@ class H5Writer:
             )
         if st.st_size < self._size:
             raise OutputError(
-                f"{self.path} was truncated by another process while this run was writing it ({self._size} -> "
+                f"{self.path} was truncated by another process while this run was writing it "
+                f"({self._size} -> "
                 f"{st.st_size} bytes): the frames in it are lost (the files under vtk/, if written, keep "
                 f"theirs); the run stops here"
             )

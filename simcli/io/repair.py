@@ -96,7 +96,8 @@ def repair(out: Path) -> str:
             # the missing bytes only ever held the frame being written; every frame is checked below against
             # the part that was on disk
             did.append(
-                f"extended it from {grown[0]} to {grown[1]} bytes: it ended before the space HDF5 had allocated (a write cut short, or the file truncated)"
+                f"extended it from {grown[0]} to {grown[1]} bytes: it ended before the space HDF5 had "
+                "allocated (a write cut short, or the file truncated)"
             )
         if clear_status_flags(h5):
             did.append("cleared the open-for-writing flag")

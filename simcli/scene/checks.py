@@ -101,7 +101,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             err(mpath + ("type",), "SF.Smoke morphs are Box, Sphere or Cylinder (Mesh is not available)")
             continue
         if e.family == "FEM":  # 3D only; TetGen needed for Sphere, Cylinder and surface meshes
-            from simcli.solvers.fem.mesh import check_entity as fem_check
+            from simcli.solvers.fem.checks import check_entity as fem_check
 
             found = fem_check(e, dim, loaded.scene_dir)
             for p, msg in found:
@@ -129,7 +129,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             continue
         try:
             from simcli.geometry.sampling import morph_bounds
-            from simcli.resources import particle_count as estimate_particle_count  # no int64 overflow
+            from simcli.scene.estimate import particle_count as estimate_particle_count  # no int64 overflow
 
             mlo, mhi = morph_bounds(m, loaded.scene_dir)
             if e.family == "MPM":
@@ -137,7 +137,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
             elif e.family == "SPH":
                 n_sph += estimate_particle_count(m, sph.particle_size, dim, loaded.scene_dir)
             elif e.family == "FEM":
-                from simcli.solvers.fem.mesh import estimate_counts
+                from simcli.geometry.tetmesh import estimate_counts
 
                 nv, nt = estimate_counts(e, s.solvers.fem, loaded.scene_dir)
                 fem_v, fem_t = fem_v + nv, fem_t + nt
@@ -174,8 +174,8 @@ def check_scene(loaded: LoadedScene) -> list[str]:
     if errors:
         return sort_lines(errors)
 
-    # memory estimate, before anything is allocated (simcli/resources.py: counts from the morphs alone)
-    from simcli.resources import estimate_memory, memory_problem
+    # memory estimate, before anything is allocated (scene/resources.py: counts from the morphs alone)
+    from simcli.scene.resources import estimate_memory, memory_problem
 
     found = memory_problem(estimate_memory(s, loaded.scene_dir))
     if found:

@@ -22,7 +22,7 @@ def parse_set(text: str) -> tuple[tuple, Any]:
     key, raw = text.split("=", 1)
     path = split_path(key.strip())
     from simcli.errors import SceneError
-    from simcli.scene.loader import parse_yaml_any
+    from simcli.scene.yaml_reader import parse_yaml_any
 
     try:
         value = parse_yaml_any(raw, "value").data if raw.strip() != "" else None

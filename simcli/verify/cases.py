@@ -26,7 +26,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from simcli.errors import SceneError
 
 REFERENCE_VAR = "${REFERENCE}"
-"""In ``reference.table``: the folder of the tables shipped with simcli (``simcli/verify/reference_data/``)."""
+"""In ``reference.table``: the folder of the tables shipped with simcli
+(``simcli/verify/reference_data/``)."""
 
 
 class _M(BaseModel):
@@ -129,6 +130,20 @@ class Case(_M):
         return (self.path.parent / self.scene).resolve()
 
 
+def reference_dir() -> Path:
+    """The published tables the cases compare against, shipped with simcli as package data
+    (``simcli/verify/reference_data/``, each file's source in its README); ``${REFERENCE}`` in a
+    case's ``reference.table``."""
+    return Path(__file__).resolve().parent / "reference_data"
+
+
+def table_path(case: Case) -> Path:
+    """The file a case's ``reference.table`` names: ``${REFERENCE}/<file>`` (the shipped tables), or
+    a path relative to the case file."""
+    p = case.reference.table.replace(REFERENCE_VAR, str(reference_dir()))
+    return Path(p) if Path(p).is_absolute() else case.path.parent / p
+
+
 def default_root() -> Path:
     return Path(__file__).resolve().parents[2] / "configs" / "validation"
 
@@ -152,8 +167,6 @@ def load_case(path: Path) -> Case:
     if not case.scene_path.exists():
         raise SceneError([f"{path}:1:1: scene: file not found: {case.scene_path}"])
     if case.reference.table is not None:
-        from simcli.verify.reference import table_path
-
         table = table_path(case)
         if not table.is_file():
             where = loc.where(("reference", "table"))

@@ -7,7 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from simcli.verify.cases import REFERENCE_VAR, Case, ErrorSpec, Reference
+# reference_dir lives in cases.py with table_path (load_case checks that a case's table exists)
+from simcli.verify.cases import (
+    Case,
+    ErrorSpec,
+    Reference,
+    reference_dir,  # noqa: F401 - re-exported
+    table_path,
+)
 
 _SAFE = {
     "np": np,
@@ -20,20 +27,6 @@ _SAFE = {
     "log": np.log,
     "abs": np.abs,
 }
-
-
-def reference_dir() -> Path:
-    """The published tables the cases compare against, shipped with simcli as package data
-    (``simcli/verify/reference_data/``, each file's source in its README); ``${REFERENCE}`` in a
-    case's ``reference.table``."""
-    return Path(__file__).resolve().parent / "reference_data"
-
-
-def table_path(case: Case) -> Path:
-    """The file a case's ``reference.table`` names: ``${REFERENCE}/<file>`` (the shipped tables), or
-    a path relative to the case file."""
-    p = case.reference.table.replace(REFERENCE_VAR, str(reference_dir()))
-    return Path(p) if Path(p).is_absolute() else case.path.parent / p
 
 
 def _eval(expr: str, env: dict):

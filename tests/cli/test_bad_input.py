@@ -63,7 +63,10 @@ def test_small_aliases_still_work(tmp_path):
     text = GOOD.replace(
         "material: {type: MPM.Elastic, E: 3.0e5, nu: 0.2, rho: 1000}", "material: &m {type: MPM.Elastic}"
     )
-    text += "  - name: jelly2\n    material: *m\n    morph: {type: Box, lower: [0.2, 0.2, 0.3], upper: [0.3, 0.3, 0.4]}\n"
+    text += (
+        "  - name: jelly2\n    material: *m\n"
+        "    morph: {type: Box, lower: [0.2, 0.2, 0.3], upper: [0.3, 0.3, 0.4]}\n"
+    )
     code, out, _ = _validate(tmp_path, text)
     assert code == 0, out
 
@@ -246,7 +249,7 @@ def test_run_never_starts_more_threads_than_cores(tmp_path):
             entities:
               - {name: b, material: {type: MPM.Elastic}, morph: {type: Box, lower: [0.4, 0.4], upper: [0.6, 0.6]}}
             output: {every: 1, formats: [hdf5]}
-            """
+            """  # noqa: E501 - a scene line as a user writes it
         )
     )
     out = tmp_path / "out"

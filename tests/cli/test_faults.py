@@ -120,7 +120,8 @@ def test_a_finished_folder_needs_overwrite_or_resume(tmp_path):
     assert (out / "sim.h5").stat().st_mtime_ns == mtime and _rj(out) == info
     r = _run(["run", str(scene), "-o", str(out), "-q", "--overwrite", "--resume"])
     assert r.returncode == 2 and "give one" in r.stderr
-    # --overwrite replaces it: nothing of the previous run survives (a stale checkpoint would be resumed later)
+    # --overwrite replaces it: nothing of the previous run survives (a stale checkpoint would be resumed
+    # later)
     stale = out / "checkpoints" / "ckpt_00000099.npz"
     stale.parent.mkdir(exist_ok=True)
     stale.write_bytes(b"old")

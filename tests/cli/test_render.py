@@ -356,7 +356,7 @@ entities:
   - {name: blob, material: {type: MPM.Elastic, E: 1.0e4, rho: 1000}, morph: {type: Box, lower: [0.35, 0.4], upper: [0.65, 0.7]},
      velocity: [0, -1]}
 output: {every: 2, formats: [hdf5]}
-""",
+""",  # noqa: E501 - scene lines as a user writes them
     "pbd_3d": """
 sim: {dim: 3, dt: 4.0e-3, substeps: 2, steps: 6}
 domain: {lower: [-0.5, -0.5, 0], upper: [0.5, 0.5, 1]}
@@ -364,7 +364,7 @@ colliders: [{type: Sphere, center: [0, 0, 0.2], radius: 0.15}]
 entities:
   - {name: cloth, material: {type: PBD.Cloth, rho: 0.2}, morph: {type: Rectangle, center: [0, 0, 0.5], size: [0.5, 0.5], resolution: 8}}
 output: {every: 2, formats: [hdf5]}
-""",
+""",  # noqa: E501 - scene lines as a user writes them
     "mpm_3d": """
 sim: {dim: 3, dt: 2.0e-3, substeps: 4, steps: 4}
 domain: {lower: [0, 0, 0], upper: [1, 1, 1]}
@@ -373,7 +373,7 @@ colliders: [{type: Box, lower: [0.1, 0.1, 0.0], upper: [0.3, 0.3, 0.2]}]
 entities:
   - {name: sand, material: {type: MPM.Sand, E: 1.0e5, rho: 1600}, morph: {type: Box, lower: [0.4, 0.4, 0.3], upper: [0.6, 0.6, 0.5]}}
 output: {every: 2, formats: [hdf5]}
-""",
+""",  # noqa: E501 - scene lines as a user writes them
     "sph_2d": """
 sim: {dim: 2, dt: 1.0e-3, substeps: auto, steps: 4}
 domain: {lower: [0, 0], upper: [1, 1]}
@@ -381,7 +381,7 @@ solvers: {sph: {particle_size: 0.02}}
 entities:
   - {name: water, material: {type: SPH.Liquid, rho: 1000}, morph: {type: Box, lower: [0.4, 0.3], upper: [0.6, 0.5]}}
 output: {every: 2, formats: [hdf5]}
-""",
+""",  # noqa: E501 - scene lines as a user writes them
     "sph_3d": """
 sim: {dim: 3, dt: 1.0e-3, substeps: auto, steps: 4}
 domain: {lower: [0, 0, 0], upper: [1, 1, 1]}
@@ -389,7 +389,7 @@ solvers: {sph: {particle_size: 0.04}}
 entities:
   - {name: water, material: {type: SPH.Liquid, rho: 1000}, morph: {type: Box, lower: [0.4, 0.4, 0.3], upper: [0.6, 0.6, 0.5]}}
 output: {every: 2, formats: [hdf5]}
-""",
+""",  # noqa: E501 - scene lines as a user writes them
     "fem_3d": """
 sim: {dim: 3, dt: 2.0e-3, substeps: auto, steps: 4}
 domain: {lower: [0, 0, 0], upper: [1, 1, 1]}
@@ -397,7 +397,7 @@ solvers: {fem: {integrator: explicit, resolution: 20}}
 entities:
   - {name: block, material: {type: FEM.Elastic, E: 1.0e4, rho: 1000}, morph: {type: Box, lower: [0.4, 0.4, 0.3], upper: [0.6, 0.6, 0.5]}}
 output: {every: 2, formats: [hdf5]}
-""",
+""",  # noqa: E501 - scene lines as a user writes them
     "sf_2d": """
 sim: {dim: 2, dt: 0.02, substeps: 1, steps: 6}
 domain: {lower: [0, 0], upper: [1, 1], faces: {y+: {type: open}}}

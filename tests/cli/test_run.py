@@ -89,9 +89,10 @@ def test_bad_scene_exit_65_and_output_error_74(tmp_path):
 
 
 def test_numerical_guard_exit_70_keeps_frames(tmp_path):
-    # one substep per step and a fast impact (12 m/s, 1.5 cells per substep at the start): blows up at run time;
-    # the guard names the entity and what to change. (A fixed substep far over the stability limit at rest, as
-    # E: 1e9 here was, is refused by validate before the run: docs/LIMITS.md; a fast impact it cannot foresee.)
+    # one substep per step and a fast impact (12 m/s, 1.5 cells per substep at the start): blows up at run
+    # time; the guard names the entity and what to change. (A fixed substep far over the stability limit at
+    # rest, as E: 1e9 here was, is refused by validate before the run: docs/LIMITS.md; a fast impact it
+    # cannot foresee.)
     text = SCENE.replace("substeps: 8", "substeps: 1").replace(
         "velocity: [0.5, 0.0]", "velocity: [12.0, 0.0]"
     )

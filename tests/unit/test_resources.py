@@ -1,5 +1,6 @@
-"""Memory and disk estimates (simcli/resources.py): from the scene alone, refused with exit 65 naming the
-key to change, and never by allocating what they estimate."""
+"""Memory and disk estimates (simcli/scene/resources.py, summing each family's solvers/<family>/resources.py):
+from the scene alone, refused with exit 65 naming the key to change, and never by allocating what they
+estimate."""
 
 from __future__ import annotations
 
@@ -13,9 +14,9 @@ import pytest
 from click.testing import CliRunner
 
 from benchmarks.memory_estimates import CASES
-from simcli import resources
 from simcli.cli import cli
 from simcli.runner import run_scene
+from simcli.scene import resources
 from simcli.scene.loader import load_scene
 
 CLOTH = """\
@@ -200,7 +201,8 @@ def test_absurd_spacing_is_too_large_not_an_overflow(tmp_path, solvers, material
 
 def test_checkpoints_count_the_state_copy(tmp_path):
     """With checkpoint.every > 0 the estimate holds the checkpoint's numpy copy of the state (MPM, 3D, f32:
-    x, v, C, H and F in float64 plus Jp: 176 bytes a particle), and the disk estimate keeps checkpoint.keep."""
+    x, v, C, H and F in float64 plus Jp: 176 bytes a particle), and the disk estimate keeps
+    checkpoint.keep."""
     make = CASES["MPM"][0]
     plain = _estimate(tmp_path, make(100))
     text = make(100).replace("output: {every: 1,", "checkpoint: {every: 2, keep: 3}\noutput: {every: 1,")

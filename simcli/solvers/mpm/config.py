@@ -70,7 +70,8 @@ class MPMOptions(_Options):
         le=1,
         description="transfer: flip only: weight of FLIP against PIC [-]; 1 is pure FLIP (least damping, "
         "keeps particle noise), 0 is pure PIC (most damping). The PIC share damps every substep: with many "
-        "substeps per second use 1 for energy-conserving elastodynamics (on Sulsky's disks 0.999 keeps 91% where 1 keeps 97%).",
+        "substeps per second use 1 for energy-conserving elastodynamics (on Sulsky's disks 0.999 keeps 91% "
+        "where 1 keeps 97%).",
     )
 
     @property

@@ -256,9 +256,10 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
     try:
         # validate never builds a large body: beyond VALIDATE_BUILD_LIMIT vertices only the counts (for the
         # memory estimate) and the bounds come from the morph; the run builds it after the estimate passed
-        from simcli.resources import pbd_entity_counts
+        from simcli.solvers.pbd.resources import pbd_entity_counts
 
-        if pbd_entity_counts(e, opts or PBDOptions(), scene_dir)[0] > VALIDATE_BUILD_LIMIT:
+        opts = opts or PBDOptions()
+        if pbd_entity_counts(e, opts, scene_dir)[0] > VALIDATE_BUILD_LIMIT:
             x = _morph_extent(m, scene_dir)
         else:
             from simcli.solvers.pbd.topology import mesh_for_entity

@@ -219,15 +219,13 @@ def tet_volumes(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", np.cross(x[tets[:, 1]] - a, x[tets[:, 2]] - a), x[tets[:, 3]] - a) / 6.0
 
 
-def mesh_for_entity(e, scene_dir=None, opts=None) -> PBDMesh:
+def mesh_for_entity(e, scene_dir, opts) -> PBDMesh:
     """The PBD mesh of an entity: a cloth sheet (Rectangle, open or closed triangle Mesh), a rod (Line),
-    a tetrahedral soft body (PBD.Elastic solids, meshed as FEM does) or free particles (PBD.Particle)."""
+    a tetrahedral soft body (PBD.Elastic solids, meshed as FEM does) or free particles (PBD.Particle).
+    opts: the scene's solvers.pbd (the caller passes it: this module does not import config.py, which
+    imports it)."""
     m = e.morph
     mat = e.material
-    if opts is None:
-        from simcli.solvers.pbd.config import PBDOptions
-
-        opts = PBDOptions()
     if mat.type in ("PBD.Particle", "PBD.Liquid"):
         from simcli.geometry.sampling import sample_morph
 

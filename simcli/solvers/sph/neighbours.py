@@ -23,19 +23,13 @@ boundary particles), rebuilt every substep by a counting sort that also reorders
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+# numpy only, used by the Taichi-free memory estimate too: it lives in the family's resources.py
+from simcli.solvers.sph.resources import neighbour_capacity  # noqa: F401 - re-exported (solver.py)
 
 CELLS_PER_SUPPORT = 2
 BLOCK = 256  # cells per block of the prefix sum
-
-
-def neighbour_capacity(dim: int, support_factor: float) -> int:
-    """Neighbour-list slots per particle: twice the neighbours of a liquid at rest density (pi f^2 in 2D,
-    4/3 pi f^3 in 3D for a support of f particle sizes), rounded up to a multiple of 8: 32 and 72 at f = 2."""
-    rest = math.pi * support_factor**2 if dim == 2 else 4.0 / 3.0 * math.pi * support_factor**3
-    return int(8 * math.ceil(2.0 * rest / 8.0))
 
 
 class CellGrid:

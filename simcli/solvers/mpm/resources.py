@@ -1,0 +1,62 @@
+"""MPM's memory estimate from the scene alone (no Taichi): its Part of ``simcli.scene.resources``."""
+
+from __future__ import annotations
+
+import math
+
+from simcli.scene.estimate import MIB, Part, cnt, fp_factor, out_floats, particle_count, threads_for
+
+# Peak RSS of `simcli run` with a tiny MPM scene (simcli.scene.resources: the baseline)
+BASELINE = 222 * MIB
+FALLBACK = (
+    ("solvers", "mpm", "grid_density"),
+    "lower solvers.mpm.grid_density (or raise solvers.mpm.particle_size)",
+)
+DEFAULT_FIELDS = ["position", "velocity"]
+
+
+def baseline(scene) -> int:
+    return BASELINE
+
+
+# MPM, per particle at f32: x, v (dim), C, F (dim^2), mass, volume, material id, fixed flag; the laws'
+# state (plastic J, a warm-start rotation: up to 5); the five derived output fields (J, stress, pressure,
+# Jp, energy) once written. Host: the sampled bodies (x, v f64, volume, mass f64, fixed), the upload's
+# f32 copies, each frame's output copies. Host factor measured.
+def _mpm_particle_bytes(dim: int, fp: int) -> int:
+    device = 4 * fp * (2 * dim + 2 * dim * dim + 2 + 5 + 5) + 4 + 1
+    host = 8 * (2 * dim + 2) + 1 + 4 * fp * (2 * dim + dim * dim)
+    return device + host
+
+
+MPM_HOST_FACTOR = 1.05
+# per grid node: T private copies of (momentum dim, mass, fixed mass) when they fit in 1 GiB, the new
+# velocity (dim) and the boundary's per-node flags
+MPM_PRIVATE_GRID_BYTES = 1 << 30
+
+
+def estimate(scene, scene_dir, lo, hi) -> Part | None:
+    dim = scene.sim.dim
+    mpm = scene.solvers.mpm
+    fp = fp_factor(scene)
+    n = sum(particle_count(e.morph, mpm.spacing, dim, scene_dir) for e in scene.entities if e.family == "MPM")
+    nodes = math.prod(
+        cnt(math.ceil(min((hi[a] - lo[a]) * mpm.grid_density, 1e30) - 1e-6)) + 7 for a in range(dim)
+    )
+    gdim = dim + 2
+    copy = nodes * gdim * 4 * fp
+    t = threads_for(scene)
+    copies = t if t * copy <= MPM_PRIVATE_GRID_BYTES and scene.sim.backend in ("cpu", "auto") else 1
+    grid = copies * copy + nodes * (dim * 4 * fp + 4)
+    b = int(n * _mpm_particle_bytes(dim, fp) * MPM_HOST_FACTOR) + grid
+    return Part(
+        "MPM",
+        f"{n:,} particles, {nodes:,} grid nodes x {copies} copies",
+        b,
+        ("solvers", "mpm", "grid_density"),
+        "lower solvers.mpm.grid_density (or raise solvers.mpm.particle_size), or shrink the domain",
+        out_bytes=n * out_floats(scene, DEFAULT_FIELDS, dim) * 4,  # output is float32 at either precision
+        # x, v, C, H (the solver's precision), F in float64, the laws' state (Jp, ...): measured 447 MB at
+        # 2.6 M particles (3D, f32), 176 B each by this count
+        state_bytes=n * (4 * fp * (2 * dim + 2 * dim * dim + 2) + 8 * dim * dim),
+    )
