@@ -496,7 +496,8 @@ class H5Writer:
                 t, v = g[name]["time"], g[name]["value"]
                 if v.shape[1:] != shape:
                     raise OutputError(
-                        f"cannot resume: {self.path} probe {name} has shape {v.shape}, expected (n,) + {shape}"
+                        f"cannot resume: {self.path} probe {name} has shape {v.shape}, expected "
+                        f"(n,) + {shape}"
                     )
                 times = t[: min(t.shape[0], v.shape[0])]
                 k = int(np.count_nonzero(times <= until))

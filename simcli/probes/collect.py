@@ -85,7 +85,8 @@ def _series(cols: dict, name: str, comp: str | None) -> list[float]:
 
 
 def value(out: Path, metric: str) -> float | None:
-    """One probe metric of the run in ``out``; None when the run has no probes.csv. Raises KeyError for a probe
+    """One probe metric of the run in ``out``; None when the run has no probes.csv. Raises KeyError for a
+    probe
     it does not have, ValueError for a malformed metric."""
     name, comp, red = parse(metric)
     path = Path(out) / CSV_NAME

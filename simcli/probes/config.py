@@ -70,7 +70,8 @@ class _Probe(BaseModel):
     def _name(cls, v: str) -> str:
         if not re.match(NAME_PATTERN, v):
             raise ValueError(
-                f"probe names are letters, digits, _ and - and start with a letter or _ (a column of probes.csv, "
+                f"probe names are letters, digits, _ and - and start with a letter or _ (a column "
+                f"of probes.csv, "
                 f"a group of sim.h5); got {v!r}"
             )
         return v
@@ -79,9 +80,12 @@ class _Probe(BaseModel):
 class PointProbe(_Probe):
     type: Literal["point"]
     quantity: Literal["pressure", "velocity", "density"] = Field(
-        description="pressure [Pa] (SPH, MPM, SF), velocity [m/s] (SPH, MPM, PBD.Liquid/Particle, SF) or density "
-        "[kg/m^3] (SPH, MPM, PBD.Liquid) at the point: a kernel-weighted average of the particles within reach "
-        "(SPH: the SPH kernel and support radius; MPM, PBD: a cubic spline of radius 2 particle spacings), or "
+        description="pressure [Pa] (SPH, MPM, SF), velocity [m/s] (SPH, MPM, PBD.Liquid/Particle, "
+        "SF) or density "
+        "[kg/m^3] (SPH, MPM, PBD.Liquid) at the point: a kernel-weighted average of the particles "
+        "within reach "
+        "(SPH: the SPH kernel and support radius; MPM, PBD: a cubic spline of radius 2 particle "
+        "spacings), or "
         "the SF grid interpolated trilinearly. NaN while no particle is within reach (a dry point)."
     )
     position: list[float] = Field(
@@ -95,7 +99,8 @@ class PointProbe(_Probe):
 class HeightProbe(_Probe):
     type: Literal["height"]
     position: list[float] = Field(
-        description="Coordinates [m] of the gauge along the axes other than `axis`, in x, y, z order ([x, y] in "
+        description="Coordinates [m] of the gauge along the axes other than `axis`, in x, y, z "
+        "order ([x, y] in "
         "3D with axis z, [x] in 2D with axis y); inside the domain."
     )
     axis: Literal["x", "y", "z"] | None = Field(
@@ -104,9 +109,11 @@ class HeightProbe(_Probe):
     )
     entity: str = Field(
         "*",
-        description="Entity read (any SPH, MPM, PBD.Liquid or PBD.Particle entity), or '*' (default): every liquid "
+        description="Entity read (any SPH, MPM, PBD.Liquid or PBD.Particle entity), or '*' "
+        "(default): every liquid "
         "(SPH.Liquid, MPM.Liquid, PBD.Liquid). The "
-        "height [m] is the coordinate of the highest particle within one particle spacing of the gauge's line "
+        "height [m] is the coordinate of the highest particle within one particle spacing of the "
+        "gauge's line "
         "plus half a spacing; NaN while the column is dry.",
     )
 
@@ -114,8 +121,10 @@ class HeightProbe(_Probe):
 class TotalProbe(_Probe):
     type: Literal["total"]
     quantity: Literal["kinetic_energy", "elastic_energy", "mass", "momentum", "com"] = Field(
-        description="kinetic_energy [J], mass [kg], momentum [kg m/s] (dim components), com (centre of mass [m], dim "
-        "components) of MPM, SPH, PBD and FEM entities; elastic_energy [J] of MPM entities (per metre of depth "
+        description="kinetic_energy [J], mass [kg], momentum [kg m/s] (dim components), com (centre "
+        "of mass [m], dim "
+        "components) of MPM, SPH, PBD and FEM entities; elastic_energy [J] of MPM entities (per "
+        "metre of depth "
         "in 2D)."
     )
     entity: str = Field("*", description="Entity name, or '*' (default): every entity that carries mass.")
@@ -162,7 +171,8 @@ LIQUID_TYPES = ("SPH.Liquid", "MPM.Liquid", "PBD.Liquid")
 
 
 def default_entity(entity, probe) -> bool:
-    """Whether ``entity: "*"`` includes ``entity``: every entity that answers, except that a height gauge reads
+    """Whether ``entity: "*"`` includes ``entity``: every entity that answers, except that a height gauge
+    reads
     the liquids only (a floating block or a sand heap is read by naming it)."""
     if probe.type == "height":
         return entity.material.type in LIQUID_TYPES
@@ -218,7 +228,8 @@ def check_probes(scene, err) -> None:
                 if out:
                     err(
                         base + ("position",),
-                        f"probe '{p.name}' at {_fmt(p.position)} is outside the domain {_fmt(lo)}..{_fmt(hi)} "
+                        f"probe '{p.name}' at {_fmt(p.position)} is outside the domain "
+                        f"{_fmt(lo)}..{_fmt(hi)} "
                         f"along {', '.join('xyz'[a] for a in out)}; move it inside",
                     )
         elif p.type == "height":
@@ -234,15 +245,18 @@ def check_probes(scene, err) -> None:
                 err(
                     base + ("position",),
                     f"a height gauge's position gives the {dim - 1} coordinate(s) along "
-                    f"{', '.join('xyz'[a] for a in others)} (not along its axis {'xyz'[ax]}); got {len(p.position)}",
+                    f"{', '.join('xyz'[a] for a in others)} (not along its axis {'xyz'[ax]}); got "
+                    f"{len(p.position)}",
                 )
             else:
                 out = [a for a, c in zip(others, p.position) if not lo[a] <= c <= hi[a]]
                 if out:
                     err(
                         base + ("position",),
-                        f"height gauge '{p.name}' at {_fmt(p.position)} ({', '.join('xyz'[a] for a in others)}) is "
-                        f"outside the domain along {', '.join('xyz'[a] for a in out)} (domain {_fmt(lo)}..{_fmt(hi)}); "
+                        f"height gauge '{p.name}' at {_fmt(p.position)} "
+                        f"({', '.join('xyz'[a] for a in others)}) is "
+                        f"outside the domain along {', '.join('xyz'[a] for a in out)} (domain "
+                        f"{_fmt(lo)}..{_fmt(hi)}); "
                         "move it inside",
                     )
         # entity and quantity
@@ -265,19 +279,22 @@ def check_probes(scene, err) -> None:
             err(
                 base + ("entity",),
                 "a height gauge reads the liquids (SPH.Liquid, MPM.Liquid, PBD.Liquid) unless it names an "
-                "entity, and this scene has none; name the entity whose surface it measures with entity: <name>",
+                "entity, and this scene has none; name the entity whose surface it measures with "
+                "entity: <name>",
             )
         elif not ents:
             present = ", ".join(sorted({e.material.type for e in scene.entities})) or "no entities"
             qpath = base + ("quantity",) if p.type != "height" else base + ("type",)
             err(
                 qpath,
-                f"no entity of this scene ({present}) can answer {what}; entities that can: {_who_answers(p)}",
+                f"no entity of this scene ({present}) can answer {what}; entities that can: "
+                f"{_who_answers(p)}",
             )
         elif p.type == "point" and any(e.family == "SF" for e in ents) and len(ents) > 1:
             err(
                 base + ("entity",),
-                f"{what} would mix the SF grid with particles ({', '.join(e.name for e in ents)}); name one with "
+                f"{what} would mix the SF grid with particles ({', '.join(e.name for e in ents)}); "
+                f"name one with "
                 "entity: <name>",
             )
         elif (
@@ -288,7 +305,8 @@ def check_probes(scene, err) -> None:
             bad = [e.name for e in scene.entities if e.family != "SF" and not answers(e, p)]
             err(
                 base + ("quantity",),
-                f"elastic_energy is available for MPM entities only, not for {', '.join(bad)}; name an MPM entity "
+                f"elastic_energy is available for MPM entities only, not for {', '.join(bad)}; name "
+                f"an MPM entity "
                 "with entity: <name>, or use kinetic_energy",
             )
 

@@ -31,7 +31,8 @@ def _lattice(dim, spacing, lo, hi):
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_kernel_average_of_a_hydrostatic_field_is_exact_inside(dim):
-    """A field linear in z (p = rho g (H - z)) averaged with the symmetric kernel on a lattice gives its value at
+    """A field linear in z (p = rho g (H - z)) averaged with the symmetric kernel on a lattice gives its
+    value at
     the point, and a constant field its constant, wherever the support is full."""
     s = 0.01
     x = _lattice(dim, s, [0.0] * dim, [0.2] * (dim - 1) + [0.1])
