@@ -40,6 +40,9 @@ class ColliderSpec:
     radius: float  # Sphere/Cylinder radius [m]
     half_height: float  # Cylinder half length [m]
     friction: float  # Coulomb coefficient [-]
+    moving: bool = False  # compile-time: a prescribed motion (simcli.motion) transforms the query point
+    name: str | None = None  # named colliders report forces
+    centre: tuple = ()  # default pivot (simcli.motion.collider_centre)
 
 
 @dataclass(frozen=True)
@@ -55,52 +58,73 @@ class WallSpec:
 
 
 def collider_specs(scene: Any, dim: int) -> list[ColliderSpec]:
+    from dataclasses import replace
+
+    from simcli.motion import collider_centre
+
     specs = []
     for c in scene.colliders:
-        kind = c.type
-        zeros = (0.0,) * dim
-        if kind == "Plane":
-            if len(c.point) != dim or len(c.normal) != dim:
-                raise ValueError(f"Plane collider needs {dim} components for point and normal")
-            n = np.asarray(c.normal, dtype=np.float64)
-            norm = float(np.linalg.norm(n))
-            if norm == 0.0:
-                raise ValueError("Plane collider normal must not be zero")
-            specs.append(
-                ColliderSpec(kind, c.boundary, 0, tuple(c.point), tuple(n / norm), 0.0, 0.0, c.friction)
+        specs.append(_collider_spec(c, dim))
+        if getattr(c, "motion", None) is not None or getattr(c, "name", None) is not None:
+            specs[-1] = replace(
+                specs[-1],
+                moving=c.motion is not None,
+                name=c.name,
+                centre=tuple(float(x) for x in collider_centre(c, dim)),
             )
-        elif kind == "Box":
-            if len(c.lower) != dim or len(c.upper) != dim:
-                raise ValueError(f"Box collider needs {dim} components for lower and upper")
-            if any(lo >= hi for lo, hi in zip(c.lower, c.upper)):
-                raise ValueError("Box collider: lower must be < upper on every axis")
-            specs.append(
-                ColliderSpec(kind, c.boundary, 0, tuple(c.lower), tuple(c.upper), 0.0, 0.0, c.friction)
-            )
-        elif kind == "Sphere":
-            if len(c.center) != dim:
-                raise ValueError(f"Sphere collider needs {dim} components for center")
-            specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.center), zeros, c.radius, 0.0, c.friction))
-        elif kind == "Cylinder":
-            if dim != 3:
-                raise ValueError("Cylinder colliders exist only in 3D (use a Sphere, i.e. a disk, in 2D)")
-            if len(c.center) != 3:
-                raise ValueError("Cylinder collider needs 3 components for center")
-            specs.append(
-                ColliderSpec(
-                    kind,
-                    c.boundary,
-                    "xyz".index(c.axis),
-                    tuple(c.center),
-                    zeros,
-                    c.radius,
-                    0.5 * c.height,
-                    c.friction,
-                )
-            )
-        else:  # pragma: no cover - the scene schema rejects unknown kinds
-            raise ValueError(f"unknown collider type {kind!r}")
     return specs
+
+
+def collider_motions(scene: Any, dim: int, scene_dir: Any = None) -> list:
+    """simcli.motion.Motion (or None) of every collider, in scene order."""
+    from simcli.motion import collider_motion
+
+    return [collider_motion(c, dim, scene_dir) for c in scene.colliders]
+
+
+def _collider_spec(c: Any, dim: int) -> ColliderSpec:
+    """The record of one collider model (its geometry in the body frame: its pose at t = 0)."""
+    specs = []
+    kind = c.type
+    zeros = (0.0,) * dim
+    if kind == "Plane":
+        if len(c.point) != dim or len(c.normal) != dim:
+            raise ValueError(f"Plane collider needs {dim} components for point and normal")
+        n = np.asarray(c.normal, dtype=np.float64)
+        norm = float(np.linalg.norm(n))
+        if norm == 0.0:
+            raise ValueError("Plane collider normal must not be zero")
+        specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.point), tuple(n / norm), 0.0, 0.0, c.friction))
+    elif kind == "Box":
+        if len(c.lower) != dim or len(c.upper) != dim:
+            raise ValueError(f"Box collider needs {dim} components for lower and upper")
+        if any(lo >= hi for lo, hi in zip(c.lower, c.upper)):
+            raise ValueError("Box collider: lower must be < upper on every axis")
+        specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.lower), tuple(c.upper), 0.0, 0.0, c.friction))
+    elif kind == "Sphere":
+        if len(c.center) != dim:
+            raise ValueError(f"Sphere collider needs {dim} components for center")
+        specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.center), zeros, c.radius, 0.0, c.friction))
+    elif kind == "Cylinder":
+        if dim != 3:
+            raise ValueError("Cylinder colliders exist only in 3D (use a Sphere, i.e. a disk, in 2D)")
+        if len(c.center) != 3:
+            raise ValueError("Cylinder collider needs 3 components for center")
+        specs.append(
+            ColliderSpec(
+                kind,
+                c.boundary,
+                "xyz".index(c.axis),
+                tuple(c.center),
+                zeros,
+                c.radius,
+                0.5 * c.height,
+                c.friction,
+            )
+        )
+    else:  # pragma: no cover - the scene schema rejects unknown kinds
+        raise ValueError(f"unknown collider type {kind!r}")
+    return specs[0]
 
 
 def wall_specs(scene: Any, dim: int) -> list[WallSpec]:

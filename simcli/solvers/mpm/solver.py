@@ -83,8 +83,9 @@ class MPMSolver(Solver):
 
     family = "mpm"
 
-    def __init__(self, scene: Any, bodies: list[Body]) -> None:
+    def __init__(self, scene: Any, bodies: list[Body], scene_dir: Any = None) -> None:
         super().__init__(scene, bodies)
+        self.scene_dir = scene_dir  # motion files of colliders are relative to it
         if not bodies:
             raise ValueError("MPMSolver needs at least one body")
         self.dim = int(scene.sim.dim)
@@ -217,7 +218,9 @@ class MPMSolver(Solver):
         for law in self.laws:
             law.allocate(n)
             law.allocate_materials(self.materials)
-        self.boundary = GridBoundary(self.scene, dim, f, self.origin, self.dx, self.lo_node, self.hi_node)
+        self.boundary = GridBoundary(
+            self.scene, dim, f, self.origin, self.dx, self.lo_node, self.hi_node, self.scene_dir
+        )
         self.boundary.allocate()
 
         self._upload()
@@ -520,7 +523,7 @@ class MPMSolver(Solver):
                 if pinned:
                     vI = ti.Vector.zero(f, dim)
                 else:
-                    vI = boundary.apply(I, vI)
+                    vI = boundary.apply(I, vI, m)
             grid_v[I] = vI
 
         @ti.func
@@ -725,6 +728,8 @@ class MPMSolver(Solver):
     def _advance(self, dt: float) -> None:
         for law in self.laws:  # muscle activations at the start of the substep (host, no sync)
             law.host_update(self.time)
+        if self.boundary.any_moving:  # collider poses of this substep (host, no sync)
+            self.boundary.set_time(self.time, dt)
         self._substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
         self.time += dt
         self._version += 1
@@ -824,6 +829,15 @@ class MPMSolver(Solver):
 
     def length_scale(self) -> float:
         return self.dx
+
+    def collider_loads(self) -> dict[str, np.ndarray]:
+        """Named collider -> (dim + 3) impulse [N s] and its moment about the collider's moving pivot
+        [N m s] that the material gave it since the last call (the opposite of what the contact gave the
+        material, summed over the grid nodes and substeps); resets them."""
+        if not self._built or not self.boundary.any_named:
+            return {}
+        a = self.boundary.take_loads()
+        return {c.name: a[k] for k, c in enumerate(self.boundary.colliders) if c.name is not None}
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
         d = self.dim
