@@ -24,6 +24,7 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.colliders import (
+    ColliderPoses,
     collider_motions,
     collider_specs,
     contact_velocity,
@@ -37,8 +38,6 @@ from simcli.colliders import (
 
 with stdout_to_stderr():
     import taichi as ti
-
-POSE_LEN = 18  # R (9, row-major dim x dim), c (3), v (3), w (3)
 
 
 @ti.data_oriented
@@ -69,12 +68,13 @@ class GridBoundary:
         self.colliders = collider_specs(scene, dim)
         self.walls = wall_specs(scene, dim)
         self.n_colliders = len(self.colliders)
-        self.motions = collider_motions(scene, dim, scene_dir)
-        # compile-time: any moving collider (poses uploaded per substep), any named one (loads summed)
-        self.any_moving = any(c.moving for c in self.colliders)
-        self.named = tuple(c.name is not None for c in self.colliders)
-        self.any_named = any(self.named)
-        self.posed = self.any_moving or self.any_named
+        # moving and named colliders: poses uploaded per substep, loads summed (compiled only if any)
+        self.poses = ColliderPoses(self.colliders, collider_motions(scene, dim, scene_dir), dim, dtype)
+        self.any_moving, self.any_named, self.named = (
+            self.poses.any_moving,
+            self.poses.any_named,
+            self.poses.named,
+        )
 
     def allocate(self) -> None:
         dim, f = self.dim, self.dtype
@@ -87,15 +87,8 @@ class GridBoundary:
         self.col_radius = ti.field(f, shape=nc)
         self.col_half_height = ti.field(f, shape=nc)
         self.col_friction = ti.field(f, shape=nc)
-        if self.posed:
-            # per collider and slot (0: the middle of the substep, for grid nodes; 1: its end, for
-            # particles): R (dim x dim), moving pivot c (dim), velocity v (dim), angular velocity w (3)
-            self.pose = ti.field(f, shape=(2, nc, POSE_LEN))
-            self.col_pivot = ti.Vector.field(dim, f, shape=nc)
-            # load on each named collider summed since the last read: -(impulse on the material) [N s]
-            # and its moment about the moving pivot [N m s] (3 components; z alone in 2D)
-            self.load = ti.field(ti.f64, shape=(nc, dim + 3))
         self.upload()
+        self.poses.allocate()
 
     def upload(self) -> None:
         """Copy the run-time numbers (geometry, friction, wall velocity) into the fields."""
@@ -115,81 +108,12 @@ class GridBoundary:
         self.col_radius.from_numpy(r)
         self.col_half_height.from_numpy(h)
         self.col_friction.from_numpy(mu)
-        if self.posed:
-            piv = np.zeros((nc, self.dim), npf)
-            for k, c in enumerate(self.colliders):
-                if c.centre:
-                    m = self.motions[k]
-                    piv[k] = m.pivot[: self.dim] if m is not None else c.centre
-            self.col_pivot.from_numpy(piv)
-            self.load.fill(0.0)
-            self.set_time(0.0, 0.0)
 
     def set_time(self, t: float, dt: float) -> None:
-        """Upload every collider's pose for the substep [t, t + dt] (host -> one small copy; no compile)."""
-        if not self.posed:
-            return
-        npf = np.float64 if self.dtype == ti.f64 else np.float32
-        d = self.dim
-        nc = max(1, self.n_colliders)
-        buf = np.zeros((2, nc, POSE_LEN), npf)
-        for k, c in enumerate(self.colliders):
-            m = self.motions[k]
-            for slot, ts in enumerate((t + 0.5 * dt, t + dt)):
-                if m is None:
-                    R, cen, v, w = np.eye(d), np.asarray(c.centre or (0.0,) * d), np.zeros(d), np.zeros(3)
-                else:
-                    ps = m.pose(ts)
-                    R, cen, v, w = ps.R, ps.c, ps.v, ps.w
-                buf[slot, k, : d * d] = R.reshape(-1)
-                buf[slot, k, 9 : 9 + d] = cen
-                buf[slot, k, 12 : 12 + d] = v
-                buf[slot, k, 15:18] = w
-        self.pose.from_numpy(buf)
+        self.poses.set_time(t, dt)
 
     def take_loads(self) -> np.ndarray:
-        """(n_colliders, dim + 3) impulse and angular impulse summed since the last call; resets them."""
-        if not self.posed:
-            return np.zeros((self.n_colliders, self.dim + 3))
-        a = self.load.to_numpy()[: self.n_colliders]
-        self.load.fill(0.0)
-        return a
-
-    @ti.func
-    def _pose(self, slot, k: ti.template()):
-        d = ti.static(self.dim)
-        R = ti.Matrix.zero(self.dtype, d, d)
-        c = ti.Vector.zero(self.dtype, d)
-        v = ti.Vector.zero(self.dtype, d)
-        w = ti.Vector.zero(self.dtype, 3)
-        for i in ti.static(range(d)):
-            for j in ti.static(range(d)):
-                R[i, j] = self.pose[slot, k, i * d + j]
-            c[i] = self.pose[slot, k, 9 + i]
-            v[i] = self.pose[slot, k, 12 + i]
-        for i in ti.static(range(3)):
-            w[i] = self.pose[slot, k, 15 + i]
-        return R, c, v, w
-
-    @ti.func
-    def _cross(self, w, r):
-        """w x r for w (3,) and r (dim,): a dim vector (2D: about z)."""
-        out = r * 0.0
-        if ti.static(self.dim == 2):
-            out = ti.Vector([-w[2] * r[1], w[2] * r[0]])
-        else:
-            out = w.cross(r)
-        return out
-
-    @ti.func
-    def _moment(self, r, f):
-        """r x f as 3 components (2D: only z)."""
-        out = ti.Vector.zero(self.dtype, 3)
-        if ti.static(self.dim == 2):
-            out[2] = r[0] * f[1] - r[1] * f[0]
-        else:
-            out = r.cross(f)
-        return out
+        return self.poses.take_loads()
 
     @ti.func
     def sdf_at(self, k: ti.template(), x, slot):
@@ -199,11 +123,9 @@ class GridBoundary:
         n = x * 0.0
         vw = x * 0.0
         if ti.static(self.colliders[k].moving):
-            R, c, v, w = self._pose(slot, k)
-            xb = R.transpose() @ (x - c) + self.col_pivot[k]
-            phi, nb = self.sdf(k, xb)
-            n = R @ nb
-            vw = v + self._cross(w, x - c)
+            phi, nb = self.sdf(k, self.poses.to_body(k, x, slot))
+            n = self.poses.normal_to_world(k, nb, slot)
+            vw = self.poses.velocity(k, x, slot)
         else:
             phi, n = self.sdf(k, x)
         return phi, n, vw
@@ -254,14 +176,8 @@ class GridBoundary:
                     phi, n, vw = self.sdf_at(k, xI, 0)
                     if phi < 0:
                         v_new = contact_velocity(v, n, vw, self.colliders[k].contact, self.col_friction[k])
-                        if ti.static(self.named[k]):
-                            _R, c, _v, _w = self._pose(0, k)
-                            J = m * (v - v_new)  # impulse the node gives the collider [N s]
-                            M = self._moment(xI - c, J)
-                            for i in ti.static(range(self.dim)):
-                                ti.atomic_add(self.load[k, i], ti.cast(J[i], ti.f64))
-                            for i in ti.static(range(3)):
-                                ti.atomic_add(self.load[k, self.dim + i], ti.cast(M[i], ti.f64))
+                        if ti.static(self.named[k]):  # the impulse the node gives the collider [N s]
+                            self.poses.add_load(k, xI, m * (v - v_new), 0)
                         v = v_new
         # walls last: confinement to the domain wins over everything else
         for k in ti.static(range(len(self.walls))):
