@@ -421,6 +421,7 @@ class Runner:
             resume_frame=(frame + 1) if ckpt is not None else None,
             colliders=self._collider_meta(),
         )
+        self._cvtk = self._collider_vtk((frame + 1) if ckpt is not None else None)
         # the stable substep for the frame-0 check and the fixed-substep warning (not asked again on a resumed
         # auto run, whose check counts then match an uninterrupted run's)
         stable = self._stable_dt(solvers, sim.dt) if ckpt is None or sim.substeps != "auto" else sim.dt
@@ -429,6 +430,8 @@ class Runner:
             # with auto_check: substep would make any initial speed look like a runaway)
             self._check_frame(solvers, 0, sim.dt / substeps_now if substeps_now else min(sim.dt, stable))
             sink.write_frame(0, 0, 0.0, self._frame_data(), colliders=self._collider_loads(solvers, 0.0))
+            if self._cvtk is not None:
+                self._cvtk.write_frame(0, 0.0)
         self.timings["output_s"] += time.perf_counter() - t0
         self.timings["startup_s"] = time.perf_counter() - self.t_process
 
@@ -504,6 +507,8 @@ class Runner:
                     loads = self._collider_loads(solvers, (step - self._load_step) * sim.dt)
                     self._load_step = step
                     sink.write_frame(frame, step, step * sim.dt, self._frame_data(), colliders=loads)
+                    if self._cvtk is not None:
+                        self._cvtk.write_frame(frame, step * sim.dt)
                     stop = next((r for r in (s.steady() for s in solvers) if r), None)
                     if stop:  # a solver's steady-state criterion met (e.g. solvers.sf.steady_tolerance)
                         self.info["stopped_steady"] = {"step": step, "time": step * sim.dt, **stop}
@@ -705,6 +710,21 @@ class Runner:
             )
             self._entity_fields[e.name] = (s, fields)
         return metas
+
+    def _collider_vtk(self, resume_frame):
+        """Surface meshes of the named and moving colliders per frame (vtk/<name>.pvd), when vtk is written."""
+        if "vtk" not in self.scene.output.formats:
+            return None
+        from simcli.io.collider_vtk import ColliderVtkWriter, collider_vtk_items
+
+        items = collider_vtk_items(self.scene, self.loaded.scene_dir)
+        if not items:
+            return None
+        lo, hi = self.scene.domain.bounds(self.scene.sim.dim)
+        size = float(np.linalg.norm(np.subtract(hi, lo)))
+        w = ColliderVtkWriter(self.out / "vtk", items, self.scene.sim.dim, size)
+        w.open(resume_frame)
+        return w
 
     def _collider_meta(self) -> dict[str, int]:
         """Named collider -> dimension (sim.h5 /colliders/<name>/force has dim components, torque 3 or 1)."""

@@ -4,6 +4,7 @@ the domain, mesh files, and a memory estimate made before anything is allocated.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -390,6 +391,16 @@ def _check_collider_motion(loaded, ok_dom: bool, err) -> None:
     for i, c in enumerate(s.colliders):
         base = ("colliders", i)
         if c.name is not None:
+            if not re.fullmatch(r"[A-Za-z0-9_.-]+", c.name) or c.name.startswith("."):
+                err(
+                    base + ("name",),
+                    f"collider name '{c.name}': use letters, digits, _, - and . (it names files)",
+                )
+            if c.name in {e.name for e in s.entities}:
+                err(
+                    base + ("name",),
+                    f"collider name '{c.name}' is also an entity's name (both name vtk/<name>.pvd)",
+                )
             if c.name in names:
                 err(
                     base + ("name",),
