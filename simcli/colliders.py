@@ -354,6 +354,26 @@ class ColliderPoses:
         self.dt[None] = dt
         self.t = t
 
+    def max_surface_speed(self, t: float) -> float:
+        """Largest speed [m/s] of any point of a moving collider at time t (|v| + |w| times the distance
+        from the pivot to the farthest point of the collider; a Plane counts only |v|): for substeps: auto."""
+        vmax = 0.0
+        for c, m in zip(self.specs, self.motions):
+            if m is None:
+                continue
+            p = m.pose(t)
+            reach = 0.0
+            if c.kind != "Plane":
+                piv = np.asarray(m.pivot[: self.dim])
+                a = np.asarray(c.a, float)
+                if c.kind == "Box":
+                    b = np.asarray(c.b, float)
+                    reach = float(np.linalg.norm(np.maximum(np.abs(a - piv), np.abs(b - piv))))
+                else:
+                    reach = float(np.linalg.norm(a - piv)) + float(np.hypot(c.radius, c.half_height))
+            vmax = max(vmax, float(np.linalg.norm(p.v)) + float(np.linalg.norm(p.w)) * reach)
+        return vmax
+
     def take_loads(self) -> np.ndarray:
         """(n, dim + 3) impulse and angular impulse summed since the last call; resets them."""
         if not self.any_named:

@@ -441,4 +441,4 @@ def _check_collider_motion(loaded, ok_dom: bool, err) -> None:
                 break
 
 
-MOVING_COLLIDER_FAMILIES = {"MPM"}
+MOVING_COLLIDER_FAMILIES = {"MPM", "PBD", "FEM"}

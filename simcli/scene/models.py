@@ -198,7 +198,8 @@ class _ColliderBase(Strict):
         "exert on them (sim.h5 /colliders/<name>/force, /torque).",
     )
     motion: Motion | None = Field(
-        None, description="Prescribed rigid motion (default: the collider stands still). MPM only for now."
+        None,
+        description="Prescribed rigid motion (default: the collider stands still). MPM, PBD and FEM scenes.",
     )
     boundary: Literal["slip", "sticky", "separate"] = Field(
         "separate", description="Contact condition on the collider surface (see domain.boundary.type)."

@@ -148,14 +148,18 @@ class GridBoundary:
         return phi, n
 
     @ti.func
-    def project_particle(self, x, v):
+    def project_particle(self, x, v, mp):
         """Particle-level contact after advection: out of every collider, inward velocity removed
-        (see :func:`simcli.colliders.project_out`). Compiled only when colliders exist."""
+        (see :func:`simcli.colliders.project_out`); a named collider takes the momentum removed from the
+        particle (mass ``mp``). Compiled only when colliders exist."""
         for k in ti.static(range(self.n_colliders)):
-            if ti.static(self.colliders[k].moving):
+            if ti.static(self.colliders[k].moving or self.named[k]):
                 phi, n, vw = self.sdf_at(k, x, 1)
-                x, vr = project_out(x, v - vw, phi, n, self.colliders[k].contact, self.col_friction[k])
-                v = vr + vw
+                x_new, vr = project_out(x, v - vw, phi, n, self.colliders[k].contact, self.col_friction[k])
+                if ti.static(self.named[k]):
+                    if phi < 0:
+                        self.poses.add_load(k, x_new, mp * (v - (vr + vw)), 1)
+                x, v = x_new, vr + vw
             else:
                 phi, n = self.sdf(k, x)
                 x, v = project_out(x, v, phi, n, self.colliders[k].contact, self.col_friction[k])

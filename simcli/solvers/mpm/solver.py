@@ -456,7 +456,7 @@ class MPMSolver(Solver):
                 if ti.static(boundary.n_colliders > 0):
                     # a particle that ended inside a collider goes back to its surface (the grid
                     # contact alone lets particles that start inside, or tunnel, stay there)
-                    xp, new_v = boundary.project_particle(xp, new_v)
+                    xp, new_v = boundary.project_particle(xp, new_v, mass[p])
                 xp = ti.min(ti.max(xp, dom_lo), dom_hi)
                 v[p] = new_v
                 C[p] = new_C
@@ -748,6 +748,8 @@ class MPMSolver(Solver):
         hardening factor (snow) and by the largest muscle activation."""
         self._frame_stats()
         vmax = float(np.max(self.stat_speed.to_numpy()))
+        if self.boundary.any_moving:  # a moving collider must not cross more than cfl cells a substep either
+            vmax = max(vmax, self.boundary.poses.max_surface_speed(self.time))
         stiff = min(self.stiff_cap, max(1.0, float(self.stat_stiff[None]))) * self.wave_factor
         c = self.c_max * math.sqrt(stiff)
         dt_wave = WAVE_SAFETY * self.dx / c if c > 0 else math.inf
