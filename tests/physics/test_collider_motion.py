@@ -112,3 +112,69 @@ def test_translating_collider_pushes_a_block_and_lets_none_of_it_in(ti_f32):
     assert 0.45 < a["velocity"][:, 0].mean() < 1.05
     # the pusher's face is at 0.28 + 0.5 * 0.2 = 0.38: no particle behind it
     assert a["position"][:, 0].min() > 0.38 - 0.5 / 128
+
+
+PUSH = """\
+version: 1
+sim: {{dim: 3, dt: {dt}, substeps: {sub}, duration: 0.8}}
+domain: {{lower: [-0.5, -0.5, 0], upper: [0.5, 0.5, 1.0]}}
+colliders:
+  - {{name: table, type: Box, lower: [-0.4, -0.3, 0.0], upper: [0.4, 0.3, 0.1], friction: 0.5}}
+  - {{name: pusher, type: Box, lower: [-0.25, -0.15, 0.105], upper: [-0.2, 0.15, 0.3],
+     motion: {{linear_velocity: [0.3, 0, 0]}}}}
+solvers: {solvers}
+entities:
+  - name: block
+    material: {material}
+    morph: {{type: Box, center: [0.0, 0, 0.2151], size: [0.2, 0.2, 0.2]}}
+output: {{every: 5, formats: [hdf5]}}
+"""
+
+PBD = dict(
+    dt="4.0e-3",
+    sub=10,
+    solvers="{pbd: {tet_resolution: 8, stretch_iterations: 10}}",
+    material="{type: PBD.Elastic, rho: 1000, stretch_compliance: 1.0e-5, volume_compliance: 0.0}",
+)
+FEM = dict(
+    dt="2.0e-3",
+    sub="auto",
+    solvers="{{fem: {{integrator: {}, resolution: 8}}}}",
+    material="{type: FEM.Elastic, E: 1.0e5, nu: 0.3, rho: 1000, model: stable_neohookean}",
+)
+
+
+@pytest.mark.parametrize("family", ["pbd", "fem_explicit", "fem_implicit"])
+def test_box_pushed_along_a_frictional_table_by_a_moving_collider(tmp_path, family):
+    """A Box collider moving at 0.3 m/s pushes an elastic block (8 kg) along a named table with friction
+    0.5: once sliding, the pusher reads the Coulomb force mu m g and the table the same the other way and
+    the weight; the block stays ahead of the pusher's face."""
+    import subprocess
+    import sys
+
+    import h5py
+
+    kw = dict(PBD) if family == "pbd" else dict(FEM, solvers=FEM["solvers"].format(family.split("_")[1]))
+    scene = tmp_path / "push.yaml"
+    scene.write_text(PUSH.format(**kw))
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "run", str(scene), "-o", str(tmp_path / "out"), "-q"],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert r.returncode == 0, r.stderr
+    with h5py.File(tmp_path / "out" / "sim.h5", "r") as f:
+        t = f["time"][...]
+        push, table = f["colliders/pusher/force"][...], f["colliders/table/force"][...]
+        x = f["entities/block/position"][...]
+    s = t >= 0.5
+    mg = 1000 * 0.008 * G
+    assert push[s, 0].mean() == pytest.approx(-0.5 * mg, rel=0.1)
+    assert table[s, 0].mean() == pytest.approx(0.5 * mg, rel=0.1)
+    assert table[s, 2].mean() == pytest.approx(-mg, rel=0.05)
+    # the pusher covers z > 0.105: the block's vertices above it stay ahead of its face
+    face = -0.2 + 0.3 * t
+    above = x[:, :, 2] > 0.11
+    xmin = np.where(above, x[:, :, 0], np.inf).min(axis=1)
+    assert np.all(xmin[s] > face[s] - 0.003)

@@ -602,9 +602,12 @@ class PBDSolver(Solver):
 
     def stable_dt(self) -> float:
         """XPBD is unconditionally stable; contact needs a vertex to move less than its radius per
-        substep to be caught before it crosses a thin collider: half the smallest radius / largest speed."""
+        substep to be caught before it crosses a thin collider: half the smallest radius / largest speed
+        (of the particles and of the moving colliders' surfaces)."""
         self._frame_stats()
         vmax = float(np.max(self.stat_speed.to_numpy()))
+        if self.poses.any_moving and math.isfinite(vmax):  # a moving collider's surface counts too
+            vmax = max(vmax, self.poses.max_surface_speed(self.time))
         if not math.isfinite(vmax) or vmax <= 0:
             return math.inf
         return 0.5 * float(self.radius.min()) / vmax
