@@ -40,6 +40,9 @@ class ColliderSpec:
     radius: float  # Sphere/Cylinder radius [m]
     half_height: float  # Cylinder half length [m]
     friction: float  # Coulomb coefficient [-]
+    moving: bool = False  # compile-time: a prescribed motion (simcli.motion) transforms the query point
+    name: str | None = None  # named colliders report forces
+    centre: tuple = ()  # default pivot (simcli.motion.collider_centre)
 
 
 @dataclass(frozen=True)
@@ -55,52 +58,73 @@ class WallSpec:
 
 
 def collider_specs(scene: Any, dim: int) -> list[ColliderSpec]:
+    from dataclasses import replace
+
+    from simcli.motion import collider_centre
+
     specs = []
     for c in scene.colliders:
-        kind = c.type
-        zeros = (0.0,) * dim
-        if kind == "Plane":
-            if len(c.point) != dim or len(c.normal) != dim:
-                raise ValueError(f"Plane collider needs {dim} components for point and normal")
-            n = np.asarray(c.normal, dtype=np.float64)
-            norm = float(np.linalg.norm(n))
-            if norm == 0.0:
-                raise ValueError("Plane collider normal must not be zero")
-            specs.append(
-                ColliderSpec(kind, c.boundary, 0, tuple(c.point), tuple(n / norm), 0.0, 0.0, c.friction)
+        specs.append(_collider_spec(c, dim))
+        if getattr(c, "motion", None) is not None or getattr(c, "name", None) is not None:
+            specs[-1] = replace(
+                specs[-1],
+                moving=c.motion is not None,
+                name=c.name,
+                centre=tuple(float(x) for x in collider_centre(c, dim)),
             )
-        elif kind == "Box":
-            if len(c.lower) != dim or len(c.upper) != dim:
-                raise ValueError(f"Box collider needs {dim} components for lower and upper")
-            if any(lo >= hi for lo, hi in zip(c.lower, c.upper)):
-                raise ValueError("Box collider: lower must be < upper on every axis")
-            specs.append(
-                ColliderSpec(kind, c.boundary, 0, tuple(c.lower), tuple(c.upper), 0.0, 0.0, c.friction)
-            )
-        elif kind == "Sphere":
-            if len(c.center) != dim:
-                raise ValueError(f"Sphere collider needs {dim} components for center")
-            specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.center), zeros, c.radius, 0.0, c.friction))
-        elif kind == "Cylinder":
-            if dim != 3:
-                raise ValueError("Cylinder colliders exist only in 3D (use a Sphere, i.e. a disk, in 2D)")
-            if len(c.center) != 3:
-                raise ValueError("Cylinder collider needs 3 components for center")
-            specs.append(
-                ColliderSpec(
-                    kind,
-                    c.boundary,
-                    "xyz".index(c.axis),
-                    tuple(c.center),
-                    zeros,
-                    c.radius,
-                    0.5 * c.height,
-                    c.friction,
-                )
-            )
-        else:  # pragma: no cover - the scene schema rejects unknown kinds
-            raise ValueError(f"unknown collider type {kind!r}")
     return specs
+
+
+def collider_motions(scene: Any, dim: int, scene_dir: Any = None) -> list:
+    """simcli.motion.Motion (or None) of every collider, in scene order."""
+    from simcli.motion import collider_motion
+
+    return [collider_motion(c, dim, scene_dir) for c in scene.colliders]
+
+
+def _collider_spec(c: Any, dim: int) -> ColliderSpec:
+    """The record of one collider model (its geometry in the body frame: its pose at t = 0)."""
+    specs = []
+    kind = c.type
+    zeros = (0.0,) * dim
+    if kind == "Plane":
+        if len(c.point) != dim or len(c.normal) != dim:
+            raise ValueError(f"Plane collider needs {dim} components for point and normal")
+        n = np.asarray(c.normal, dtype=np.float64)
+        norm = float(np.linalg.norm(n))
+        if norm == 0.0:
+            raise ValueError("Plane collider normal must not be zero")
+        specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.point), tuple(n / norm), 0.0, 0.0, c.friction))
+    elif kind == "Box":
+        if len(c.lower) != dim or len(c.upper) != dim:
+            raise ValueError(f"Box collider needs {dim} components for lower and upper")
+        if any(lo >= hi for lo, hi in zip(c.lower, c.upper)):
+            raise ValueError("Box collider: lower must be < upper on every axis")
+        specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.lower), tuple(c.upper), 0.0, 0.0, c.friction))
+    elif kind == "Sphere":
+        if len(c.center) != dim:
+            raise ValueError(f"Sphere collider needs {dim} components for center")
+        specs.append(ColliderSpec(kind, c.boundary, 0, tuple(c.center), zeros, c.radius, 0.0, c.friction))
+    elif kind == "Cylinder":
+        if dim != 3:
+            raise ValueError("Cylinder colliders exist only in 3D (use a Sphere, i.e. a disk, in 2D)")
+        if len(c.center) != 3:
+            raise ValueError("Cylinder collider needs 3 components for center")
+        specs.append(
+            ColliderSpec(
+                kind,
+                c.boundary,
+                "xyz".index(c.axis),
+                tuple(c.center),
+                zeros,
+                c.radius,
+                0.5 * c.height,
+                c.friction,
+            )
+        )
+    else:  # pragma: no cover - the scene schema rejects unknown kinds
+        raise ValueError(f"unknown collider type {kind!r}")
+    return specs[0]
 
 
 def wall_specs(scene: Any, dim: int) -> list[WallSpec]:
@@ -259,3 +283,183 @@ def sdf_cylinder(x, center, radius, half_height, axis: ti.template()):
         if q1 > q0:
             n = e
     return phi, n
+
+
+# ------------------------------------------------------------- moving and named colliders
+
+POSE_LEN = 18  # per collider and slot: R (9, row-major dim x dim), moving pivot c (3), v (3), w (3)
+
+
+@ti.data_oriented
+class ColliderPoses:
+    """The pose of every collider at two times of the current substep, in one small field uploaded by the
+    host once per substep (:meth:`set_time`; no recompilation): slot 0 is the middle of the substep (grid
+    nodes), slot 1 its end (particles). Compiled into a solver only when a collider moves or is named
+    (``needed``); a still, unnamed collider keeps its world-frame SDF and its code path.
+
+    A moving collider's signed distance at world point x is its body-frame one at ``to_body(x)`` = R^T (x -
+    c) + p, its normal ``R n``, the velocity of its surface there ``v + w x (x - c)`` (simcli.motion).
+    Named colliders also collect the load the material puts on them (``load``: impulse [N s], then its
+    moment about c [N m s], 3 components; z alone in 2D), summed until :meth:`take_loads`.
+    """
+
+    def __init__(self, specs: list[ColliderSpec], motions: list, dim: int, dtype: Any) -> None:
+        self.specs, self.motions, self.dim, self.dtype = specs, motions, dim, dtype
+        self.n = len(specs)
+        self.moving = tuple(c.moving for c in specs)
+        self.named = tuple(c.name is not None for c in specs)
+        self.any_moving = any(self.moving)
+        self.any_named = any(self.named)
+        self.needed = self.any_moving or self.any_named
+        self.t = 0.0
+
+    def allocate(self) -> None:
+        if not self.needed:
+            return
+        nc, f = max(1, self.n), self.dtype
+        self.pose = ti.field(f, shape=(2, nc, POSE_LEN))
+        self.pivot = ti.Vector.field(self.dim, f, shape=nc)
+        self.dt = ti.field(f, shape=())
+        self.load = ti.field(ti.f64, shape=(nc, self.dim + 3))
+        npf = np.float64 if f == ti.f64 else np.float32
+        piv = np.zeros((nc, self.dim), npf)
+        for k, c in enumerate(self.specs):
+            if c.centre:
+                m = self.motions[k]
+                piv[k] = m.pivot[: self.dim] if m is not None else c.centre
+        self.pivot.from_numpy(piv)
+        self.load.fill(0.0)
+        self.set_time(0.0, 0.0)
+
+    def set_time(self, t: float, dt: float) -> None:
+        """Upload every collider's pose for the substep [t, t + dt] (host; one small copy)."""
+        if not self.needed:
+            return
+        npf = np.float64 if self.dtype == ti.f64 else np.float32
+        d = self.dim
+        buf = np.zeros((2, max(1, self.n), POSE_LEN), npf)
+        for k, c in enumerate(self.specs):
+            m = self.motions[k]
+            for slot, ts in enumerate((t + 0.5 * dt, t + dt)):
+                if m is None:
+                    R, cen, v, w = np.eye(d), np.asarray(c.centre or (0.0,) * d), np.zeros(d), np.zeros(3)
+                else:
+                    ps = m.pose(ts)
+                    R, cen, v, w = ps.R, ps.c, ps.v, ps.w
+                buf[slot, k, : d * d] = R.reshape(-1)
+                buf[slot, k, 9 : 9 + d] = cen
+                buf[slot, k, 12 : 12 + d] = v
+                buf[slot, k, 15:18] = w
+        self.pose.from_numpy(buf)
+        self.dt[None] = dt
+        self.t = t
+
+    def max_surface_speed(self, t: float) -> float:
+        """Largest speed [m/s] of any point of a moving collider at time t (|v| + |w| times the distance
+        from the pivot to the farthest point of the collider; a Plane counts only |v|): for substeps: auto."""
+        vmax = 0.0
+        for c, m in zip(self.specs, self.motions):
+            if m is None:
+                continue
+            p = m.pose(t)
+            reach = 0.0
+            if c.kind != "Plane":
+                piv = np.asarray(m.pivot[: self.dim])
+                a = np.asarray(c.a, float)
+                if c.kind == "Box":
+                    b = np.asarray(c.b, float)
+                    reach = float(np.linalg.norm(np.maximum(np.abs(a - piv), np.abs(b - piv))))
+                else:
+                    reach = float(np.linalg.norm(a - piv)) + float(np.hypot(c.radius, c.half_height))
+            vmax = max(vmax, float(np.linalg.norm(p.v)) + float(np.linalg.norm(p.w)) * reach)
+        return vmax
+
+    def take_loads(self) -> np.ndarray:
+        """(n, dim + 3) impulse and angular impulse summed since the last call; resets them."""
+        if not self.any_named:
+            return np.zeros((self.n, self.dim + 3))
+        a = self.load.to_numpy()[: self.n]
+        self.load.fill(0.0)
+        return a
+
+    def loads_by_name(self) -> dict[str, np.ndarray]:
+        if not self.any_named:
+            return {}
+        a = self.take_loads()
+        return {c.name: a[k] for k, c in enumerate(self.specs) if c.name is not None}
+
+    @ti.func
+    def get(self, slot, k: ti.template()):
+        """(R, c, v, w) of collider k in ``slot``."""
+        d = ti.static(self.dim)
+        R = ti.Matrix.zero(self.dtype, d, d)
+        c = ti.Vector.zero(self.dtype, d)
+        v = ti.Vector.zero(self.dtype, d)
+        w = ti.Vector.zero(self.dtype, 3)
+        for i in ti.static(range(d)):
+            for j in ti.static(range(d)):
+                R[i, j] = self.pose[slot, k, i * d + j]
+            c[i] = self.pose[slot, k, 9 + i]
+            v[i] = self.pose[slot, k, 12 + i]
+        for i in ti.static(range(3)):
+            w[i] = self.pose[slot, k, 15 + i]
+        return R, c, v, w
+
+    @ti.func
+    def cross(self, w, r):
+        """w x r for w (3,) and r (dim,): a dim vector (2D: about z)."""
+        out = r * 0.0
+        if ti.static(self.dim == 2):
+            out = ti.Vector([-w[2] * r[1], w[2] * r[0]])
+        else:
+            out = w.cross(r)
+        return out
+
+    @ti.func
+    def moment(self, r, f):
+        """r x f as 3 components (2D: only z)."""
+        out = ti.Vector.zero(self.dtype, 3)
+        if ti.static(self.dim == 2):
+            out[2] = r[0] * f[1] - r[1] * f[0]
+        else:
+            out = r.cross(f)
+        return out
+
+    @ti.func
+    def to_body(self, k: ti.template(), x, slot):
+        R, c, _v, _w = self.get(slot, k)
+        return R.transpose() @ (x - c) + self.pivot[k]
+
+    @ti.func
+    def normal_to_world(self, k: ti.template(), n, slot):
+        R, _c, _v, _w = self.get(slot, k)
+        return R @ n
+
+    @ti.func
+    def velocity(self, k: ti.template(), x, slot):
+        _R, c, v, w = self.get(slot, k)
+        return v + self.cross(w, x - c)
+
+    @ti.func
+    def add_load(self, k: ti.template(), x, J, slot):
+        """The material gave collider k the impulse J [N s] at world point x."""
+        _R, c, _v, _w = self.get(slot, k)
+        M = self.moment(x - c, J)
+        for i in ti.static(range(self.dim)):
+            ti.atomic_add(self.load[k, i], ti.cast(J[i], ti.f64))
+        for i in ti.static(range(3)):
+            ti.atomic_add(self.load[k, self.dim + i], ti.cast(M[i], ti.f64))
+
+
+def collider_vtk_items(scene: Any, scene_dir: Any = None) -> list[tuple[str, Any, Any]]:
+    """(file name, spec, motion) of every named or moving collider of the scene, for
+    simcli.io.collider_vtk (which knows no collider model: io sits below this module)."""
+    from simcli.motion import collider_motion
+
+    dim = scene.sim.dim
+    out = []
+    for k, c in enumerate(scene.colliders):
+        if c.name is None and c.motion is None:
+            continue
+        out.append((c.name or f"collider{k}", _collider_spec(c, dim), collider_motion(c, dim, scene_dir)))
+    return out

@@ -113,6 +113,7 @@ def run_scene(
 
 class Runner:
     def __init__(self, loaded, out_dir, backend, resume, quiet, sets, t_process):
+        self._load_sums: dict = {}  # named collider -> [force x time, torque x time, time] (run.json means)
         self.loaded = loaded
         self.scene = loaded.scene
         self.name = loaded.name
@@ -431,7 +432,16 @@ class Runner:
             attrs,
             resume_frame=(frame + 1) if ckpt is not None else None,
             **(probes.open(step if ckpt is not None else None) if probes else {}),
+            colliders=self._collider_meta(),
         )
+        self._cvtk = self._collider_vtk((frame + 1) if ckpt is not None else None)
+        no_loads = sorted(scene.families & {"SPH", "SF"})
+        if self._collider_meta() and no_loads:
+            self.warn(
+                f"named colliders read the loads of MPM, PBD and FEM entities only: the "
+                f"{', '.join(no_loads)} "
+                "entities' pressure on them is not in /colliders/<name>/force yet"
+            )
         # the stable substep for the frame-0 check and the fixed-substep warning (not asked again on a resumed
         # auto run, whose check counts then match an uninterrupted run's)
         stable = self._stable_dt(solvers, sim.dt) if ckpt is None or sim.substeps != "auto" else sim.dt
@@ -439,7 +449,9 @@ class Runner:
             # the first substep: the fixed one, or with substeps: auto the stable one (not sim.dt: a long step
             # with auto_check: substep would make any initial speed look like a runaway)
             self._check_frame(solvers, 0, sim.dt / substeps_now if substeps_now else min(sim.dt, stable))
-            sink.write_frame(0, 0, 0.0, self._frame_data())
+            sink.write_frame(0, 0, 0.0, self._frame_data(), colliders=self._collider_loads(solvers, 0.0))
+            if self._cvtk is not None:
+                self._cvtk.write_frame(0, 0.0)
             if probes:
                 probes.sample(0, sink)
         self.timings["output_s"] += time.perf_counter() - t0
@@ -463,6 +475,7 @@ class Runner:
         t_loop = time.perf_counter()
         stepping0 = self.timings["stepping_s"]
         self._step0 = step  # steps of this process are counted from here (a resumed run: its checkpoint)
+        self._load_step = step  # collider loads are summed from here to the next frame
         substeps_done = 0
         # smallest and largest substep taken [s] (over the whole run: a resumed run continues the
         # checkpoint's)
@@ -516,7 +529,11 @@ class Runner:
                 self._check_frame(solvers, frame + 1, sub_dt, step=step)
                 if step % every == 0:
                     frame += 1
-                    sink.write_frame(frame, step, step * sim.dt, self._frame_data())
+                    loads = self._collider_loads(solvers, (step - self._load_step) * sim.dt)
+                    self._load_step = step
+                    sink.write_frame(frame, step, step * sim.dt, self._frame_data(), colliders=loads)
+                    if self._cvtk is not None:
+                        self._cvtk.write_frame(frame, step * sim.dt)
                     stop = next((r for r in (s.steady() for s in solvers) if r), None)
                     if stop:  # a solver's steady-state criterion met (e.g. solvers.sf.steady_tolerance)
                         self.info["stopped_steady"] = {"step": step, "time": step * sim.dt, **stop}
@@ -583,6 +600,16 @@ class Runner:
         self.log(
             f"done: {plural(step, 'step')}, {plural(frame + 1, 'frame')} in {self.out} ({', '.join(rates)})"
         )
+        for name, d in info.get("colliders", {}).items():
+
+            def fmt(v):
+                return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
+
+            self.log(
+                f"collider '{name}': force {fmt(d['force_N'])} N, torque {fmt(d['torque_Nm'])} N m "
+                f"at the last "
+                f"frame; mean over the run {fmt(d['mean_force_N'])} N, {fmt(d['mean_torque_Nm'])} N m"
+            )
         return EXIT_OK, info
 
     # ------------------------------------------------------------------ pieces
@@ -712,6 +739,67 @@ class Runner:
             )
             self._entity_fields[e.name] = (s, fields)
         return metas
+
+    def _collider_vtk(self, resume_frame):
+        """Surface meshes of the named and moving colliders per frame (vtk/<name>.pvd), when vtk is
+        written."""
+        if "vtk" not in self.scene.output.formats:
+            return None
+        from simcli.colliders import collider_vtk_items
+        from simcli.io.collider_vtk import ColliderVtkWriter
+
+        items = collider_vtk_items(self.scene, self.loaded.scene_dir)
+        if not items:
+            return None
+        lo, hi = self.scene.domain.bounds(self.scene.sim.dim)
+        size = float(np.linalg.norm(np.subtract(hi, lo)))
+        w = ColliderVtkWriter(self.out / "vtk", items, self.scene.sim.dim, size)
+        w.open(resume_frame)
+        return w
+
+    def _collider_meta(self) -> dict[str, int]:
+        """Named collider -> dimension (sim.h5 /colliders/<name>/force has dim components, torque 3 or 1)."""
+        return {c.name: self.scene.sim.dim for c in self.scene.colliders if c.name is not None}
+
+    def _collider_loads(self, solvers, span: float) -> dict[str, dict[str, np.ndarray]]:
+        """Force [N] and torque [N m] on each named collider, averaged over the last ``span`` seconds of
+        simulated time (the impulses of every solver's contacts over the substeps, divided by span)."""
+        meta = self._collider_meta()
+        if not meta:
+            return {}
+        dim = self.scene.sim.dim
+        tot = {name: np.zeros(dim + 3) for name in meta}
+        for s in solvers:
+            for name, a in (s.collider_loads() if hasattr(s, "collider_loads") else {}).items():
+                tot[name] += a
+        out = {}
+        for name, a in tot.items():
+            a = a / span if span > 0 else np.zeros_like(a)
+            torque = a[dim + 2 : dim + 3] if dim == 2 else a[dim:]
+            out[name] = {"force": a[:dim], "torque": torque}
+            if span > 0:
+                h = self._load_sums.setdefault(name, [np.zeros(dim), np.zeros(len(torque)), 0.0])
+                h[0] += a[:dim] * span
+                h[1] += torque * span
+                h[2] += span
+        self._last_loads = out
+        self.info["colliders"] = self._loads_summary()
+        return out
+
+    def _loads_summary(self) -> dict:
+        """run.json colliders: per named collider, the last frame's force and torque and their means over
+        the run (time-weighted)."""
+        out = {}
+        for name, a in getattr(self, "_last_loads", {}).items():
+            h = self._load_sums.get(name)
+            mean = (h[0] / h[2], h[1] / h[2]) if h and h[2] > 0 else (a["force"] * 0, a["torque"] * 0)
+            out[name] = {
+                "force_N": [float(x) for x in a["force"]],
+                "torque_Nm": [float(x) for x in a["torque"]],
+                "mean_force_N": [float(x) for x in mean[0]],
+                "mean_torque_Nm": [float(x) for x in mean[1]],
+            }
+        return out
 
     def _frame_data(self):
         return {name: s.entity_arrays(name, fields) for name, (s, fields) in self._entity_fields.items()}

@@ -62,6 +62,7 @@ class FrameSink:
             raise ValueError(f"unknown output format(s) {unknown}; known: {list(FORMATS)}")
         self.formats = list(dict.fromkeys(formats))
         self.entities: list[EntityMeta] = []
+        self.colliders: dict[str, int] = {}
         self.next_frame = 0
         self.seconds: dict[str, float] = {f: 0.0 for f in self.formats}
         self._h5 = None
@@ -88,10 +89,13 @@ class FrameSink:
         resume_frame: int | None = None,
         series: dict[str, tuple[int, str]] | None = None,
         series_until: float | None = None,
+        colliders: dict[str, int] | None = None,
     ) -> None:
         """``series``: named time series (probes) written to sim.h5 as ``/probes/<name>/time`` and ``/value``
         by :meth:`write_series`, name -> (components, unit); on a resume their samples after time
-        ``series_until`` are dropped."""
+        ``series_until`` are dropped. ``colliders``: named collider -> dim, for sim.h5
+        /colliders/<name>/force (dim components) and /torque (3 in 3D, 1 in 2D) per frame."""
+        self.colliders = dict(colliders or {})
         names = [e.name for e in entities]
         if len(set(names)) != len(names):
             raise ValueError(f"entity names must be unique, got {names}")
@@ -106,7 +110,15 @@ class FrameSink:
                 from .xdmf import XdmfWriter
 
                 self._h5 = H5Writer(self.h5_path)
-                self._h5.open(self.entities, scene_text, attrs or {}, resume_frame, series, series_until)
+                self._h5.open(
+                    self.entities,
+                    scene_text,
+                    attrs or {},
+                    resume_frame,
+                    series,
+                    series_until,
+                    colliders=self.colliders,
+                )
                 self._xdmf = XdmfWriter(self.out_dir / "sim.xdmf", self.h5_path.name, self.entities)
                 self._xdmf.reset(self._h5.times())
                 t1 = perf_counter()
@@ -127,7 +139,15 @@ class FrameSink:
         self.next_frame = resume_frame or 0
         self._open = True
 
-    def write_frame(self, frame: int, step: int, time: float, data: dict[str, dict[str, np.ndarray]]) -> None:
+    def write_frame(
+        self,
+        frame: int,
+        step: int,
+        time: float,
+        data: dict[str, dict[str, np.ndarray]],
+        colliders: dict[str, dict[str, np.ndarray]] | None = None,
+    ) -> None:
+        """``colliders``: named collider -> {"force", "torque"} (see ``open``)."""
         if not self._open:
             raise RuntimeError("FrameSink.write_frame before open()")
         if frame != self.next_frame:
@@ -138,7 +158,7 @@ class FrameSink:
         t = float(time)
         t0 = perf_counter()
         if self._h5 is not None:
-            self._h5.write_frame(frame, int(step), t, prepared)
+            self._h5.write_frame(frame, int(step), t, prepared, colliders=colliders)
             self._xdmf.add_frame(frame, t)
             t1 = perf_counter()
             self.seconds["hdf5"] += t1 - t0

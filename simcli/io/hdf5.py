@@ -252,6 +252,8 @@ class H5Writer:
         self.f: h5py.File | None = None
         self.entities: list[EntityMeta] = []
         self._ds: list[tuple[h5py.Dataset, str, str]] = []  # (dataset, entity, field)
+        self._cds: list[tuple[h5py.Dataset, str, str]] = []  # (dataset, collider, force|torque)
+        self.colliders: dict[str, int] = {}
         self._times: list[float] = []
         self._fd: int | None = None  # HDF5's file descriptor (sec2 driver)
         self._ident: tuple[int, int] | None = None  # (st_dev, st_ino) of the file we write
@@ -363,6 +365,7 @@ class H5Writer:
                 pass
         self._ds = []
         self._series = {}
+        self._cds = []
         self._time = self._step = None
         try:
             f.close()
@@ -381,10 +384,12 @@ class H5Writer:
         resume_frame: int | None,
         series: dict[str, tuple[int, str]] | None = None,
         series_until: float | None = None,
+        colliders: dict[str, int] | None = None,
     ) -> None:
         from simcli import __version__
 
         self.entities = list(entities)
+        self.colliders = dict(colliders or {})
         if resume_frame is None:
             with guard(self.path, "create"):
                 f = _h5file(self.path, "w", libver=LIBVER)
@@ -453,6 +458,14 @@ class H5Writer:
                 elif fname in e.cell_fields:  # one value per cell of the mesh (rows of "cells")
                     d.attrs["center"] = "cell"
                 self._ds.append((d, e.name, fname))
+        if self.colliders:
+            cg = f.create_group("colliders")
+            for name, dim in self.colliders.items():
+                g = cg.create_group(name)
+                for fname, n, unit in (("force", dim, "N"), ("torque", 3 if dim == 3 else 1, "N m")):
+                    d = g.create_dataset(fname, shape=(0, n), maxshape=(None, n), chunks=(64, n), dtype="f8")
+                    d.attrs["unit"] = unit
+                    self._cds.append((d, name, fname))
         self._time, self._step = t, s
         self._times = []
 
@@ -481,6 +494,13 @@ class H5Writer:
                     )
                 d.resize(k, axis=0)
                 self._ds.append((d, e.name, fname))
+        for name in self.colliders:
+            for fname in ("force", "torque"):
+                path = f"colliders/{name}/{fname}"
+                if path not in f or f[path].shape[0] < k:
+                    raise OutputError(f"cannot resume: {self.path} has no complete {path} (scene changed?)")
+                f[path].resize(k, axis=0)
+                self._cds.append((f[path], name, fname))
         t.resize(k, axis=0)
         s.resize(k, axis=0)
         self._time, self._step = t, s
@@ -548,7 +568,14 @@ class H5Writer:
             raise OutputError(f"{err}; {self._kept()}") from exc
 
     # ------------------------------------------------------------------------------------
-    def write_frame(self, frame: int, step: int, time: float, data: dict[str, dict[str, np.ndarray]]) -> None:
+    def write_frame(
+        self,
+        frame: int,
+        step: int,
+        time: float,
+        data: dict[str, dict[str, np.ndarray]],
+        colliders: dict[str, dict[str, np.ndarray]] | None = None,
+    ) -> None:
         f = self.f
         assert f is not None, "H5Writer not open"
         if frame != len(self._times):
@@ -562,6 +589,9 @@ class H5Writer:
             for d, ename, fname in self._ds:
                 d.resize(frame + 1, axis=0)
                 d.write_direct(data[ename][fname], dest_sel=np.s_[frame])
+            for d, cname, fname in self._cds:
+                d.resize(frame + 1, axis=0)
+                d[frame] = np.asarray((colliders or {})[cname][fname], dtype="f8").reshape(d.shape[1:])
             f.flush()  # the frame's data is on disk before /time says it exists
             self._step.resize(frame + 1, axis=0)
             self._step[frame] = step
@@ -593,4 +623,4 @@ class H5Writer:
             err = output_error(self.path, exc, "close")
             self.abandon()
             raise OutputError(f"{err}; {self._kept()}") from exc
-        self.f, self._fd, self._ds, self._series = None, None, [], {}
+        self.f, self._fd, self._ds, self._series, self._cds = None, None, [], {}, []

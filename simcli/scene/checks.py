@@ -4,8 +4,11 @@ the domain, mesh files, and a memory estimate made before anything is allocated.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 from simcli.scene.lines import sort_lines
 
@@ -60,6 +63,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
                 base + ("upper",),
                 f"lower must be < upper on every axis (got lower {c.lower}, upper {c.upper})",
             )
+    _check_collider_motion(loaded, ok_dom, err)
 
     # entities
     seen: dict[str, int] = {}
@@ -278,3 +282,71 @@ def _check_faces_and_sf(s, err) -> None:
                 ("solvers", "sf", "resolution"),
                 f"a periodic axis needs an even number of cells ({'xyz'[a]}: {n[a]})",
             )
+
+
+def _check_collider_motion(loaded, ok_dom: bool, err) -> None:
+    """Collider names unique; each motion readable (keyframes in order, CSV columns) and keeping the
+    collider's centre inside the domain for the whole run; moving colliders only where a family moves them."""
+    from simcli.motion import MotionError, collider_centre, collider_motion, sample_times
+
+    s = loaded.scene
+    dim = s.sim.dim
+    names: dict[str, int] = {}
+    lo, hi = (np.asarray(b, float) for b in s.domain.bounds(dim))
+    t_end = s.sim.n_steps * s.sim.dt
+    for i, c in enumerate(s.colliders):
+        base = ("colliders", i)
+        if c.name is not None:
+            if not re.fullmatch(r"[A-Za-z0-9_.-]+", c.name) or c.name.startswith("."):
+                err(
+                    base + ("name",),
+                    f"collider name '{c.name}': use letters, digits, _, - and . (it names files)",
+                )
+            if c.name in {e.name for e in s.entities}:
+                err(
+                    base + ("name",),
+                    f"collider name '{c.name}' is also an entity's name (both name vtk/<name>.pvd)",
+                )
+            if c.name in names:
+                err(
+                    base + ("name",),
+                    f"duplicate collider name '{c.name}' (also colliders.{names[c.name]}.name)",
+                )
+            names.setdefault(c.name, i)
+        if c.motion is None:
+            continue
+        unsupported = sorted(s.families - MOVING_COLLIDER_FAMILIES)
+        if unsupported:
+            err(
+                base + ("motion",),
+                f"moving colliders are implemented for "
+                f"{', '.join(sorted(MOVING_COLLIDER_FAMILIES))} entities "
+                f"only; this scene has {', '.join(unsupported)} entities (remove motion or those entities)",
+                key=True,
+            )
+        try:
+            motion = collider_motion(c, dim, loaded.scene_dir)
+        except MotionError as e:
+            err(base + ("motion",) + e.path, str(e))
+            continue
+        except ValueError as e:
+            err(base + ("motion",), str(e))
+            continue
+        if c.type == "Plane" or not ok_dom or len(collider_centre(c, dim)) != dim:
+            continue
+        x0 = collider_centre(c, dim)[None, :]
+        for t in sample_times(motion, t_end):
+            x = motion.pose(t).to_world(x0)[0]
+            if np.any(x < lo) or np.any(x > hi):
+                err(
+                    base + ("motion",),
+                    f"the collider's centre leaves the domain at t = {t:.4g} s (it reaches "
+                    f"{np.array2string(x, precision=4, separator=', ')}; domain {lo.tolist()} .. "
+                    f"{hi.tolist()}); "
+                    "change the motion or enlarge the domain",
+                    key=True,
+                )
+                break
+
+
+MOVING_COLLIDER_FAMILIES = {"MPM", "PBD", "FEM"}

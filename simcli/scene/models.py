@@ -148,7 +148,65 @@ class Domain(Strict):
 # --------------------------------------------------------------------- colliders
 
 
+class Keyframes(Strict):
+    times: list[float] = Field(min_length=1, description="Key times [s], increasing.")
+    translate: list[Vec] | None = Field(
+        None, description="Translation [m] of the collider at each key time (default: none)."
+    )
+    rotate: list[Vec] | None = Field(
+        None,
+        description="Rotation about the pivot at each key time: XYZ Euler angles [deg] (R = Rz Ry Rx); "
+        "interpolated as quaternions. 2D: one angle about z.",
+    )
+
+
+class Motion(Strict):
+    linear_velocity: Vec | None = Field(None, description="Constant velocity [m/s].")
+    angular_velocity: Vec | None = Field(
+        None, description="Constant angular velocity [rad/s] about `pivot` (2D: one component, about z)."
+    )
+    pivot: Vec | None = Field(
+        None,
+        description="Point the rotation is about, at t = 0 [m]; default the collider's centre (a "
+        "Plane's point).",
+    )
+    keyframes: Keyframes | None = Field(
+        None,
+        description="Piecewise linear translation and rotation, held before the first and after the "
+        "last key.",
+    )
+    file: str | None = Field(
+        None,
+        description="CSV file (relative to the scene) with columns t, x, y, z, qw, qx, qy, qz: "
+        "translation [m] "
+        "and unit quaternion of the rotation about the pivot, piecewise linear.",
+    )
+
+    @model_validator(mode="after")
+    def _one_kind(self):
+        const = self.linear_velocity is not None or self.angular_velocity is not None
+        kinds = [
+            k for k, on in (("constant", const), ("keyframes", self.keyframes), ("file", self.file)) if on
+        ]
+        if len(kinds) > 1:
+            raise ValueError(
+                f"give one of linear_velocity/angular_velocity, keyframes or file (got {' and '.join(kinds)})"
+            )
+        if not kinds:
+            raise ValueError("give linear_velocity and/or angular_velocity, keyframes or file")
+        return self
+
+
 class _ColliderBase(Strict):
+    name: str | None = Field(
+        None,
+        description="Name, unique among colliders: named colliders report the force and torque the materials "
+        "exert on them (sim.h5 /colliders/<name>/force, /torque).",
+    )
+    motion: Motion | None = Field(
+        None,
+        description="Prescribed rigid motion (default: the collider stands still). MPM, PBD and FEM scenes.",
+    )
     boundary: Literal["slip", "sticky", "separate"] = Field(
         "separate", description="Contact condition on the collider surface (see domain.boundary.type)."
     )
@@ -299,7 +357,9 @@ class Scene(Strict):
     name: str | None = Field(None, description="Scene name; default: the file name without extension.")
     sim: Sim = Field(default_factory=Sim, description="Time stepping, dimension, precision and backend.")
     domain: Domain = Field(default_factory=Domain, description="The box every solver lives in [m].")
-    colliders: list[Collider] = Field(default_factory=list, description="Static rigid obstacles.")
+    colliders: list[Collider] = Field(
+        default_factory=list, description="Rigid obstacles, still or in prescribed motion."
+    )
     solvers: Solvers = Field(default_factory=Solvers, description="Options per solver family.")
     entities: list[Entity] = Field(default_factory=list, description="Simulated bodies.")
     output: Output = Field(default_factory=Output, description="What is written, where and how often.")
@@ -326,5 +386,9 @@ def resolved_scene_dict(scene: Scene, name: str) -> dict:
     lo, hi = scene.domain.bounds(dim)
     d["domain"]["lower"], d["domain"]["upper"] = lo, hi
     d["solvers"]["mpm"]["particle_size"] = scene.solvers.mpm.spacing
+    for c in d["colliders"]:  # scenes without named or moving colliders echo as before
+        for key in ("name", "motion"):
+            if c.get(key) is None:
+                c.pop(key, None)
     d["output"]["dir"] = scene.output.dir if scene.output.dir is not None else f"out/{name}"
     return d

@@ -620,3 +620,52 @@ def slide_stop_time(f, entity, direction=(1.0, 0.0), level=0.1, **_):
 
 # the PBD family's measurements register themselves in MEASUREMENTS on import
 from simcli.verify import pbd_measures as _pbd_measures  # noqa: E402,F401
+
+# ------------------------------------------------------------------ colliders (forces, penetration)
+
+
+@measurement("collider_force")
+def collider_force(f, entity, collider, axis=None, component="force", **_):
+    """Force [N] (or with ``component: torque``, torque [N m]) the materials exert on the named collider
+    (sim.h5 /colliders/<name>/...), one ``axis`` or the magnitude."""
+    if "colliders" not in f or collider not in f["colliders"]:
+        have = ", ".join(f["colliders"].keys()) if "colliders" in f else "none"
+        raise KeyError(f"collider '{collider}' has no loads in sim.h5 (named colliders: {have})")
+    d = np.asarray(f["colliders"][collider][component][...], dtype=np.float64)
+    n = min(len(d), len(f["time"]))
+    v = np.linalg.norm(d[:n], axis=1) if axis is None else d[:n, axis]
+    return f["time"][:n], v
+
+
+def _scene_of(f):
+    import yaml
+
+    from simcli.scene.models import Scene
+
+    return Scene.model_validate(yaml.safe_load(f.attrs["scene"]))
+
+
+@measurement("collider_penetration")
+def collider_penetration(f, entity, collider, spacing=None, **_):
+    """Deepest particle of ``entity`` (``"*"``: every entity) inside the named collider at each frame [m],
+    in units of ``spacing`` when given (e.g. the MPM cell size): the collider's exact signed distance at
+    its pose at the frame's time (simcli.motion), 0 when no particle is inside."""
+    from simcli.colliders import _collider_spec
+    from simcli.motion import collider_motion
+    from simcli.solvers.sph.boundary import sdf_numpy
+
+    scene = _scene_of(f)
+    dim = scene.sim.dim
+    c = next((c for c in scene.colliders if c.name == collider), None)
+    if c is None:
+        raise KeyError(f"no collider named '{collider}' in the run's scene")
+    spec = _collider_spec(c, dim)
+    motion = collider_motion(c, dim)
+    x = _stack(f, entity)
+    t = f["time"][...]
+    out = []
+    for ti, xi in zip(t, x):
+        xb = xi if motion is None else motion.pose(float(ti)).to_body(xi)
+        out.append(max(0.0, -float(sdf_numpy(spec, xb).min())))
+    out = np.asarray(out)
+    return t, out / spacing if spacing else out

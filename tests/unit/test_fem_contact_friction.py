@@ -45,7 +45,7 @@ def test_nearest_returns_the_obstacles_friction_and_kind(ti_f32):
     @ti.kernel
     def k():
         for i in range(3):
-            phi, _n, kind, mu = nearest(xs[i])
+            phi, _n, kind, mu, _v, _idx = nearest(xs[i])
             out[i] = ti.Vector([phi, mu, ti.cast(kind, ti.f32)])
 
     k()

@@ -15,8 +15,11 @@ with stdout_to_stderr():
 KIND_ID = {"slip": 0, "sticky": 1, "separate": 2}
 
 
-def make_nearest(scene, dim: int = 3):
-    """A ti.func x -> (phi, n, kind id, friction) over the walls and colliders of the scene."""
+def make_nearest(scene, dim: int = 3, poses=None):
+    """A ti.func x -> (phi, n, kind id, friction, obstacle velocity, collider index or -1) over the walls
+    and colliders of the scene: the most penetrated one. ``poses`` (simcli.colliders.ColliderPoses): moving
+    colliders are evaluated at the substep's end pose (slot 1) in their body frame, with their surface
+    velocity; without it (or for still ones) the velocity is zero."""
     lo, hi = scene.domain.bounds(dim)
     obstacles = []  # (kind, a, b, radius, half_height, axis, contact, friction)
     for w in wall_specs(scene, dim):
@@ -25,36 +28,63 @@ def make_nearest(scene, dim: int = 3):
         p = [0.0] * dim
         p[w.axis] = lo[w.axis] if w.side < 0 else hi[w.axis]
         obstacles.append(("Plane", tuple(p), tuple(n), 0.0, 0.0, 0, w.contact, w.friction))
-    for c in collider_specs(scene, dim):
+    nw = len(obstacles)
+    specs = collider_specs(scene, dim)
+    for c in specs:
         obstacles.append((c.kind, c.a, c.b, c.radius, c.half_height, c.axis, c.contact, c.friction))
     kinds = [o[0] for o in obstacles]
+    moving = [False] * nw + [c.moving and poses is not None for c in specs]
 
     @ti.func
     def nearest(x):
         phi_min = 1e30
         n_min = ti.Vector.zero(float, 3)
+        v_min = ti.Vector.zero(float, 3)
         kind = 0
         mu = 0.0
+        idx = -1
         for k in ti.static(range(len(obstacles))):
             o = ti.static(obstacles[k])
             phi = 0.0
             nrm = ti.Vector.zero(float, 3)
+            xq = x
+            if ti.static(moving[k]):
+                xq = poses.to_body(k - nw, x, 1)
             if ti.static(kinds[k] == "Plane"):
-                phi, nrm = sdf_plane(x, ti.Vector(o[1], float), ti.Vector(o[2], float))
+                phi, nrm = sdf_plane(xq, ti.Vector(o[1], float), ti.Vector(o[2], float))
             elif ti.static(kinds[k] == "Sphere"):
-                phi, nrm = sdf_sphere(x, ti.Vector(o[1], float), o[3])
+                phi, nrm = sdf_sphere(xq, ti.Vector(o[1], float), o[3])
             elif ti.static(kinds[k] == "Box"):
-                phi, nrm = sdf_box(x, ti.Vector(o[1], float), ti.Vector(o[2], float))
+                phi, nrm = sdf_box(xq, ti.Vector(o[1], float), ti.Vector(o[2], float))
             else:
-                phi, nrm = sdf_cylinder(x, ti.Vector(o[1], float), o[3], o[4], o[5])
+                phi, nrm = sdf_cylinder(xq, ti.Vector(o[1], float), o[3], o[4], o[5])
             if phi < phi_min:
                 phi_min = phi
                 n_min = nrm
+                v_min = ti.Vector.zero(float, 3)
+                if ti.static(moving[k]):
+                    n_min = poses.normal_to_world(k - nw, nrm, 1)
+                    v_min = poses.velocity(k - nw, x, 1)
                 kind = KIND_ID[o[6]]  # a plain store: `x = ti.static(...)` only rebinds a Python name
                 mu = float(o[7])
-        return phi_min, n_min, kind, mu
+                idx = k - nw if k >= nw else -1
+        return phi_min, n_min, kind, mu, v_min, idx
 
     return nearest
+
+
+def make_add_load(poses):
+    """A ti.func (idx, x, J) adding the impulse J [N s] at x to collider idx when it is named."""
+    named = poses.named if poses is not None else ()
+
+    @ti.func
+    def add_load(idx, x, J):
+        for k in ti.static(range(len(named))):
+            if ti.static(named[k]):
+                if idx == k:
+                    poses.add_load(k, x, J, 1)
+
+    return add_load
 
 
 @ti.func

@@ -10,7 +10,7 @@ Mass-proportional damping (alpha) is applied implicitly to the vertex velocity: 
 
 from simcli.backend import stdout_to_stderr
 from simcli.colliders import project_out
-from simcli.solvers.fem.contact import make_nearest
+from simcli.solvers.fem.contact import make_add_load, make_nearest
 from simcli.solvers.fem.models import cofactor
 
 with stdout_to_stderr():
@@ -24,7 +24,10 @@ class ExplicitIntegrator:
         vol, B, mid, mat_mu, mat_lam = s.vol_f, s.B_f, s.mid_f, s.mat_mu0, s.mat_lam0
         gravity = s.gravity
         deformation, law_call, scatter, gather = s.deformation, s.law_call, s.scatter_columns, s.gather
-        nearest = make_nearest(s.scene)
+        poses = s.poses
+        nearest = make_nearest(s.scene, 3, poses)
+        add_load = make_add_load(poses)
+        moving, named = poses.any_moving, poses.any_named
         n, m = s.n, s.m
         beta = float(s.opts.damping)
         alpha = float(s.opts.mass_damping)
@@ -52,12 +55,25 @@ class ExplicitIntegrator:
                 if ti.static(alpha > 0):
                     vi /= 1.0 + alpha * dt
                 xi = x[i] + dt * vi
-                phi, nrm, kind, mu = nearest(xi)
+                phi, nrm, kind, mu, vw, idx = nearest(xi)
                 if phi < 0:
-                    if kind == 1:
-                        xi, vi = project_out(xi, vi, phi, nrm, "sticky", mu)
+                    if ti.static(moving or named):
+                        # contact on the velocity relative to the obstacle's surface; named colliders
+                        # take the momentum the contact removed
+                        v_in = vi
+                        vr = vi - vw
+                        if kind == 1:
+                            xi, vr = project_out(xi, vr, phi, nrm, "sticky", mu)
+                        else:
+                            xi, vr = project_out(xi, vr, phi, nrm, "slip", mu)
+                        vi = vr + vw
+                        if ti.static(named):
+                            add_load(idx, xi, mass[i] * (v_in - vi))
                     else:
-                        xi, vi = project_out(xi, vi, phi, nrm, "slip", mu)
+                        if kind == 1:
+                            xi, vi = project_out(xi, vi, phi, nrm, "sticky", mu)
+                        else:
+                            xi, vi = project_out(xi, vi, phi, nrm, "slip", mu)
                 fr = free[i]
                 for c in ti.static(range(3)):
                     if fr[c] == 0:

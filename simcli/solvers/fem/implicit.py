@@ -32,7 +32,7 @@ import sys
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.fem.contact import friction_velocity, make_nearest
+from simcli.solvers.fem.contact import friction_velocity, make_add_load, make_nearest
 from simcli.solvers.fem.models import apply_dP, cofactor
 
 with stdout_to_stderr():
@@ -115,7 +115,10 @@ class ImplicitIntegrator:
             self.ck,
             self.red,
         )
-        nearest = make_nearest(s.scene)
+        poses = s.poses
+        nearest = make_nearest(s.scene, 3, poses)
+        add_load = make_add_load(poses)
+        moving, named = poses.any_moving, poses.any_named
         kc = float(self.opts.contact_stiffness)
         ray_a, ray_b = self.alpha, self.beta
         has_muscle, active_dP = s.has_muscle, s.active_dP
@@ -189,7 +192,7 @@ class ImplicitIntegrator:
                 gi = mi / (dt * dt) * (x[i] - xhat[i]) + gather(i) - fext[i]
                 if ti.static(ray_a > 0):
                     gi += ray_a * mi / dt * (x[i] - xn[i])
-                phi, nrm, kind, mu = nearest(x[i])
+                phi, nrm, kind, mu, _vw, _idx = nearest(x[i])
                 k = 0.0
                 if phi < 0:
                     k = kc * mi / (dt * dt)
@@ -334,7 +337,7 @@ class ImplicitIntegrator:
                 if ti.static(ray_a > 0):
                     dn = q[i] - xn[i]
                     Ei += 0.5 * ray_a * mass[i] / dt * dn.dot(dn)
-                phi, nrm, kind, mu = nearest(q[i])
+                phi, nrm, kind, mu, _vw, _idx = nearest(q[i])
                 if phi < 0:
                     Ei += 0.5 * kc * mass[i] / (dt * dt) * phi * phi
                 E += ti.cast(Ei, ti.f64)
@@ -349,11 +352,20 @@ class ImplicitIntegrator:
         def finish(dt: f):
             for i in range(n):
                 vi = (x[i] - xn[i]) / dt
-                phi, nrm, kind, mu = nearest(x[i])
+                phi, nrm, kind, mu, vw, idx = nearest(x[i])
                 if ck[i] > 0 or phi < 0:
                     # normal speed the contact took away over the substep: penalty force x dt / m
                     dvn = ti.max(0.0, -phi) * kc / dt
-                    vi = friction_velocity(vi, nrm, kind, mu, dvn)
+                    if ti.static(moving or named):
+                        # friction on the velocity relative to the obstacle's surface; a named collider
+                        # takes the penalty's impulse (-k phi n dt, k = kc m / dt^2) and the friction's
+                        v_in = vi
+                        vi = friction_velocity(vi - vw, nrm, kind, mu, dvn) + vw
+                        if ti.static(named):
+                            if phi < 0:
+                                add_load(idx, x[i], mass[i] * (phi * kc / dt * nrm + (v_in - vi)))
+                    else:
+                        vi = friction_velocity(vi, nrm, kind, mu, dvn)
                 fr = free[i]
                 for c in ti.static(range(3)):
                     if fr[c] == 0:

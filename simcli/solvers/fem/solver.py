@@ -40,6 +40,7 @@ class FEMSolver(Solver):
 
     def __init__(self, scene: Any, bodies: list[Body], scene_dir=None) -> None:
         super().__init__(scene, bodies)
+        self.scene_dir = scene_dir  # collider motion files are relative to it
         if scene.sim.dim != 3:
             raise ValueError("FEM entities need a 3D scene (sim.dim: 3)")
         self.opts = scene.solvers.fem
@@ -283,6 +284,13 @@ class FEMSolver(Solver):
         self.gravity[None] = [float(c) for c in self.scene.sim.gravity_vec]
         self.body_off.from_numpy(np.array(self.offsets, np.int32))
         self._make_common()
+        # moving and named colliders: pose per substep, loads (compiled only when a collider needs them)
+        from simcli.colliders import ColliderPoses, collider_motions, collider_specs
+
+        self.poses = ColliderPoses(
+            collider_specs(self.scene, 3), collider_motions(self.scene, 3, self.scene_dir), 3, self.f
+        )
+        self.poses.allocate()
         if self.implicit:
             from simcli.solvers.fem.implicit import ImplicitIntegrator
 
@@ -451,6 +459,8 @@ class FEMSolver(Solver):
         # activation at the substep's start (explicit) or end (implicit: backward Euler's forces are at t +
         # dt)
         self._update_activation(self.time + (dt if self.implicit else 0.0))
+        if self.poses.needed:  # collider poses of this substep (host, no sync)
+            self.poses.set_time(self.time, dt)
         self.integrator.substep(dt, self.time)
         self.time += dt
         self._version += 1
@@ -471,6 +481,12 @@ class FEMSolver(Solver):
         vmax = float(np.max(self.stat_speed.to_numpy()))
         h = max(float(self.hmin_cur[None]), 0.25 * self.h_min)
         return self.opts.cfl * min(h, self.h_min) / (self.c_p + vmax)
+
+    def collider_loads(self) -> dict[str, np.ndarray]:
+        """Named collider -> impulse [N s] and its moment [N m s] the vertices gave it since the last call
+        (explicit: the momentum the contact projection removed; implicit: the penalty's impulse and the
+        friction's)."""
+        return self.poses.loads_by_name() if self._built else {}
 
     def length_scale(self) -> float:
         # explicit: a vertex crossing more than two elements per substep is a blow-up; implicit

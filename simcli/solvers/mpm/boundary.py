@@ -24,6 +24,8 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.colliders import (
+    ColliderPoses,
+    collider_motions,
     collider_specs,
     contact_velocity,
     project_out,
@@ -47,7 +49,15 @@ class GridBoundary:
     """
 
     def __init__(
-        self, scene: Any, dim: int, dtype: Any, origin: np.ndarray, dx: float, lo_node: tuple, hi_node: tuple
+        self,
+        scene: Any,
+        dim: int,
+        dtype: Any,
+        origin: np.ndarray,
+        dx: float,
+        lo_node: tuple,
+        hi_node: tuple,
+        scene_dir: Any = None,
     ) -> None:
         self.dim = dim
         self.dtype = dtype
@@ -58,6 +68,13 @@ class GridBoundary:
         self.colliders = collider_specs(scene, dim)
         self.walls = wall_specs(scene, dim)
         self.n_colliders = len(self.colliders)
+        # moving and named colliders: poses uploaded per substep, loads summed (compiled only if any)
+        self.poses = ColliderPoses(self.colliders, collider_motions(scene, dim, scene_dir), dim, dtype)
+        self.any_moving, self.any_named, self.named = (
+            self.poses.any_moving,
+            self.poses.any_named,
+            self.poses.named,
+        )
 
     def allocate(self) -> None:
         dim, f = self.dim, self.dtype
@@ -71,6 +88,7 @@ class GridBoundary:
         self.col_half_height = ti.field(f, shape=nc)
         self.col_friction = ti.field(f, shape=nc)
         self.upload()
+        self.poses.allocate()
 
     def upload(self) -> None:
         """Copy the run-time numbers (geometry, friction, wall velocity) into the fields."""
@@ -91,6 +109,27 @@ class GridBoundary:
         self.col_half_height.from_numpy(h)
         self.col_friction.from_numpy(mu)
 
+    def set_time(self, t: float, dt: float) -> None:
+        self.poses.set_time(t, dt)
+
+    def take_loads(self) -> np.ndarray:
+        return self.poses.take_loads()
+
+    @ti.func
+    def sdf_at(self, k: ti.template(), x, slot):
+        """(phi, outward normal, surface velocity) of collider k at world point x: a moving collider's
+        signed distance is its body-frame one at R^T (x - c) + p, its normal turned by R."""
+        phi = 1.0
+        n = x * 0.0
+        vw = x * 0.0
+        if ti.static(self.colliders[k].moving):
+            phi, nb = self.sdf(k, self.poses.to_body(k, x, slot))
+            n = self.poses.normal_to_world(k, nb, slot)
+            vw = self.poses.velocity(k, x, slot)
+        else:
+            phi, n = self.sdf(k, x)
+        return phi, n, vw
+
     @ti.func
     def sdf(self, k: ti.template(), x):
         """(phi, outward normal) of collider k at x."""
@@ -109,23 +148,41 @@ class GridBoundary:
         return phi, n
 
     @ti.func
-    def project_particle(self, x, v):
+    def project_particle(self, x, v, mp):
         """Particle-level contact after advection: out of every collider, inward velocity removed
-        (see :func:`simcli.colliders.project_out`). Compiled only when colliders exist."""
+        (see :func:`simcli.colliders.project_out`); a named collider takes the momentum removed from the
+        particle (mass ``mp``). Compiled only when colliders exist."""
         for k in ti.static(range(self.n_colliders)):
-            phi, n = self.sdf(k, x)
-            x, v = project_out(x, v, phi, n, self.colliders[k].contact, self.col_friction[k])
+            if ti.static(self.colliders[k].moving or self.named[k]):
+                phi, n, vw = self.sdf_at(k, x, 1)
+                x_new, vr = project_out(x, v - vw, phi, n, self.colliders[k].contact, self.col_friction[k])
+                if ti.static(self.named[k]):
+                    if phi < 0:
+                        self.poses.add_load(k, x_new, mp * (v - (vr + vw)), 1)
+                x, v = x_new, vr + vw
+            else:
+                phi, n = self.sdf(k, x)
+                x, v = project_out(x, v, phi, n, self.colliders[k].contact, self.col_friction[k])
         return x, v
 
     @ti.func
-    def apply(self, I, v):
-        """Velocity of grid node ``I`` after every collider and wall condition."""
+    def apply(self, I, v, m):
+        """Velocity of grid node ``I`` (mass ``m``) after every collider and wall condition. A named
+        collider takes the opposite of the momentum its condition gave the node (and its moment)."""
         if ti.static(self.n_colliders > 0):
             xI = ti.Vector(self.origin, dt=self.dtype) + I.cast(self.dtype) * self.dx
             for k in ti.static(range(self.n_colliders)):
-                phi, n = self.sdf(k, xI)
-                if phi < 0:
-                    v = contact_velocity(v, n, v * 0.0, self.colliders[k].contact, self.col_friction[k])
+                if ti.static(not self.colliders[k].moving and not self.named[k]):
+                    phi, n = self.sdf(k, xI)
+                    if phi < 0:
+                        v = contact_velocity(v, n, v * 0.0, self.colliders[k].contact, self.col_friction[k])
+                else:
+                    phi, n, vw = self.sdf_at(k, xI, 0)
+                    if phi < 0:
+                        v_new = contact_velocity(v, n, vw, self.colliders[k].contact, self.col_friction[k])
+                        if ti.static(self.named[k]):  # the impulse the node gives the collider [N s]
+                            self.poses.add_load(k, xI, m * (v - v_new), 0)
+                        v = v_new
         # walls last: confinement to the domain wins over everything else
         for k in ti.static(range(len(self.walls))):
             on_wall = False

@@ -85,8 +85,9 @@ class MPMSolver(Solver):
 
     family = "mpm"
 
-    def __init__(self, scene: Any, bodies: list[Body]) -> None:
+    def __init__(self, scene: Any, bodies: list[Body], scene_dir: Any = None) -> None:
         super().__init__(scene, bodies)
+        self.scene_dir = scene_dir  # motion files of colliders are relative to it
         if not bodies:
             raise ValueError("MPMSolver needs at least one body")
         self.dim = int(scene.sim.dim)
@@ -227,7 +228,9 @@ class MPMSolver(Solver):
         for law in self.laws:
             law.allocate(n)
             law.allocate_materials(self.materials)
-        self.boundary = GridBoundary(self.scene, dim, f, self.origin, self.dx, self.lo_node, self.hi_node)
+        self.boundary = GridBoundary(
+            self.scene, dim, f, self.origin, self.dx, self.lo_node, self.hi_node, self.scene_dir
+        )
         self.boundary.allocate()
 
         self._upload()
@@ -473,7 +476,7 @@ class MPMSolver(Solver):
                 if ti.static(boundary.n_colliders > 0):
                     # a particle that ended inside a collider goes back to its surface (the grid
                     # contact alone lets particles that start inside, or tunnel, stay there)
-                    xp, new_v = boundary.project_particle(xp, new_v)
+                    xp, new_v = boundary.project_particle(xp, new_v, mass[p])
                 xp = ti.min(ti.max(xp, dom_lo), dom_hi)
                 v[p] = new_v
                 C[p] = new_C
@@ -540,7 +543,7 @@ class MPMSolver(Solver):
                 if pinned:
                     vI = ti.Vector.zero(f, dim)
                 else:
-                    vI = boundary.apply(I, vI)
+                    vI = boundary.apply(I, vI, m)
             grid_v[I] = vI
             if ti.static(use_flip):
                 flip.store(I, g, vI)
@@ -747,6 +750,8 @@ class MPMSolver(Solver):
     def _advance(self, dt: float) -> None:
         for law in self.laws:  # muscle activations at the start of the substep (host, no sync)
             law.host_update(self.time)
+        if self.boundary.any_moving:  # collider poses of this substep (host, no sync)
+            self.boundary.set_time(self.time, dt)
         self._substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
         self.time += dt
         self._version += 1
@@ -765,6 +770,8 @@ class MPMSolver(Solver):
         hardening factor (snow) and by the largest muscle activation."""
         self._frame_stats()
         vmax = float(np.max(self.stat_speed.to_numpy()))
+        if self.boundary.any_moving:  # a moving collider must not cross more than cfl cells a substep either
+            vmax = max(vmax, self.boundary.poses.max_surface_speed(self.time))
         stiff = min(self.stiff_cap, max(1.0, float(self.stat_stiff[None]))) * self.wave_factor
         c = self.c_max * math.sqrt(stiff)
         dt_wave = WAVE_SAFETY * self.dx / c if c > 0 else math.inf
@@ -846,6 +853,15 @@ class MPMSolver(Solver):
 
     def length_scale(self) -> float:
         return self.dx
+
+    def collider_loads(self) -> dict[str, np.ndarray]:
+        """Named collider -> (dim + 3) impulse [N s] and its moment about the collider's moving pivot
+        [N m s] that the material gave it since the last call (the opposite of what the contact gave the
+        material, summed over the grid nodes and substeps); resets them."""
+        if not self._built or not self.boundary.any_named:
+            return {}
+        a = self.boundary.take_loads()
+        return {c.name: a[k] for k, c in enumerate(self.boundary.colliders) if c.name is not None}
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
         d = self.dim

@@ -91,6 +91,7 @@ class PBDSolver(Solver):
             raise ValueError("PBD entities need a 3D scene (sim.dim: 3)")
         self.opts = scene.solvers.pbd
         self.entities = [e for e in scene.entities if e.family == "PBD"]
+        self.scene_dir = scene_dir  # collider motion files are relative to it
         self.meshes = [mesh_for_entity(e, scene_dir, self.opts) for e in self.entities]
         self._index = {e.name: k for k, e in enumerate(self.entities)}
         self.offsets = [0]
@@ -185,7 +186,7 @@ class PBDSolver(Solver):
     def build(self) -> None:
         if self._built:
             return
-        from simcli.colliders import collider_specs, wall_specs
+        from simcli.colliders import ColliderPoses, collider_motions, collider_specs, wall_specs
 
         f = ti.f64 if self.scene.sim.precision == "f64" else ti.f32
         self.f = f
@@ -211,6 +212,9 @@ class PBDSolver(Solver):
         # walls and colliders: kinds compile-time, numbers in fields
         self.walls = wall_specs(self.scene, 3)
         self.cols = collider_specs(self.scene, 3)
+        # moving and named colliders: pose per substep, loads (compiled only when a collider needs them)
+        self.poses = ColliderPoses(self.cols, collider_motions(self.scene, 3, self.scene_dir), 3, f)
+        self.poses.allocate()
         nc = max(1, len(self.cols))
         self.col_a, self.col_b = V3(nc), V3(nc)
         self.col_r, self.col_hh, self.col_mu = (ti.field(f, shape=nc) for _ in range(3))
@@ -439,7 +443,7 @@ class PBDSolver(Solver):
 
         from simcli.colliders import sdf_box, sdf_cylinder, sdf_plane, sdf_sphere
 
-        walls, cols = self.walls, self.cols
+        walls, cols, poses = self.walls, self.cols, self.poses
         nc = len(cols)
         col_a, col_b, col_r, col_hh, col_mu = self.col_a, self.col_b, self.col_r, self.col_hh, self.col_mu
         dom_lo, dom_hi, wall_mu = self.dom_lo, self.dom_hi, self.wall_mu
@@ -485,15 +489,34 @@ class PBDSolver(Solver):
                     for k in ti.static(range(nc)):
                         phi = 1.0
                         nrm = ti.Vector.zero(float, 3)
+                        xq = xi
+                        if ti.static(cols[k].moving):  # the body-frame SDF at the substep's end pose
+                            xq = poses.to_body(k, xi, 1)
                         if ti.static(cols[k].kind == "Plane"):
-                            phi, nrm = sdf_plane(xi, col_a[k], col_b[k])
+                            phi, nrm = sdf_plane(xq, col_a[k], col_b[k])
                         elif ti.static(cols[k].kind == "Sphere"):
-                            phi, nrm = sdf_sphere(xi, col_a[k], col_r[k])
+                            phi, nrm = sdf_sphere(xq, col_a[k], col_r[k])
                         elif ti.static(cols[k].kind == "Box"):
-                            phi, nrm = sdf_box(xi, col_a[k], col_b[k])
+                            phi, nrm = sdf_box(xq, col_a[k], col_b[k])
                         elif ti.static(cols[k].kind == "Cylinder"):
-                            phi, nrm = sdf_cylinder(xi, col_a[k], col_r[k], col_hh[k], cols[k].axis)
-                        xi = push(xi, xpi, phi, nrm, r, col_mu[k], cols[k].contact == "sticky", friction)
+                            phi, nrm = sdf_cylinder(xq, col_a[k], col_r[k], col_hh[k], cols[k].axis)
+                        if ti.static(cols[k].moving):
+                            nrm = poses.normal_to_world(k, nrm, 1)
+                            # friction on the displacement relative to the surface's own over the substep
+                            xref = xpi + poses.velocity(k, xi, 1) * poses.dt[None]
+                            xo = push(xi, xref, phi, nrm, r, col_mu[k], cols[k].contact == "sticky", friction)
+                            if ti.static(friction and poses.named[k]):
+                                # the momentum the contact gives the particle, -m (xo - xi) / dt,
+                                # goes to the collider
+                                poses.add_load(k, xo, -(xo - xi) / (w[i] * poses.dt[None]), 1)
+                            xi = xo
+                        elif ti.static(poses.named[k]):
+                            xo = push(xi, xpi, phi, nrm, r, col_mu[k], cols[k].contact == "sticky", friction)
+                            if ti.static(friction):
+                                poses.add_load(k, xo, -(xo - xi) / (w[i] * poses.dt[None]), 1)
+                            xi = xo
+                        else:
+                            xi = push(xi, xpi, phi, nrm, r, col_mu[k], cols[k].contact == "sticky", friction)
                     x[i] = xi
 
         @ti.kernel
@@ -542,6 +565,8 @@ class PBDSolver(Solver):
 
     # -------------------------------------------------------------- stepping
     def substep(self, dt: float) -> None:
+        if self.poses.needed:  # collider poses of this substep (host, no sync)
+            self.poses.set_time(self.time, dt)
         self._predict(dt)
         self._reset()
         if self.serial:
@@ -579,12 +604,20 @@ class PBDSolver(Solver):
 
     def stable_dt(self) -> float:
         """XPBD is unconditionally stable; contact needs a vertex to move less than its radius per
-        substep to be caught before it crosses a thin collider: half the smallest radius / largest speed."""
+        substep to be caught before it crosses a thin collider: half the smallest radius / largest speed
+        (of the particles and of the moving colliders' surfaces)."""
         self._frame_stats()
         vmax = float(np.max(self.stat_speed.to_numpy()))
+        if self.poses.any_moving and math.isfinite(vmax):  # a moving collider's surface counts too
+            vmax = max(vmax, self.poses.max_surface_speed(self.time))
         if not math.isfinite(vmax) or vmax <= 0:
             return math.inf
         return 0.5 * float(self.radius.min()) / vmax
+
+    def collider_loads(self) -> dict[str, np.ndarray]:
+        """Named collider -> impulse [N s] and its moment [N m s] the particles gave it since the last call
+        (the opposite of the final contact projection's momentum change, -m dx / dt, per substep)."""
+        return self.poses.loads_by_name() if self._built else {}
 
     def length_scale(self) -> float:
         return max(self.edge, self.opts.particle_size)
