@@ -81,6 +81,6 @@ def test_bad_motions_exit_65_with_location(tmp_path):
     assert "Traceback" not in err
     assert f"{scene}:5:" in err and "missing column(s) z" in err
     assert f"{scene}:6:" in err and "leaves the domain" in err
-    assert f"{scene}:8:" in err and "keyframe times must increase" in err
+    assert f"{scene}:11:" in err and "keyframe times must increase" in err  # the motion: line of item 3
     r = _run(["run", str(scene), "-o", str(tmp_path / "out")])
     assert r.returncode == 65 and "Traceback" not in r.stderr
