@@ -21,6 +21,19 @@ integrator), mu, lam the material's Lame parameters: beta x the small-strain sti
 translation and of second order in the rotation increment for a rigid rotation. Both are quadratic in x,
 so Newton's Hessian and the line search's energy include them exactly.
 
+Implicit midpoint (``integrator: implicit_midpoint``): x_{n+1} = x_n + h (v_n + v_{n+1}) / 2,
+v_{n+1} = v_n + h a(x_mid, v_mid) with x_mid = (x_n + x_{n+1}) / 2, v_mid = (x_{n+1} - x_n) / h. It is the
+composition of a backward Euler half step and an explicit (forward) Euler half step (Hairer, Lubich and
+Wanner, Geometric Numerical Integration, 2nd ed. 2006, sec. II.4, the midpoint rule as the adjoint pair
+of Euler half steps): the half step solves for x_mid exactly the minimisation above with h/2 in place of h
+(same residual, Hessian, line search and stopping rules, the mass term m / (2 (h/2)^2) |x - xhat|^2 with
+xhat = x_n + (h/2) v_n + (h/2)^2 g), then x_{n+1} = 2 x_mid - x_n and v_{n+1} = 2 (x_mid - x_n) / (h/2) -
+v_n. Second order, symplectic, A-stable, no numerical damping; it keeps quadratic invariants (the angular
+momentum of a free body) and the energy of linear dynamics exactly. Rayleigh damping acts at the midpoint
+velocity (x_mid - x_n) / (h/2) = v_mid, the forces at x_mid (the trapezoidal/midpoint damping). Held
+components follow their path at the midpoint and the end; contact is the penalty at x_mid and friction
+is applied to v_{n+1}.
+
 Convergence tests need the residual on the host: one small read-back per PCG and Newton iteration
 (the only host syncs inside a substep in simcli; the explicit integrator has none).
 """
@@ -69,6 +82,7 @@ class ImplicitIntegrator:
         self.dA = M3(m if self.beta > 0 else 1)
         self.dJ = ti.field(f, shape=m if self.beta > 0 else 1)
         self.opts = s.opts
+        self.midpoint = s.opts.integrator == "implicit_midpoint"
         # a Newton step smaller than this [m] moves positions by their round-off only
         self.round_off = (1e-6 if f == ti.f32 else 1e-13) * max(s.extent, 1e-3)
         # the residual per vertex mass holds m / h^2 (x - xhat): positions rounded to eps |x| put a floor of
@@ -359,7 +373,29 @@ class ImplicitIntegrator:
                         vi[c] = vfix[i][c]
                 v[i] = vi
 
+        @ti.kernel
+        def finish_midpoint(dt: f, t: f):
+            """Implicit midpoint's explicit half step: x holds x_mid (the half step's solution, dt = h/2)."""
+            for i in range(n):
+                y = x[i]
+                vm = (y - xn[i]) / dt  # the midpoint velocity
+                xi = 2.0 * y - xn[i]
+                vi = 2.0 * vm - v[i]
+                phi, nrm, kind, mu = nearest(y)
+                if ck[i] > 0 or phi < 0:
+                    # normal speed the penalty took away over the step h = 2 dt: force x h / m
+                    dvn = 2.0 * ti.max(0.0, -phi) * kc / dt
+                    vi = friction_velocity(vi, nrm, kind, mu, dvn)
+                fr = free[i]
+                for c in ti.static(range(3)):
+                    if fr[c] == 0:
+                        vi[c] = vfix[i][c]
+                        xi[c] = xr[i][c] + vfix[i][c] * (t + 2.0 * dt)
+                x[i] = xi
+                v[i] = vi
+
         self.k = dict(
+            finish_midpoint=finish_midpoint,
             begin=begin,
             predictor_min_det=predictor_min_det,
             assemble=assemble,
@@ -386,6 +422,21 @@ class ImplicitIntegrator:
         k["predictor_min_det"]()
 
     def substep(self, dt: float, t: float) -> None:
+        if self.midpoint:
+            # backward Euler half step to x_mid (below, with h/2), then the explicit half step
+            h = dt
+            self._solve(0.5 * h, t)
+            self.k["finish_midpoint"](0.5 * h, t)
+        else:
+            self._solve(dt, t)
+            self.k["finish"](dt)
+        st = self.s.stats
+        if len(st["newton"]) > 100000:
+            del st["newton"][:50000], st["pcg"][:50000]
+
+    def _solve(self, dt: float, t: float) -> None:
+        """Minimise the backward Euler incremental potential of a step dt from time t (x ends at its
+        minimiser; v still holds the start velocity)."""
         k, o, st = self.k, self.opts, self.s.stats
         k["begin"](dt, t)
         # Start Newton from free flight's solution x_n + h (v_n + h g) / (1 + alpha h) when it inverts no
@@ -461,11 +512,8 @@ class ImplicitIntegrator:
                         k["apply"](alpha)
                     break
             k["apply"](alpha)
-        k["finish"](dt)
         st["newton"].append(newton_it)
         st["pcg"].append(pcg_total)
-        if len(st["newton"]) > 100000:
-            del st["newton"][:50000], st["pcg"][:50000]
 
 
 __all__ = ["ImplicitIntegrator", "np"]

@@ -355,7 +355,10 @@ def estimate_counts(entity, opts, scene_dir=None) -> tuple[int, int]:
 
 def estimate_bytes(n_vertices: int, n_tets: int, integrator: str, precision: str) -> int:
     fp = 2 if precision == "f64" else 1
-    (vt, vh), (tt, th) = _FEM_VERTEX[integrator], _FEM_TET[integrator]
+    kind = (
+        "explicit" if integrator == "explicit" else "implicit"
+    )  # backward_euler, implicit_midpoint: implicit
+    (vt, vh), (tt, th) = _FEM_VERTEX[kind], _FEM_TET[kind]
     return n_vertices * (vt * fp + vh) + n_tets * (tt * fp + th)
 
 
