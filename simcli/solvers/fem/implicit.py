@@ -31,8 +31,11 @@ xhat = x_n + (h/2) v_n + (h/2)^2 g), then x_{n+1} = 2 x_mid - x_n and v_{n+1} = 
 v_n. Second order, symplectic, A-stable, no numerical damping; it keeps quadratic invariants (the angular
 momentum of a free body) and the energy of linear dynamics exactly. Rayleigh damping acts at the midpoint
 velocity (x_mid - x_n) / (h/2) = v_mid, the forces at x_mid (the trapezoidal/midpoint damping). Held
-components follow their path at the midpoint and the end; contact is the penalty at x_mid and friction
-is applied to v_{n+1}.
+components follow their path at the midpoint and the end. Contact: the penalty acts on the end-of-step
+position x_{n+1} = 2 x_mid - x_n (kappa_i / 8 phi(2 x - x_n)^2 in the half step's potential, kappa_i =
+contact_stiffness m_i / (h/2)^2), as backward Euler's does on its end position: evaluated at x_mid it let
+x_{n+1} sink deep into the floor and each impact gained energy (a block dropped on the floor bounced
+back with twice its impact energy); friction is applied to v_{n+1}.
 
 Convergence tests need the residual on the host: one small read-back per PCG and Newton iteration
 (the only host syncs inside a substep in simcli; the explicit integrator has none).
@@ -135,6 +138,7 @@ class ImplicitIntegrator:
         has_muscle, active_dP = s.has_muscle, s.active_dP
         dA, dJ, mid, mu0, lam0 = self.dA, self.dJ, s.mid_f, s.mat_mu0, s.mat_lam0
         rotated, k0, dmin, tet = self.rotated, self.k0, self.dmin, s.tet_f
+        midpoint = self.midpoint
 
         @ti.func
         def damp_pk1(e, dF):
@@ -202,12 +206,21 @@ class ImplicitIntegrator:
                 gi = mi / (dt * dt) * (x[i] - xhat[i]) + gather(i) - fext[i]
                 if ti.static(ray_a > 0):
                     gi += ray_a * mi / dt * (x[i] - xn[i])
-                phi, nrm, kind, mu = nearest(x[i])
                 k = 0.0
-                if phi < 0:
-                    k = kc * mi / (dt * dt)
-                    gi += k * phi * nrm
-                cn[i] = nrm
+                if ti.static(not midpoint):
+                    phi, nrm, kind, mu = nearest(x[i])
+                    if phi < 0:
+                        k = kc * mi / (dt * dt)
+                        gi += k * phi * nrm
+                    cn[i] = nrm
+                else:
+                    # implicit midpoint: the penalty acts on the end-of-step position 2 x - x_n (energy
+                    # kc m / (8 dt^2) phi^2 in the half step's unknown x: gradient k/2 phi n, Hessian k n n^T)
+                    phi, nrm, kind, mu = nearest(2.0 * x[i] - xn[i])
+                    if phi < 0:
+                        k = kc * mi / (dt * dt)
+                        gi += 0.5 * k * phi * nrm
+                    cn[i] = nrm
                 ck[i] = k
                 gi = gi * free[i]
                 g[i] = gi
@@ -347,9 +360,14 @@ class ImplicitIntegrator:
                 if ti.static(ray_a > 0):
                     dn = q[i] - xn[i]
                     Ei += 0.5 * ray_a * mass[i] / dt * dn.dot(dn)
-                phi, nrm, kind, mu = nearest(q[i])
-                if phi < 0:
-                    Ei += 0.5 * kc * mass[i] / (dt * dt) * phi * phi
+                if ti.static(not midpoint):
+                    phi, nrm, kind, mu = nearest(q[i])
+                    if phi < 0:
+                        Ei += 0.5 * kc * mass[i] / (dt * dt) * phi * phi
+                else:
+                    phi, nrm, kind, mu = nearest(2.0 * q[i] - xn[i])
+                    if phi < 0:
+                        Ei += 0.125 * kc * mass[i] / (dt * dt) * phi * phi
                 E += ti.cast(Ei, ti.f64)
             return E
 
@@ -381,10 +399,10 @@ class ImplicitIntegrator:
                 vm = (y - xn[i]) / dt  # the midpoint velocity
                 xi = 2.0 * y - xn[i]
                 vi = 2.0 * vm - v[i]
-                phi, nrm, kind, mu = nearest(y)
+                phi, nrm, kind, mu = nearest(xi)
                 if ck[i] > 0 or phi < 0:
-                    # normal speed the penalty took away over the step h = 2 dt: force x h / m
-                    dvn = 2.0 * ti.max(0.0, -phi) * kc / dt
+                    # normal speed the penalty (at the end position) took away: 2 dt x force / m
+                    dvn = ti.max(0.0, -phi) * kc / dt
                     vi = friction_velocity(vi, nrm, kind, mu, dvn)
                 fr = free[i]
                 for c in ti.static(range(3)):
