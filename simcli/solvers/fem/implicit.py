@@ -37,6 +37,11 @@ contact_stiffness m_i / (h/2)^2), as backward Euler's does on its end position: 
 x_{n+1} sink deep into the floor and each impact gained energy (a block dropped on the floor bounced
 back with twice its impact energy); friction is applied to v_{n+1}.
 
+Guard: the midpoint rule keeps energy for linear dynamics only; when its extrapolation x_{n+1} = 2 x_mid -
+x_n leaves an element inverted (det F <= 0) the step is taken again by backward Euler from (x_n, v_n)
+(counted as ``midpoint_fallbacks`` in run.json): without it a block hitting a sphere at 20 m/s
+(configs/hard/fem_fast_impact.yaml) gained energy until vertices flew at 120 m/s.
+
 Convergence tests need the residual on the host: one small read-back per PCG and Newton iteration
 (the only host syncs inside a substep in simcli; the explicit integrator has none).
 """
@@ -86,6 +91,7 @@ class ImplicitIntegrator:
         self.dJ = ti.field(f, shape=m if self.beta > 0 else 1)
         self.opts = s.opts
         self.midpoint = s.opts.integrator == "implicit_midpoint"
+        self.vn = V3(n if self.midpoint else 1)  # implicit midpoint: v_n, kept for a backward Euler retry
         # a Newton step smaller than this [m] moves positions by their round-off only
         self.round_off = (1e-6 if f == ti.f32 else 1e-13) * max(s.extent, 1e-3)
         # the residual per vertex mass holds m / h^2 (x - xhat): positions rounded to eps |x| put a floor of
@@ -391,6 +397,27 @@ class ImplicitIntegrator:
                         vi[c] = vfix[i][c]
                 v[i] = vi
 
+        vn = self.vn
+
+        @ti.kernel
+        def save_v():
+            for i in range(n):
+                vn[i] = v[i]
+
+        @ti.kernel
+        def restore():
+            for i in range(n):
+                x[i] = xn[i]
+                v[i] = vn[i]
+
+        @ti.kernel
+        def min_det() -> f:
+            """Smallest det F over the elements at x."""
+            dmin[None] = 1e30
+            for e in range(m):
+                ti.atomic_min(dmin[None], deformation(e, x).determinant())
+            return dmin[None]
+
         @ti.kernel
         def finish_midpoint(dt: f, t: f):
             """Implicit midpoint's explicit half step: x holds x_mid (the half step's solution, dt = h/2)."""
@@ -414,6 +441,9 @@ class ImplicitIntegrator:
 
         self.k = dict(
             finish_midpoint=finish_midpoint,
+            save_v=save_v,
+            restore=restore,
+            min_det=min_det,
             begin=begin,
             predictor_min_det=predictor_min_det,
             assemble=assemble,
@@ -442,9 +472,19 @@ class ImplicitIntegrator:
     def substep(self, dt: float, t: float) -> None:
         if self.midpoint:
             # backward Euler half step to x_mid (below, with h/2), then the explicit half step
-            h = dt
+            h, k = dt, self.k
+            k["save_v"]()
             self._solve(0.5 * h, t)
-            self.k["finish_midpoint"](0.5 * h, t)
+            k["finish_midpoint"](0.5 * h, t)
+            if not k["min_det"]() > 0:
+                # the extrapolation x_n+1 = 2 x_mid - x_n inverted an element: the midpoint rule is not
+                # energy-stable for such large nonlinear steps (energy then grows without bound: a block
+                # hitting a sphere at 20 m/s); this step is taken again by backward Euler (counted)
+                k["restore"]()
+                self._solve(h, t)
+                k["finish"](h)
+                st = self.s.stats
+                st["midpoint_fallbacks"] = st.get("midpoint_fallbacks", 0) + 1
         else:
             self._solve(dt, t)
             self.k["finish"](dt)

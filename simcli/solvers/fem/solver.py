@@ -585,6 +585,7 @@ class FEMSolver(Solver):
                 newton_capped=s["newton_capped"],
                 pcg_capped=s["pcg_capped"],
                 newton_stagnated=s.get("stagnated", 0),
+                **({"midpoint_fallbacks": s.get("midpoint_fallbacks", 0)} if self.midpoint else {}),
                 steps_measured=len(nw),
             )
         return d
