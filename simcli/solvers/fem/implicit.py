@@ -92,6 +92,10 @@ class ImplicitIntegrator:
         self.opts = s.opts
         self.midpoint = s.opts.integrator == "implicit_midpoint"
         self.vn = V3(n if self.midpoint else 1)  # implicit midpoint: v_n, kept for a backward Euler retry
+        # implicit midpoint: the contact penalty acts on c x - (c - 1) x_n: c = 2 in the half step (the end
+        # position), c = 1 in a backward Euler retry (its own end position)
+        self.cw = ti.field(f, shape=())
+        self.cw[None] = 2.0
         # a Newton step smaller than this [m] moves positions by their round-off only
         self.round_off = (1e-6 if f == ti.f32 else 1e-13) * max(s.extent, 1e-3)
         # the residual per vertex mass holds m / h^2 (x - xhat): positions rounded to eps |x| put a floor of
@@ -144,7 +148,7 @@ class ImplicitIntegrator:
         has_muscle, active_dP = s.has_muscle, s.active_dP
         dA, dJ, mid, mu0, lam0 = self.dA, self.dJ, s.mid_f, s.mat_mu0, s.mat_lam0
         rotated, k0, dmin, tet = self.rotated, self.k0, self.dmin, s.tet_f
-        midpoint = self.midpoint
+        midpoint, cw = self.midpoint, self.cw
 
         @ti.func
         def damp_pk1(e, dF):
@@ -220,12 +224,14 @@ class ImplicitIntegrator:
                         gi += k * phi * nrm
                     cn[i] = nrm
                 else:
-                    # implicit midpoint: the penalty acts on the end-of-step position 2 x - x_n (energy
-                    # kc m / (8 dt^2) phi^2 in the half step's unknown x: gradient k/2 phi n, Hessian k n n^T)
-                    phi, nrm, kind, mu = nearest(2.0 * x[i] - xn[i])
+                    # implicit midpoint: the penalty acts on the end-of-step position c x - (c - 1) x_n, c = 2
+                    # (energy kc m / (2 c^2 dt^2) phi^2 in the half step's unknown x: gradient k / c phi n,
+                    # Hessian k n n^T); c = 1 in a backward Euler retry
+                    c = cw[None]
+                    phi, nrm, kind, mu = nearest(c * x[i] - (c - 1.0) * xn[i])
                     if phi < 0:
                         k = kc * mi / (dt * dt)
-                        gi += 0.5 * k * phi * nrm
+                        gi += k / c * phi * nrm
                     cn[i] = nrm
                 ck[i] = k
                 gi = gi * free[i]
@@ -371,9 +377,10 @@ class ImplicitIntegrator:
                     if phi < 0:
                         Ei += 0.5 * kc * mass[i] / (dt * dt) * phi * phi
                 else:
-                    phi, nrm, kind, mu = nearest(2.0 * q[i] - xn[i])
+                    c = cw[None]
+                    phi, nrm, kind, mu = nearest(c * q[i] - (c - 1.0) * xn[i])
                     if phi < 0:
-                        Ei += 0.125 * kc * mass[i] / (dt * dt) * phi * phi
+                        Ei += 0.5 / (c * c) * kc * mass[i] / (dt * dt) * phi * phi
                 E += ti.cast(Ei, ti.f64)
             return E
 
@@ -481,7 +488,9 @@ class ImplicitIntegrator:
                 # energy-stable for such large nonlinear steps (energy then grows without bound: a block
                 # hitting a sphere at 20 m/s); this step is taken again by backward Euler (counted)
                 k["restore"]()
+                self.cw[None] = 1.0  # contact on the retry's own end position
                 self._solve(h, t)
+                self.cw[None] = 2.0
                 k["finish"](h)
                 st = self.s.stats
                 st["midpoint_fallbacks"] = st.get("midpoint_fallbacks", 0) + 1
