@@ -91,6 +91,7 @@ def invert(stretch, model="stable_neohookean"):
 if what == "dynamics":
     out["invert"] = invert("[1, 1, -1]")
     out["squash"] = invert("[1, 1, 0.01]")
+if what == "invert_nh":  # its own subprocess: the dynamics set alone nears the 600 s test timeout
     out["invert_neohookean"] = invert("[1, 1, -1]", "neohookean")
     out["squash_neohookean"] = invert("[1, 1, 0.01]", "neohookean")
 
@@ -137,6 +138,11 @@ def res(tmp_path_factory):
 @pytest.fixture(scope="module")
 def dyn(tmp_path_factory):
     return _run(tmp_path_factory, "dynamics")
+
+
+@pytest.fixture(scope="module")
+def inv_nh(tmp_path_factory):
+    return _run(tmp_path_factory, "invert_nh")
 
 
 @pytest.fixture(scope="module")
@@ -199,12 +205,23 @@ def test_linear_model_grows_under_rotation(dyn):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", ["invert", "squash", "invert_neohookean", "squash_neohookean"])
+@pytest.mark.parametrize("case", ["invert", "squash"])
 def test_inversion_recovery(dyn, case):
     """Started inverted or squashed flat, stable Neo-Hookean (implicit) is back at its rest volume
-    within 1 s, with no inverted element and no NaN; so is the classical neo-Hookean model, whose ln J is
-    continued below J = 0.01 by its Taylor polynomial (the inversion guard)."""
-    r = dyn[case]
+    within 1 s, with no inverted element and no NaN."""
+    _check_recovery(dyn[case])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["invert_neohookean", "squash_neohookean"])
+def test_neohookean_inversion_recovery(inv_nh, case):
+    """The same for the classical neo-Hookean model, whose ln J is continued below J = 0.01 by its Taylor
+    polynomial (the inversion guard): back at its rest volume, no inverted element, no NaN."""
+    _check_recovery(inv_nh[case])
+
+
+def _check_recovery(r):
+
     assert r["finite"]
     assert r["start"] < 0.05, r  # it really started inverted / flat
     assert abs(r["end"] - 1) < 0.01, r
