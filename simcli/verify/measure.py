@@ -287,15 +287,30 @@ def tet_volume_ratio(f, entity, **_):
 
 
 @measurement("be_decay_ratio")
-def be_decay_ratio(f, entity, w, axis=2, lower=None, upper=None, alpha=0.0, beta=0.0, skip=20, modes=2, **_):
+def be_decay_ratio(
+    f,
+    entity,
+    w,
+    axis=2,
+    lower=None,
+    upper=None,
+    alpha=0.0,
+    beta=0.0,
+    skip=20,
+    modes=2,
+    scheme="backward_euler",
+    **_,
+):
     """Measured over predicted per-step decay of a vibration's slowest mode under backward Euler [-] (FEM
     implicit damping; output every step). The mean displacement along ``axis`` of the vertices initially in
     [lower, upper] after ``skip`` frames is fitted by linear prediction with ``modes`` damped modes and a
     constant (y_n+1 = sum_k a_k y_n-k + c: exact for a sum of modes of a linear one-step method); the root
     pair of smallest phase is the slowest mode, |lambda| its amplification per step. Backward Euler gives a
     mode of angular frequency ``w`` [rad/s] with Rayleigh damping c = alpha + beta w^2 the amplification
-    (1 + dt c + (w dt)^2)^-1/2 (|1 / (1 + i w dt)| without damping). Returns ln|lambda| / ln(prediction) at
-    the last frame's time."""
+    (1 + dt c + (w dt)^2)^-1/2 (|1 / (1 + i w dt)| without damping). ``scheme: implicit_midpoint``: the
+    midpoint rule's |(1 + dt m / 2) / (1 - dt m / 2)| with m = -c / 2 + i sqrt(w^2 - c^2 / 4) the mode's
+    continuous root (no numerical damping: the decay is Rayleigh damping's alone; needs c > 0). Returns
+    ln|lambda| / ln(prediction) at the last frame's time."""
     _, g = _entity(f, entity)
     x = _positions(g)
     if "displacement" in g:  # (FEM) exact to f32 round-off of the small displacement, not of the position
@@ -320,7 +335,15 @@ def be_decay_ratio(f, entity, w, axis=2, lower=None, upper=None, alpha=0.0, beta
         raise ValueError("be_decay_ratio: no oscillating mode found in the series")
     lam = osc[np.argmin(np.angle(osc))]
     c = alpha + beta * w * w
-    predicted = (1.0 + dt * c + (w * dt) ** 2) ** -0.5
+    if scheme == "implicit_midpoint":
+        mc = complex(-0.5 * c, math.sqrt(max(w * w - 0.25 * c * c, 0.0)))
+        predicted = abs((1.0 + 0.5 * dt * mc) / (1.0 - 0.5 * dt * mc))
+    elif scheme == "backward_euler":
+        predicted = (1.0 + dt * c + (w * dt) ** 2) ** -0.5
+    else:
+        raise ValueError(f"be_decay_ratio: scheme {scheme!r}: give backward_euler or implicit_midpoint")
+    if not predicted < 1.0:
+        raise ValueError("be_decay_ratio: the predicted amplification is 1 (no damping): nothing to compare")
     return t[-1:], np.array([math.log(abs(lam)) / math.log(predicted)])
 
 

@@ -19,7 +19,8 @@ _FEM_TET = {"explicit": (4 * 32 + 36, 250), "implicit": (4 * 101 + 36, 250)}
 
 def estimate_bytes(n_vertices: int, n_tets: int, integrator: str, precision: str) -> int:
     fp = 2 if precision == "f64" else 1
-    (vt, vh), (tt, th) = _FEM_VERTEX[integrator], _FEM_TET[integrator]
+    kind = "explicit" if integrator == "explicit" else "implicit"  # backward_euler, implicit_midpoint
+    (vt, vh), (tt, th) = _FEM_VERTEX[kind], _FEM_TET[kind]
     return n_vertices * (vt * fp + vh) + n_tets * (tt * fp + th)
 
 

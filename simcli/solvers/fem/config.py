@@ -1,7 +1,8 @@
 """FEM configuration: solver options and the tetrahedral solid materials (pydantic, no Taichi).
 
 Names follow Genesis (``gs.options.FEMOptions``, ``gs.materials.FEM.Elastic``): ``E``, ``nu``,
-``rho``, ``model`` (linear | linear_corotated | stable_neohookean). Where simcli differs it says so
+``rho``, ``model`` (linear | linear_corotated | stable_neohookean | neohookean). Where simcli differs it
+says so
 in the field's description (lumped masses, tolerance-based Newton/PCG stopping).
 """
 
@@ -24,11 +25,17 @@ class _Options(BaseModel):
 
 
 class FEMOptions(_Options):
-    integrator: Literal["explicit", "implicit"] = Field(
+    integrator: Literal["explicit", "implicit", "backward_euler", "implicit_midpoint"] = Field(
         "explicit",
-        description="explicit: symplectic Euler with lumped vertex masses (substep limited by the elastic "
-        "wave speed: use substeps: auto). implicit: backward Euler, each substep minimises the incremental "
-        "potential with Newton's method, PCG (3x3 block-Jacobi) linear solves and Armijo back-tracking.",
+        description="explicit: symplectic Euler with lumped vertex masses (substep limited by the "
+        "elastic wave "
+        "speed: use substeps: auto). implicit (the same as backward_euler): backward Euler, each substep "
+        "minimises the incremental potential with Newton's method, PCG (3x3 block-Jacobi) linear solves and "
+        "Armijo back-tracking; first order, damps vibrations and rotations numerically (choose it for "
+        "heavily damped, quasi-static and contact-dominated scenes). implicit_midpoint: the second-order, "
+        "symplectic implicit midpoint rule, solved as a backward Euler half step (the same Newton-PCG "
+        "minimisation) followed by an explicit half step; keeps the energy of undamped motion and the "
+        "angular momentum of a free body (choose it for elastic dynamics: vibration, spinning).",
     )
     resolution: float = Field(
         20.0,
@@ -150,11 +157,16 @@ class FEMBoundaryCondition(_Options):
 
 
 class _FEMSolid(_Solid):
-    model: Literal["linear", "linear_corotated", "stable_neohookean"] = Field(
+    model: Literal["linear", "linear_corotated", "stable_neohookean", "neohookean"] = Field(
         "stable_neohookean",
         description="Constitutive model: 'linear' (small-strain, not rotation invariant), 'linear_corotated' "
         "(linear in the stretch S of F = R S), 'stable_neohookean' (Smith, de Goes and Kim 2018, Lame "
-        "parameters reparameterised to match linear elasticity at small strain; robust to inversion).",
+        "parameters reparameterised to match linear elasticity at small strain; robust to inversion), "
+        "'neohookean' (the classical compressible neo-Hookean of Bonet and Wood, psi = mu/2 (I1 - "
+        "3) - mu ln J "
+        "+ lambda/2 (ln J)^2: the model of the reference solutions, e.g. Cook's membrane; undefined for "
+        "J <= 0: an inverted element's ln J is taken at J = 1e-4 (docs/FEM.md), so prefer "
+        "stable_neohookean where elements may invert).",
     )
     angular_velocity: Vec | None = Field(
         None,

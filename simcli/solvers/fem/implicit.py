@@ -21,6 +21,27 @@ integrator), mu, lam the material's Lame parameters: beta x the small-strain sti
 translation and of second order in the rotation increment for a rigid rotation. Both are quadratic in x,
 so Newton's Hessian and the line search's energy include them exactly.
 
+Implicit midpoint (``integrator: implicit_midpoint``): x_{n+1} = x_n + h (v_n + v_{n+1}) / 2,
+v_{n+1} = v_n + h a(x_mid, v_mid) with x_mid = (x_n + x_{n+1}) / 2, v_mid = (x_{n+1} - x_n) / h. It is the
+composition of a backward Euler half step and an explicit (forward) Euler half step (Hairer, Lubich and
+Wanner, Geometric Numerical Integration, 2nd ed. 2006, sec. II.4, the midpoint rule as the adjoint pair
+of Euler half steps): the half step solves for x_mid exactly the minimisation above with h/2 in place of h
+(same residual, Hessian, line search and stopping rules, the mass term m / (2 (h/2)^2) |x - xhat|^2 with
+xhat = x_n + (h/2) v_n + (h/2)^2 g), then x_{n+1} = 2 x_mid - x_n and v_{n+1} = 2 (x_mid - x_n) / (h/2) -
+v_n. Second order, symplectic, A-stable, no numerical damping; it keeps quadratic invariants (the angular
+momentum of a free body) and the energy of linear dynamics exactly. Rayleigh damping acts at the midpoint
+velocity (x_mid - x_n) / (h/2) = v_mid, the forces at x_mid (the trapezoidal/midpoint damping). Held
+components follow their path at the midpoint and the end. Contact: the penalty acts on the end-of-step
+position x_{n+1} = 2 x_mid - x_n (kappa_i / 8 phi(2 x - x_n)^2 in the half step's potential, kappa_i =
+contact_stiffness m_i / (h/2)^2), as backward Euler's does on its end position: evaluated at x_mid it let
+x_{n+1} sink deep into the floor and each impact gained energy (a block dropped on the floor bounced
+back with twice its impact energy); friction is applied to v_{n+1}.
+
+Guard: the midpoint rule keeps energy for linear dynamics only; when its extrapolation x_{n+1} = 2 x_mid -
+x_n leaves an element inverted (det F <= 0) the step is taken again by backward Euler from (x_n, v_n)
+(counted as ``midpoint_fallbacks`` in run.json): without it a block hitting a sphere at 20 m/s
+(configs/hard/fem_fast_impact.yaml) gained energy until vertices flew at 120 m/s.
+
 Convergence tests need the residual on the host: one small read-back per PCG and Newton iteration
 (the only host syncs inside a substep in simcli; the explicit integrator has none).
 """
@@ -69,6 +90,12 @@ class ImplicitIntegrator:
         self.dA = M3(m if self.beta > 0 else 1)
         self.dJ = ti.field(f, shape=m if self.beta > 0 else 1)
         self.opts = s.opts
+        self.midpoint = s.opts.integrator == "implicit_midpoint"
+        self.vn = V3(n if self.midpoint else 1)  # implicit midpoint: v_n, kept for a backward Euler retry
+        # implicit midpoint: the contact penalty acts on c x - (c - 1) x_n: c = 2 in the half step (the end
+        # position), c = 1 in a backward Euler retry (its own end position)
+        self.cw = ti.field(f, shape=())
+        self.cw[None] = 2.0
         # a Newton step smaller than this [m] moves positions by their round-off only
         self.round_off = (1e-6 if f == ti.f32 else 1e-13) * max(s.extent, 1e-3)
         # the residual per vertex mass holds m / h^2 (x - xhat): positions rounded to eps |x| put a floor of
@@ -124,6 +151,7 @@ class ImplicitIntegrator:
         has_muscle, active_dP = s.has_muscle, s.active_dP
         dA, dJ, mid, mu0, lam0 = self.dA, self.dJ, s.mid_f, s.mat_mu0, s.mat_lam0
         rotated, k0, dmin, tet = self.rotated, self.k0, self.dmin, s.tet_f
+        midpoint, cw = self.midpoint, self.cw
 
         @ti.func
         def damp_pk1(e, dF):
@@ -192,12 +220,23 @@ class ImplicitIntegrator:
                 gi = mi / (dt * dt) * (x[i] - xhat[i]) + gather(i) - fext[i]
                 if ti.static(ray_a > 0):
                     gi += ray_a * mi / dt * (x[i] - xn[i])
-                phi, nrm, kind, mu, _vw, _idx = nearest(x[i])
                 k = 0.0
-                if phi < 0:
-                    k = kc * mi / (dt * dt)
-                    gi += k * phi * nrm
-                cn[i] = nrm
+                if ti.static(not midpoint):
+                    phi, nrm, kind, mu, _vw, _idx = nearest(x[i])
+                    if phi < 0:
+                        k = kc * mi / (dt * dt)
+                        gi += k * phi * nrm
+                    cn[i] = nrm
+                else:
+                    # implicit midpoint: the penalty acts on the end-of-step position c x - (c - 1) x_n, c = 2
+                    # (energy kc m / (2 c^2 dt^2) phi^2 in the half step's unknown x: gradient k / c phi n,
+                    # Hessian k n n^T); c = 1 in a backward Euler retry
+                    c = cw[None]
+                    phi, nrm, kind, mu, _vw, _idx = nearest(c * x[i] - (c - 1.0) * xn[i])
+                    if phi < 0:
+                        k = kc * mi / (dt * dt)
+                        gi += k / c * phi * nrm
+                    cn[i] = nrm
                 ck[i] = k
                 gi = gi * free[i]
                 g[i] = gi
@@ -337,9 +376,15 @@ class ImplicitIntegrator:
                 if ti.static(ray_a > 0):
                     dn = q[i] - xn[i]
                     Ei += 0.5 * ray_a * mass[i] / dt * dn.dot(dn)
-                phi, nrm, kind, mu, _vw, _idx = nearest(q[i])
-                if phi < 0:
-                    Ei += 0.5 * kc * mass[i] / (dt * dt) * phi * phi
+                if ti.static(not midpoint):
+                    phi, nrm, kind, mu, _vw, _idx = nearest(q[i])
+                    if phi < 0:
+                        Ei += 0.5 * kc * mass[i] / (dt * dt) * phi * phi
+                else:
+                    c = cw[None]
+                    phi, nrm, kind, mu, _vw, _idx = nearest(c * q[i] - (c - 1.0) * xn[i])
+                    if phi < 0:
+                        Ei += 0.5 / (c * c) * kc * mass[i] / (dt * dt) * phi * phi
                 E += ti.cast(Ei, ti.f64)
             return E
 
@@ -372,7 +417,61 @@ class ImplicitIntegrator:
                         vi[c] = vfix[i][c]
                 v[i] = vi
 
+        vn = self.vn
+
+        @ti.kernel
+        def save_v():
+            for i in range(n):
+                vn[i] = v[i]
+
+        @ti.kernel
+        def restore():
+            for i in range(n):
+                x[i] = xn[i]
+                v[i] = vn[i]
+
+        @ti.kernel
+        def min_det() -> f:
+            """Smallest det F over the elements at x."""
+            dmin[None] = 1e30
+            for e in range(m):
+                ti.atomic_min(dmin[None], deformation(e, x).determinant())
+            return dmin[None]
+
+        @ti.kernel
+        def finish_midpoint(dt: f, t: f):
+            """Implicit midpoint's explicit half step: x holds x_mid (the half step's solution, dt = h/2)."""
+            for i in range(n):
+                y = x[i]
+                vm = (y - xn[i]) / dt  # the midpoint velocity
+                xi = 2.0 * y - xn[i]
+                vi = 2.0 * vm - v[i]
+                phi, nrm, kind, mu, vw, idx = nearest(xi)
+                if ck[i] > 0 or phi < 0:
+                    # normal speed the penalty (at the end position) took away: 2 dt x force / m
+                    dvn = ti.max(0.0, -phi) * kc / dt
+                    if ti.static(moving or named):
+                        # as in finish: friction relative to the obstacle's surface, the load to a named one
+                        v_in = vi
+                        vi = friction_velocity(vi - vw, nrm, kind, mu, dvn) + vw
+                        if ti.static(named):
+                            if phi < 0:
+                                add_load(idx, xi, mass[i] * (phi * kc / dt * nrm + (v_in - vi)))
+                    else:
+                        vi = friction_velocity(vi, nrm, kind, mu, dvn)
+                fr = free[i]
+                for c in ti.static(range(3)):
+                    if fr[c] == 0:
+                        vi[c] = vfix[i][c]
+                        xi[c] = xr[i][c] + vfix[i][c] * (t + 2.0 * dt)
+                x[i] = xi
+                v[i] = vi
+
         self.k = dict(
+            finish_midpoint=finish_midpoint,
+            save_v=save_v,
+            restore=restore,
+            min_det=min_det,
             begin=begin,
             predictor_min_det=predictor_min_det,
             assemble=assemble,
@@ -399,6 +498,33 @@ class ImplicitIntegrator:
         k["predictor_min_det"]()
 
     def substep(self, dt: float, t: float) -> None:
+        if self.midpoint:
+            # backward Euler half step to x_mid (below, with h/2), then the explicit half step
+            h, k = dt, self.k
+            k["save_v"]()
+            self._solve(0.5 * h, t)
+            k["finish_midpoint"](0.5 * h, t)
+            if not k["min_det"]() > 0:
+                # the extrapolation x_n+1 = 2 x_mid - x_n inverted an element: the midpoint rule is not
+                # energy-stable for such large nonlinear steps (energy then grows without bound: a block
+                # hitting a sphere at 20 m/s); this step is taken again by backward Euler (counted)
+                k["restore"]()
+                self.cw[None] = 1.0  # contact on the retry's own end position
+                self._solve(h, t)
+                self.cw[None] = 2.0
+                k["finish"](h)
+                st = self.s.stats
+                st["midpoint_fallbacks"] = st.get("midpoint_fallbacks", 0) + 1
+        else:
+            self._solve(dt, t)
+            self.k["finish"](dt)
+        st = self.s.stats
+        if len(st["newton"]) > 100000:
+            del st["newton"][:50000], st["pcg"][:50000]
+
+    def _solve(self, dt: float, t: float) -> None:
+        """Minimise the backward Euler incremental potential of a step dt from time t (x ends at its
+        minimiser; v still holds the start velocity)."""
         k, o, st = self.k, self.opts, self.s.stats
         k["begin"](dt, t)
         # Start Newton from free flight's solution x_n + h (v_n + h g) / (1 + alpha h) when it inverts no
@@ -474,11 +600,8 @@ class ImplicitIntegrator:
                         k["apply"](alpha)
                     break
             k["apply"](alpha)
-        k["finish"](dt)
         st["newton"].append(newton_it)
         st["pcg"].append(pcg_total)
-        if len(st["newton"]) > 100000:
-            del st["newton"][:50000], st["pcg"][:50000]
 
 
 __all__ = ["ImplicitIntegrator", "np"]

@@ -22,6 +22,14 @@ Models (mu, lam are the Lame parameters passed at run time):
   HOBAK code): psi = mu/2 (I_C - 3) - mu (J - 1) + lam'/2 (J - 1)^2 with lam' = lam + mu, so that it
   linearises to 2 mu eps + lam tr(eps) I at rest (Smith et al. sec. 3.4: the Lame reparameterisation);
   the solver passes lam' (see ``lame_for``).
+* ``neohookean``: the classical compressible neo-Hookean model (Bonet and Wood, Nonlinear Continuum
+  Mechanics for Finite Element Analysis, 2nd ed. 2008, eq. 6.28): psi = mu/2 (I_C - 3) - mu ln J +
+  lam/2 (ln J)^2, P = mu (F - F^-T) + lam ln J F^-T; it linearises to Hooke's law with the Lame
+  parameters as given. ln J is undefined for J <= 0: below J = ``NH_J_MIN`` (0.01) ln J is replaced by its
+  second-order Taylor expansion about NH_J_MIN (the inversion guard), so energy, stress and Hessian stay
+  finite and twice continuously differentiable for every F, inverted ones included, and an element
+  squashed past 1 % of its volume feels a pressure that keeps growing as J falls (it is pushed back, no
+  NaN). Only elements below J = 0.01 see the extension; above it the model is exact.
 """
 
 from simcli.backend import stdout_to_stderr
@@ -30,7 +38,8 @@ from simcli.solvers.taichi_funcs import jacobi_rotation
 with stdout_to_stderr():
     import taichi as ti
 
-MODELS = ("linear", "linear_corotated", "stable_neohookean")
+MODELS = ("linear", "linear_corotated", "stable_neohookean", "neohookean")
+NH_J_MIN = 0.01  # neohookean: below this J, ln J is continued by its second-order Taylor polynomial
 TWIST_EPS = 1e-6  # |s_i + s_j| below this: the twist eigenvalue's denominator is clamped
 
 
@@ -257,4 +266,75 @@ class StableNeoHookean:
         return U, V, Hs, ls, lt
 
 
-LAWS = {"linear": Linear, "linear_corotated": LinearCorotated, "stable_neohookean": StableNeoHookean}
+@ti.func
+def _guarded_log(J):
+    """(f, f', f'') with f = ln J for J >= NH_J_MIN and its second-order Taylor polynomial about NH_J_MIN
+    below (defined for J <= 0: the neohookean inversion guard)."""
+    f = 0.0 * J
+    d1 = 0.0 * J
+    d2 = 0.0 * J
+    if J >= NH_J_MIN:
+        f = ti.log(J)
+        d1 = 1.0 / J
+        d2 = -1.0 / (J * J)
+    else:
+        a = J - NH_J_MIN
+        f = ti.log(NH_J_MIN) + a / NH_J_MIN - 0.5 * a * a / (NH_J_MIN * NH_J_MIN)
+        d1 = 1.0 / NH_J_MIN - a / (NH_J_MIN * NH_J_MIN)
+        d2 = -1.0 / (NH_J_MIN * NH_J_MIN) + 0.0 * J
+    return f, d1, d2
+
+
+class NeoHookean:
+    """Classical compressible neo-Hookean (Bonet and Wood 2008, eq. 6.28), with the inversion guard of
+    ``_guarded_log``. In the singular values: psi = mu/2 (sum s_i^2 - 3) + h(J), h = -mu f + lam/2 f^2,
+    so dpsi/ds_i = mu s_i + h' J / s_i and the flip/twist eigenvalues are mu -/+ h' s_k (as for
+    stable_neohookean with its h)."""
+
+    name = "neohookean"
+
+    @staticmethod
+    @ti.func
+    def energy(F, mu, lam):
+        lj, d1, d2 = _guarded_log(F.determinant())
+        return 0.5 * mu * ((F * F).sum() - 3.0) - mu * lj + 0.5 * lam * lj * lj
+
+    @staticmethod
+    @ti.func
+    def pk1(F, mu, lam):
+        lj, d1, d2 = _guarded_log(F.determinant())
+        return mu * F + (lam * lj - mu) * d1 * cofactor(F)
+
+    @staticmethod
+    @ti.func
+    def hessian(F, mu, lam, project: ti.template()):
+        U, s, V = signed_svd(F)
+        J = s[0] * s[1] * s[2]
+        lj, d1, d2 = _guarded_log(J)
+        h1 = (lam * lj - mu) * d1  # h'(J)
+        h2 = lam * d1 * d1 + (lam * lj - mu) * d2  # h''(J)
+        o = ti.Vector([s[1] * s[2], s[0] * s[2], s[0] * s[1]])  # J / s_i
+        Hs = ti.Matrix.zero(float, 3, 3)
+        for i in ti.static(range(3)):
+            for j in ti.static(range(3)):
+                if ti.static(i == j):
+                    Hs[i, j] = mu + h2 * o[i] * o[i]
+                else:
+                    k = ti.static(3 - i - j)
+                    Hs[i, j] = h2 * o[i] * o[j] + h1 * s[k]
+        sk = ti.Vector([s[2], s[0], s[1]])  # pairs (0,1), (1,2), (0,2): the third index 2, 0, 1
+        ls = mu - h1 * sk
+        lt = mu + h1 * sk
+        if ti.static(project):
+            Hs = _project_sym3(Hs)
+            ls = ti.max(ls, 0.0)
+            lt = ti.max(lt, 0.0)
+        return U, V, Hs, ls, lt
+
+
+LAWS = {
+    "linear": Linear,
+    "linear_corotated": LinearCorotated,
+    "stable_neohookean": StableNeoHookean,
+    "neohookean": NeoHookean,
+}

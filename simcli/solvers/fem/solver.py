@@ -23,7 +23,16 @@ from simcli.solvers.taichi_funcs import make_body_frame_stats
 with stdout_to_stderr():
     import taichi as ti
 
-OUTPUT_FIELDS = ("position", "velocity", "displacement", "von_mises", "J", "von_mises_nodal", "J_nodal")
+OUTPUT_FIELDS = (
+    "position",
+    "velocity",
+    "displacement",
+    "von_mises",
+    "J",
+    "von_mises_nodal",
+    "J_nodal",
+    "mass",
+)
 
 
 def _active_factor(m) -> float:
@@ -44,7 +53,9 @@ class FEMSolver(Solver):
         if scene.sim.dim != 3:
             raise ValueError("FEM entities need a 3D scene (sim.dim: 3)")
         self.opts = scene.solvers.fem
-        self.implicit = self.opts.integrator == "implicit"
+        # implicit and backward_euler are the same integrator; implicit_midpoint shares its Newton solve
+        self.implicit = self.opts.integrator != "explicit"
+        self.midpoint = self.opts.integrator == "implicit_midpoint"
         self.entities = [e for e in scene.entities if e.family == "FEM"]
         xs, ts, self.offsets, self.toffsets = [], [], [0], [0]
         self.materials, mids, self.models = [], [], []
@@ -456,9 +467,12 @@ class FEMSolver(Solver):
 
     # -------------------------------------------------------------- stepping
     def substep(self, dt: float) -> None:
-        # activation at the substep's start (explicit) or end (implicit: backward Euler's forces are at t +
-        # dt)
-        self._update_activation(self.time + (dt if self.implicit else 0.0))
+        # activation at the substep's start (explicit), end (backward Euler's forces are at t + dt) or middle
+        # (implicit midpoint's forces are at t + dt / 2)
+        if self.midpoint:
+            self._update_activation(self.time + 0.5 * dt)
+        else:
+            self._update_activation(self.time + (dt if self.implicit else 0.0))
         if self.poses.needed:  # collider poses of this substep (host, no sync)
             self.poses.set_time(self.time, dt)
         self.integrator.substep(dt, self.time)
@@ -520,6 +534,7 @@ class FEMSolver(Solver):
             "J": (1, "1"),
             "von_mises_nodal": (1, "Pa"),
             "J_nodal": (1, "1"),
+            "mass": (1, "kg"),
         }
 
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
@@ -543,6 +558,8 @@ class FEMSolver(Solver):
                 a = self.out_vm.to_numpy()
             elif fld == "J_nodal":
                 a = self.out_J.to_numpy()
+            elif fld == "mass":
+                a = self.mass
             else:
                 raise KeyError(f"unknown FEM output field {fld!r}; known: {', '.join(OUTPUT_FIELDS)}")
             out[fld] = np.array(a[lo:hi])
@@ -586,6 +603,7 @@ class FEMSolver(Solver):
                 newton_capped=s["newton_capped"],
                 pcg_capped=s["pcg_capped"],
                 newton_stagnated=s.get("stagnated", 0),
+                **({"midpoint_fallbacks": s.get("midpoint_fallbacks", 0)} if self.midpoint else {}),
                 steps_measured=len(nw),
             )
         return d
