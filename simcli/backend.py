@@ -131,8 +131,18 @@ def init_taichi(
     )
     if threads is None:
         env = os.environ.get("SLURM_CPUS_PER_TASK") or os.environ.get("SIMCLI_THREADS")
+        env_threads = None
         if env:
-            threads = int(env)
+            try:
+                env_threads = int(env)
+            except ValueError:  # a malformed variable is ignored with a word, never a traceback
+                print(
+                    f"simcli: warning: SLURM_CPUS_PER_TASK / SIMCLI_THREADS = {env!r} is not a whole number; "
+                    "using the cores this process may use",
+                    file=sys.stderr,
+                )
+        if env_threads is not None:
+            threads = env_threads
         else:
             try:
                 threads = len(os.sched_getaffinity(0))

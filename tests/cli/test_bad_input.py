@@ -430,3 +430,29 @@ def test_sweep_runs_get_the_same_checks(tmp_path):
     r = CliRunner().invoke(cli, ["validate", str(p)])
     assert r.exit_code == 65, r.output
     assert "must be a finite number (got inf)" in r.output and "expected a number (got True)" in r.output
+
+
+def test_malformed_thread_variable_is_a_warning_not_a_traceback(tmp_path):
+    """SIMCLI_THREADS=abc (or a broken SLURM_CPUS_PER_TASK) is ignored with a warning; the run goes on."""
+    import os
+    import subprocess
+    import sys
+
+    scene = tmp_path / "s.yaml"
+    scene.write_text(
+        "version: 1\nsim: {dim: 2, dt: 1.0e-3, substeps: 2, steps: 2}\n"
+        "domain: {lower: [0, 0], upper: [1, 1]}\nsolvers: {mpm: {grid_density: 16}}\n"
+        "entities:\n  - name: b\n    material: {type: MPM.Elastic, E: 1.0e4, nu: 0.3, rho: 1000}\n"
+        "    morph: {type: Box, lower: [0.4, 0.4], upper: [0.6, 0.6]}\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "SLURM_CPUS_PER_TASK"}
+    env["SIMCLI_THREADS"] = "abc"
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "run", str(scene), "-o", str(tmp_path / "out"), "-q"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr and "not a whole number" in r.stderr
