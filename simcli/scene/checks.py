@@ -20,12 +20,15 @@ _BYTES_PER_CELL = {2: 4 * 3, 3: 4 * 4}  # grid momentum/velocity (dim) + mass
 # and of the boundary particles.
 
 
-def _sph_bytes_per_particle(dim: int, support_factor: float, dfsph: bool = True, kgc: bool = False) -> int:
+def _sph_bytes_per_particle(
+    dim: int, support_factor: float, dfsph: bool = True, kgc: bool | str = False
+) -> int:
     from simcli.solvers.sph.neighbours import neighbour_capacity  # numpy only, no Taichi
 
     # a neighbour-list entry: the index, and for DFSPH grad W too (WCSPH recomputes it)
     entry = 1 + dim if dfsph else 1
-    correction = dim * dim if kgc else 0  # DFSPH gradient_correction: a dim x dim matrix
+    # DFSPH gradient_correction: a dim x dim matrix, or one number (scalar)
+    correction = 1 if kgc == "scalar" else dim * dim if kgc else 0
     return 4 * (4 * dim + 10 + 6 + 2 * dim + 4 + correction + neighbour_capacity(dim, support_factor) * entry)
 
 
@@ -231,7 +234,7 @@ def check_scene(loaded: LoadedScene) -> list[str]:
         cell = 0.5 * sph.support_factor * sph.particle_size
         sph_cells = math.prod(math.ceil(e / cell) + 6 for e in ext)
         per_particle = _sph_bytes_per_particle(
-            dim, sph.support_factor, sph.pressure_solver == "DFSPH", sph.gradient_correction
+            dim, sph.support_factor, sph.pressure_solver == "DFSPH", sph.gradient_correction_mode
         )
         per_boundary = _SPH_BYTES_PER_BOUNDARY[dim]
         if sph.wall_model == "extrapolated":  # wall_pressure.py: 4 scalars and a list of (index, weight)
