@@ -502,6 +502,12 @@ def test_gradient_correction_needs_dfsph():
 
     with pytest.raises(ValidationError, match="pressure_solver: DFSPH"):
         SPHOptions(pressure_solver="WCSPH", gradient_correction=True)
+    with pytest.raises(ValidationError, match="pressure_solver: DFSPH"):
+        SPHOptions(pressure_solver="WCSPH", gradient_correction="scalar")
+    # auto (the default): scalar for DFSPH with a free surface (session 8), off otherwise
+    assert SPHOptions(pressure_solver="DFSPH").gradient_correction_mode == "scalar"
+    assert SPHOptions(pressure_solver="DFSPH", clamp_pressure=False).gradient_correction_mode is False
+    assert SPHOptions(pressure_solver="WCSPH").gradient_correction_mode is False
 
 
 def test_morris_laplacian_exact_for_quadratics_on_the_lattice():
