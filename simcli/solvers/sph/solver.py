@@ -893,8 +893,9 @@ class SPHSolver(Solver):
                 continue
             if k == "wall_pressure" and k not in state:  # a checkpoint of another wall model
                 raise ValueError(
-                    "SPH state: the checkpoint has no wall pressure (it was written with another "
-                    "solvers.sph.wall_pressure)"
+                    "SPH state: the checkpoint has no wall pressure (it was written with Akinci's walls: "
+                    "WCSPH before session 8, or wall_pressure: akinci); resume it with solvers.sph.wall_pressure: "
+                    "akinci"
                 )
             arr = np.asarray(state[k])
             if arr.shape != fld.shape + ((self.dim,) if k in ("x", "v") else ()):
