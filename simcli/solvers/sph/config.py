@@ -62,16 +62,24 @@ class SPHOptions(_Options):
     warm_start: bool = Field(
         True, description="DFSPH: start both solves from the previous substep's pressure (stiffness) values."
     )
-    gradient_correction: bool = Field(
-        False,
+    gradient_correction: bool | Literal["scalar", "auto"] = Field(
+        "auto",
         description="DFSPH: kernel gradient correction (Bonet & Lok 1999) in both pressure solves. Each "
         "particle's gradient is grad W_ij times L_i = (sum_j V_j grad W_ij (x_j - x_i)^T, walls "
-        "included)^-1, so the density rate of a linear velocity field is exact on a disordered packing, and "
-        "the pressure force is its adjoint, -sum_j V_j (k_i L_i + k_j L_j) grad W_ij (pairwise "
-        "antisymmetric: momentum conserving). Without it DFSPH's projection removes part of a smooth vortex "
-        "every substep as the packing changes (Taylor-Green: 0.047 1/s of numerical decay at Re = infinity, "
-        "0.007 with it). Particles whose moment matrix has determinant below 0.5 (a deficient neighbourhood: "
-        "free surface, splash) keep the plain gradient. For confined flows; validated there only.",
+        "included)^-1, so "
+        "the density rate of a linear velocity field is exact on a disordered packing, and the pressure "
+        "force is its adjoint, -sum_j V_j (k_i L_i + k_j L_j) grad W_ij (pairwise antisymmetric: momentum "
+        "conserving). Without it DFSPH's projection removes part of a smooth vortex every substep as the "
+        "packing changes (Taylor-Green: 0.047 1/s of numerical decay at Re = infinity, 0.007 with it). "
+        "Particles whose moment matrix has determinant below 0.5 (a deficient neighbourhood: free "
+        "surface, splash) keep the plain gradient. For confined flows; validated there only. scalar (since "
+        "session 8): L_i = dim / trace(sum_j V_j grad W_ij (x_j - x_i)^T) times the identity, the "
+        "isotropic part "
+        "only: it corrects the gradient's magnitude on a settled packing (0.98 of the exact in a "
+        "tank at rest, "
+        "which makes the hydrostatic pressure 2% too steep) without turning it; a DFSPH tank at rest: floor "
+        "pressure +0.8% instead of +2.2%, drift 0.41 cm/s instead of 0.57 (true: +0.3%, but 2.0 cm/s); "
+        "docs/SPH.md. auto: scalar for DFSPH with a free surface (since session 8), false otherwise.",
     )
     viscosity_operator: Literal["monaghan", "morris"] = Field(
         "monaghan",
@@ -87,13 +95,36 @@ class SPHOptions(_Options):
         description="Pressure force between the liquid and walls / colliders (boundary particles). akinci: "
         "-sum_b rho0 V_b (p_i / rho_i^2) grad W_ib (Akinci et al. 2012; SPlisHSPlasH's and Genesis's), the "
         "liquid's own pressure alone: at rest the particles next to a wall then carry 1.7x the hydrostatic "
-        "pressure (2.15x in corners). extrapolated (DFSPH with clamp_pressure: true only): the wall "
-        "particles get a pressure of their own, the average of the liquid's next to them plus the "
-        "hydrostatic difference (Adami et al. 2012; Band et al. 2018), and push with p_i / rho_i^2 + p_b / "
-        "rho0^2: the wall layer's pressure is within 1% of the liquid's field, and a DFSPH liquid at rest "
-        "settles at fine resolution too; about 18% more time per substep on benchmark B2 (docs/SPH.md). With "
-        "WCSPH it made a tank at rest unstable, and DFSPH's conjugate-gradient solve (clamp_pressure: false) "
-        "needs Akinci's symmetric term. auto: extrapolated where it applies, akinci elsewhere.",
+        "pressure (2.15x in corners). extrapolated: the wall particles "
+        "get a pressure of their own, the average of the liquid's next to them plus the hydrostatic "
+        "difference "
+        "(Adami et al. 2012; Band et al. 2018), and push with p_i / rho_i^2 + p_b / rho_b^2: the "
+        "wall layer's "
+        "pressure is within 1-2% of the liquid's field; DFSPH: a liquid at rest settles at fine "
+        "resolution too, "
+        "about 18% more time per substep on benchmark B2; WCSPH: the walls' pressure relaxes towards the "
+        "extrapolation (wall_pressure_relaxation; followed at once it made a tank at rest "
+        "unstable), docs/SPH.md. "
+        "DFSPH's conjugate-gradient solve (clamp_pressure: false) needs Akinci's symmetric term. "
+        "auto: extrapolated with a free surface (clamp_pressure: true; for WCSPH since session 8), "
+        "akinci for a "
+        "confined liquid.",
+    )
+    wall_pressure_relaxation: float = Field(
+        0.2,
+        gt=0,
+        description="WCSPH with wall_pressure: extrapolated: relaxation time [s] of the walls' "
+        "pressure. Each "
+        "boundary particle's pressure follows the extrapolation from the liquid next to it as a "
+        "first-order lag, "
+        "p_b += dt / (tau + dt) (p_extrapolated - p_b) per substep (a newly wetted one starts at the "
+        "extrapolation). A wall pressure that followed the liquid's at once is a non-conservative force that "
+        "pumped energy into the acoustic noise of a tank at rest (5-9 cm/s); against a pressure that changes "
+        "slowly compared with the sound's periods the liquid moves in a nearly fixed potential, and the "
+        "pumping falls as 1 / (omega tau). Measured on the hydrostatic tank: 0.01 s unstable (5.6 cm/s), "
+        "0.05 s marginal (0.9-1.8 cm/s), 0.2 s as calm as Akinci's walls (docs/SPH.md). During a fast "
+        "change (an impact) the wall pushes with the liquid's own pressure (Akinci's term) plus the lagging "
+        "part.",
     )
     inside_colliders: Literal["auto", "push_out", "remove"] = Field(
         "auto",
@@ -146,18 +177,20 @@ class SPHOptions(_Options):
 
     @model_validator(mode="after")
     def _dfsph_only(self) -> SPHOptions:
-        if self.gradient_correction and self.pressure_solver != "DFSPH":
+        if self.gradient_correction not in (False, "auto") and self.pressure_solver != "DFSPH":
             raise ValueError(
                 "gradient_correction applies to the DFSPH pressure solves: set pressure_solver: DFSPH or "
                 "gradient_correction: false"
             )
-        if self.wall_pressure == "extrapolated" and (
-            self.pressure_solver != "DFSPH" or not self.clamp_pressure
+        if (
+            self.wall_pressure == "extrapolated"
+            and self.pressure_solver == "DFSPH"
+            and not self.clamp_pressure
         ):
             raise ValueError(
-                "wall_pressure: extrapolated needs pressure_solver: DFSPH with clamp_pressure: true (with "
-                "WCSPH's explicit pressure it made a tank at rest unstable; DFSPH's conjugate-gradient solve "
-                "for clamp_pressure: false needs a symmetric operator): set wall_pressure: akinci"
+                "wall_pressure: extrapolated with DFSPH needs clamp_pressure: true (DFSPH's "
+                "conjugate-gradient "
+                "solve for clamp_pressure: false needs a symmetric operator): set wall_pressure: akinci"
             )
         if self.background_pressure > 0 and self.clamp_pressure:
             raise ValueError(
@@ -172,7 +205,16 @@ class SPHOptions(_Options):
         """The wall pressure model a run uses: ``wall_pressure`` with auto resolved."""
         if self.wall_pressure != "auto":
             return self.wall_pressure
-        return "extrapolated" if self.pressure_solver == "DFSPH" and self.clamp_pressure else "akinci"
+        return "extrapolated" if self.clamp_pressure else "akinci"
+
+    @property
+    def gradient_correction_mode(self) -> bool | str:
+        """The kernel gradient correction a run uses: ``gradient_correction`` with auto resolved (False,
+        True or
+        "scalar")."""
+        if self.gradient_correction != "auto":
+            return self.gradient_correction
+        return "scalar" if self.pressure_solver == "DFSPH" and self.clamp_pressure else False
 
     @property
     def inside_collider_mode(self) -> str:

@@ -23,6 +23,9 @@ SPH for incompressible and viscous fluids"), as in SPlisHSPlasH's DFSPH.cpp. A s
   linear velocity field on any full neighbourhood) and the velocity update its adjoint, -dt sum_j V_j (k_i L_i
   + k_j L_j) grad W_ij (pairwise antisymmetric, so momentum is conserved, and still D = G^T for the CG solve).
   Without it the projection dissipates a smooth vortex as the packing changes (docs/SPH.md, Taylor-Green).
+  gradient_correction: scalar (session 8) keeps the isotropic part, L_i = c_i I with c_i = dim / trace of the
+  moment matrix: the gradient's magnitude on a settled packing (0.98 of the exact in a tank at rest, which
+  steepens the hydrostatic pressure by 2%), one number per particle.
 * Warm start: each solve starts from the previous substep's total stiffness: the density solve's k times
   DENSITY_WARM = 0.9 (a liquid at rest needs the same k for any dt; the full k, as SPlisHSPlasH, kept a
   resting liquid from settling), the divergence solve's k dt / dt_now halved (as in SPlisHSPlasH). The very
@@ -78,7 +81,7 @@ def make_dfsph(S):
     min_nb = MIN_NEIGHBOURS[dim]
     DIV, DENS = 0, 1
 
-    kgc, Lm = S.kgc, S.Lm
+    kgc, Lm, Lc, kgc_scalar = S.kgc, S.Lm, S.Lc, S.kgc_scalar
     uniform = S.uniform  # one material: the pair terms in their single-material form (bitwise as before)
     wp = S.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
@@ -87,7 +90,9 @@ def make_dfsph(S):
     def corr(i, g):
         """L_i g: particle i's corrected gradient (g itself without gradient_correction)."""
         out = g
-        if ti.static(kgc):
+        if ti.static(kgc_scalar):
+            out = Lc[i] * g
+        elif ti.static(kgc):
             out = Lm[i] @ g
         return out
 
@@ -136,7 +141,15 @@ def make_dfsph(S):
         constraints C_i = sum_j V_j W_ij - 1 with multipliers m_i k_i, whose pair forces are opposite
         (SPlisHSPlasH's TimeStepDFSPH: k_i + (rho0_j / rho0_i) k_j); with one material the same."""
         ki = k_[i]
-        if ti.static(kgc):
+        if ti.static(kgc_scalar):  # (k_i c_i + k_j c_j) grad W_ij
+            kci = ki * Lc[i]
+            for k in range(nb_cnt[i]):
+                j = nb_j[i, k]
+                if ti.static(uniform):
+                    g += (kci + k_[j] * Lc[j]) * S.volume_of(j) * nb_g[i, k]
+                else:
+                    g += (S.volume_of(j) * kci + S.mass_of(j) / mat_rho0[mid[i]] * k_[j] * Lc[j]) * nb_g[i, k]
+        elif ti.static(kgc):
             kLi = ki * Lm[i]
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]

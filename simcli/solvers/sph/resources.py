@@ -28,9 +28,12 @@ def neighbour_capacity(dim: int, support_factor: float) -> int:
 # copies (2 dim + 4) and the neighbour list (capacity x (index + gradient for DFSPH)); per boundary
 # particle position, velocity, volume, flag; per cell (cell = support / 2) count and start offsets of the
 # liquid and of the boundary particles. Host: the sampled bodies and the output copies.
-def _sph_bytes_per_particle(dim: int, support_factor: float, dfsph: bool = True, kgc: bool = False) -> int:
+def _sph_bytes_per_particle(
+    dim: int, support_factor: float, dfsph: bool = True, kgc: bool | str = False
+) -> int:
     entry = 1 + dim if dfsph else 1
-    correction = dim * dim if kgc else 0
+    # DFSPH gradient_correction: a dim x dim matrix per particle, or one number (scalar)
+    correction = 1 if kgc == "scalar" else dim * dim if kgc else 0
     return 4 * (4 * dim + 10 + 6 + 2 * dim + 4 + correction + neighbour_capacity(dim, support_factor) * entry)
 
 
@@ -55,11 +58,11 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
     cell = 0.5 * sph.support_factor * h
     cells = math.prod(cnt(math.ceil(min(e / cell, 1e30))) + 6 for e in ext)
     per_p = _sph_bytes_per_particle(
-        dim, sph.support_factor, sph.pressure_solver == "DFSPH", sph.gradient_correction
+        dim, sph.support_factor, sph.pressure_solver == "DFSPH", sph.gradient_correction_mode
     )
     per_b = 4 * (2 * dim + 2)
-    if sph.wall_model == "extrapolated":  # wall_pressure.py: 4 scalars and a list of (index, weight)
-        per_b += 4 * (4 + 2 * max(8, neighbour_capacity(dim, sph.support_factor) // 2))
+    if sph.wall_model == "extrapolated":  # wall_pressure.py: 4 scalars (+ WCSPH's relaxing pressure), a list
+        per_b += 4 * (5 + 2 * max(8, neighbour_capacity(dim, sph.support_factor) // 2))
         per_p += 4
     device = (n * per_p + n_bnd * per_b + cells * 4 * 3) * fp
     b = int((device + n * SPH_HOST_PER_PARTICLE) * SPH_HOST_FACTOR)

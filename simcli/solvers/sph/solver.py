@@ -49,6 +49,11 @@ OUTPUT_FIELDS = ("position", "velocity", "density", "pressure", "material_id")
 # Laplacian on a lattice (support 2, checkerboard mode; 0.31 at support 3), about half that next to a
 # no-slip wall; 0.05 leaves room for disorder.
 VISCOUS_SAFETY = 0.05
+# gradient_correction: scalar corrects particles whose moment matrix has a mean diagonal of at least this
+# (a full
+# neighbourhood; a lattice: 1.012 in 2D, 1.020 in 3D; the matrix correction's det >= 0.5, for an
+# isotropic matrix)
+FULL_MOMENT = 0.75
 
 
 class SPHSolver(Solver):
@@ -241,14 +246,19 @@ class SPHSolver(Solver):
         dfsph = self.opts.pressure_solver == "DFSPH"
         self.alpha = scal() if dfsph else None
         # extrapolated wall pressure (wall_pressure.py): each liquid particle's boundary neighbours follow its
-        # liquid ones in its neighbour list (up to nbw_end), and it flags the boundary particles it reaches,
-        # so that only those list their liquid neighbours
-        self.ext_walls = dfsph and self.opts.wall_model == "extrapolated"
+        # liquid ones in its neighbour list (up to nbw_end), and it flags the boundary particles it
+        # reaches, so
+        # that only those list their liquid neighbours
+        self.ext_walls = self.opts.wall_model == "extrapolated"
         self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
         self.bflag = ti.field(ti.i32, shape=max(1, self.nbp)) if self.ext_walls else None
         # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves
-        self.kgc = dfsph and self.opts.gradient_correction
-        self.Lm = ti.Matrix.field(dim, dim, f, shape=n) if self.kgc else None
+        self.kgc = dfsph and bool(self.opts.gradient_correction_mode)
+        # gradient_correction: scalar keeps one number per particle (L_i = c_i I): a cheaper pass than
+        # the matrix
+        self.kgc_scalar = self.kgc and self.opts.gradient_correction_mode == "scalar"
+        self.Lm = ti.Matrix.field(dim, dim, f, shape=n) if self.kgc and not self.kgc_scalar else None
+        self.Lc = scal() if self.kgc_scalar else None
         self.kk = scal() if dfsph else None
         self.kacc = scal() if dfsph else None
         self.kappa = scal() if dfsph else None
@@ -435,7 +445,7 @@ class SPHSolver(Solver):
         overflow = self.overflow
         has_tension, has_noslip, has_visc = self.has_tension, self.has_noslip, self.has_viscosity
         dfsph = alpha is not None
-        kgc, Lm = self.kgc, self.Lm
+        kgc, Lm, Lc, kgc_scalar = self.kgc, self.Lm, self.Lc, self.kgc_scalar
         has_boundary = self.nbp > 0
         ext_walls, nbw_end, bflag = self.ext_walls and has_boundary, self.nbw_end, self.bflag
         cell_coords, linear, pushout = self.cell_coords, self.linear, self.pushout
@@ -498,6 +508,7 @@ class SPHSolver(Solver):
             G = ti.Vector.zero(f, dim)
             sumsq = ti.cast(0.0, f)
             Mom = ti.Matrix.zero(f, dim, dim)  # sum_j V_j grad W_ij (x_j - x_i)^T (gradient correction)
+            Mtr = ti.cast(0.0, f)  # its trace (gradient_correction: scalar)
             cnt = 0
             for a in range(row ** (dim - 1)):  # a run-time loop: unrolled, it compiles for minutes
                 lin = row_cell(c0, a)
@@ -519,7 +530,9 @@ class SPHSolver(Solver):
                             # the pressure operator's diagonal with the momentum-conserving pair force
                             # (dfsph.py): V_j (m_i / rho0_j) |grad W_ij|^2
                             sumsq += (mass_of(i) / mat_rho0[mid[j]]) * Vg.dot(g)
-                        if ti.static(kgc):
+                        if ti.static(kgc_scalar):
+                            Mtr -= Vg.dot(d)
+                        elif ti.static(kgc):
                             Mom -= Vg.outer_product(d)
                         G += Vg
                         if cnt < K:
@@ -554,10 +567,13 @@ class SPHSolver(Solver):
                                     bflag[b] = 1  # the same value from every writer
                                     if cnt_w < K:
                                         nb_j[i, cnt_w] = b
-                                        nb_g[i, cnt_w] = Vb * g
+                                        if ti.static(store_grad):
+                                            nb_g[i, cnt_w] = Vb * g
                                     cnt_w += 1
                                 Si += Vb * bvel[b].dot(g)
-                                if ti.static(kgc):
+                                if ti.static(kgc_scalar):
+                                    Mtr -= Vb * g.dot(d)
+                                elif ti.static(kgc):
                                     Mom -= (Vb * g).outer_product(d)
                                     Qb += (Vb * g).outer_product(bvel[b])
                                 cntb += 1
@@ -567,7 +583,13 @@ class SPHSolver(Solver):
                                         M += coef * g.outer_product(d)
                                         m_w += coef * bvel[b].dot(d) * g
             rho[i] = r_i
-            if ti.static(kgc):
+            if ti.static(kgc_scalar):  # the isotropic part only: L_i = (dim / trace) I
+                ci = ti.cast(1.0, f)
+                if Mtr >= dim * FULL_MOMENT:  # a full neighbourhood (a lattice: 1.01-1.02)
+                    ci = dim / Mtr
+                Lc[i] = ci
+                Si *= ci  # sum_b V_b v_b . c_i grad W_ib
+            elif ti.static(kgc):
                 Li = ti.Matrix.identity(f, dim)
                 if Mom.determinant() >= 0.5:  # a full neighbourhood (a lattice: 1)
                     Li = Mom.inverse()
@@ -860,6 +882,8 @@ class SPHSolver(Solver):
         d = {"x": self.x, "v": self.v, "mass": self.mass, "mid": self.mid, "pid": self.pid, "rho": self.rho}
         if self.kappa is not None:
             d.update(kappa=self.kappa, kappav=self.kappav)
+        if self.wall_pressure is not None and self.wall_pressure.pbar is not None:
+            d["wall_pressure"] = self.wall_pressure.pbar  # WCSPH's relaxing wall pressure (wall_pressure.py)
         return d
 
     def get_state(self) -> dict[str, np.ndarray]:
@@ -881,6 +905,13 @@ class SPHSolver(Solver):
         for k, fld in self._state_fields().items():
             if k == "rho" and k not in state:  # checkpoints written before session 6: computed below
                 continue
+            if k == "wall_pressure" and k not in state:  # a checkpoint of another wall model
+                raise ValueError(
+                    "SPH state: the checkpoint has no wall pressure (it was written with Akinci's walls: "
+                    "WCSPH before session 8, or wall_pressure: akinci); resume it with "
+                    "solvers.sph.wall_pressure: "
+                    "akinci"
+                )
             arr = np.asarray(state[k])
             if arr.shape != fld.shape + ((self.dim,) if k in ("x", "v") else ()):
                 hint = (

@@ -1,9 +1,10 @@
-"""Extrapolated wall pressure for DFSPH (``solvers.sph.wall_pressure: extrapolated``, the default for DFSPH
-with a free surface, ``auto``): each boundary particle near the liquid gets a pressure of its own, the Shepard
-average of its liquid neighbours' pressures plus the hydrostatic difference between them and it (Adami et al.
-2012, "A generalized wall boundary condition for smoothed particle hydrodynamics", eq. 27; for DFSPH as Band
-et al. 2018, "MLS pressure extrapolation for the boundary handling in divergence-free SPH", with a Shepard
-instead of an MLS fit). In DFSPH's stiffness k = p / rho0::
+"""Extrapolated wall pressure (``solvers.sph.wall_pressure: extrapolated``, the default for DFSPH with a free
+surface and for WCSPH, ``auto``): each boundary particle
+near the liquid gets a pressure of its own, the Shepard average of its liquid neighbours' pressures plus the
+hydrostatic difference between them and it (Adami et al. 2012, "A generalized wall boundary condition for
+smoothed particle hydrodynamics", eq. 27; for DFSPH as Band et al. 2018, "MLS pressure extrapolation for the
+boundary handling in divergence-free SPH", with a Shepard instead of an MLS fit). In DFSPH's stiffness
+k = p / rho0::
 
     k_b = sum_f k_f W_bf / sum_f W_bf  +  max(0, sum_f g . (x_b - x_f) W_bf / sum_f W_bf)
 
@@ -20,9 +21,24 @@ support of the missing liquid below).
 
 The Shepard part is linear in the liquid's k, so each Jacobi iteration moves a boundary particle's k by the
 average of that iteration's increments; the hydrostatic part is a fixed term of the substep, applied once
-with gravity. Not for WCSPH: with its explicit pressure the same term made a tank at rest unstable (28 cm/s
-after 3 s), and not for DFSPH's conjugate-gradient solve (clamp_pressure: false), whose operator must stay
+with gravity. Not for DFSPH's conjugate-gradient solve (clamp_pressure: false), whose operator must stay
 symmetric.
+
+WCSPH (since session 8): the same extrapolation in pressure (Adami et al. 2012, eq. 27, static walls),
+p_b* = sum_f p_f W_bf / sum_f W_bf + max(0, rho0 sum_f g . (x_b - x_f) W_bf / sum_f W_bf), the boundary
+particle's density from the inverse of Tait's equation, rho_b = rho0 (p_b / k + 1)^(1/n), and the symmetric
+pressure force -rho0 V_b (p_i / rho_i^2 + p_b / rho_b^2) grad W_ib. What makes it stable: p_b does not follow
+p_b* at once but relaxes towards it, p_b += dt / (tau + dt) (p_b* - p_b) each substep
+(``wall_pressure_relaxation`` tau, 0.2 s; a boundary particle that no liquid reached in the last substep
+starts at p_b*). With p_b following the liquid's pressure at once, the wall force on particle i depends on its
+neighbours' pressures: a non-conservative force (no potential energy has it as its gradient), which on a
+tank at rest pumped energy into the acoustic noise (5-9 cm/s, the wall layer thrown off: measured; so did the
+mirror p_b = p_i). Against a p_b that changes slowly compared with the sound's periods, each liquid particle
+moves in a nearly fixed potential sum_b (p_b / rho_b^2) rho0 V_b W_ib, which conserves energy; what is left of
+the pumping is the lag's, which falls as 1 / (omega tau) for a sound wave of frequency omega, and the
+viscosity removes it (tau 0.01 s: 5.6 cm/s; 0.05 s: 0.9-1.8 cm/s; 0.2 s: 0.52 cm/s, Akinci's 0.51). At rest
+p_b reaches p_b* (the wall layer then in balance, as in DFSPH); in a fast change the wall pushes with the
+particle's own pressure (Akinci's term) and the lagging part.
 
 Lists are built once per substep: each liquid particle's boundary neighbours (with V_b grad W_ib) follow its
 liquid ones in its neighbour list, and each boundary particle in reach of the liquid (``mark``) lists its
@@ -65,6 +81,14 @@ def make_wall_pressure(S):
     bnb_j = ti.field(ti.i32, shape=(nbp, KB))
     bnb_w = ti.field(f, shape=(nbp, KB))
 
+    TAU = float(S.opts.wall_pressure_relaxation)
+    filt = not S.store_grad  # WCSPH: the walls' pressure relaxes towards the extrapolation (wcsph_pressure)
+    pbar = ti.field(f, shape=nbp) if filt else None
+    NEW = -1.0e30  # pbar of a boundary particle that no liquid reached in the last substep
+    clamp = S.opts.clamp_pressure
+    if filt:
+        pbar.fill(NEW)
+
     @ti.func
     def mark():
         """After the neighbour search: list the boundary particles with liquid in reach, each one's liquid
@@ -73,6 +97,8 @@ def make_wall_pressure(S):
         n_active[None] = 0
         for b in range(nbp):
             if bflag[b] == 0:  # no liquid particle reached it in this substep's neighbour search
+                if ti.static(filt):
+                    pbar[b] = NEW
                 continue
             bflag[b] = 0
             xb = bx[b]
@@ -132,4 +158,69 @@ def make_wall_pressure(S):
             out /= mat_rho0[mid[i]]
         return out
 
-    return SimpleNamespace(bval=bval, bhyd=bhyd, mark=mark, update=update, wall_sum=wall_sum)
+    mat_k, mat_n = S.mat_k, S.mat_n
+    bq = ti.field(f, shape=nbp) if not S.store_grad else None  # WCSPH: p_b / rho_b^2 (one material)
+    p_liq = S.p
+    gradW, bV = S.gradWk, S.bV
+
+    @ti.func
+    def wcsph_pressure(dt):
+        """WCSPH (Adami et al. 2012, eq. 27, static walls): each listed boundary particle's pressure
+        p_b = sum_f p_f W_bf / sum_f W_bf + max(0, rho0 sum_f g . (x_b - x_f) W_bf / sum_f W_bf) (bval),
+        and with
+        one material p_b / rho_b^2 (bq), rho_b from the inverse of Tait's equation."""
+        for t in range(n_active[None]):
+            b = active[t]
+            acc = ti.cast(0.0, f)
+            for k in range(bnb_cnt[b]):
+                acc += bnb_w[b, k] * p_liq[bnb_j[b, k]]
+            if ti.static(uniform):
+                acc += mat_rho0[0] * bhyd[b]
+            else:
+                acc += bhyd[b]
+            pb = acc
+            if ti.static(clamp):
+                pb = ti.max(acc, 0.0)
+            if ti.static(filt):
+                if (
+                    pbar[b] > NEW
+                ):  # wetted in the last substep too (NEW: newly wetted, takes the extrapolation)
+                    pb = pbar[b] + (dt / (TAU + dt)) * (pb - pbar[b])
+                pbar[b] = pb
+            bval[b] = pb
+            if ti.static(uniform):
+                rb = mat_rho0[0] * ti.pow(pb / mat_k[0] + 1.0, 1.0 / mat_n[0])
+                bq[b] = pb / (rb * rb)
+
+    @ti.func
+    def wcsph_wall_force(i):
+        """-rho0_i sum_b V_b (p_b / rho_b^2) grad W_ib over liquid particle i's listed boundary
+        neighbours: the
+        wall's half of the symmetric pressure force (the particle's own half is Akinci's term)."""
+        out = ti.Vector.zero(f, dim)
+        xi = x[i]
+        m = mid[i]
+        for k in range(nb_cnt[i], nbw_end[i]):
+            b = nb_j[i, k]
+            d = xi - bx[b]
+            g = gradW(d, ti.sqrt(d.dot(d))) * bV[b]
+            q = ti.cast(0.0, f)
+            if ti.static(uniform):
+                q = bq[b]
+            else:
+                pb = bval[b]
+                rb = mat_rho0[m] * ti.pow(pb / mat_k[m] + 1.0, 1.0 / mat_n[m])
+                q = pb / (rb * rb)
+            out -= q * g
+        return mat_rho0[m] * out
+
+    return SimpleNamespace(
+        bval=bval,
+        bhyd=bhyd,
+        mark=mark,
+        update=update,
+        wall_sum=wall_sum,
+        wcsph_pressure=wcsph_pressure,
+        wcsph_wall_force=wcsph_wall_force,
+        pbar=pbar,
+    )

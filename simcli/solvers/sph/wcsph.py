@@ -5,10 +5,14 @@ launch per substep::
 
 Pressure: p_i = k ((rho_i / rho0)^n - 1) (+ background pressure), clamped at zero for a free surface.
 Force (momentum-conserving, symmetric): a_i = -sum_j m_j (p_i / rho_i^2 + p_j / rho_j^2) grad W_ij, and from
-boundary particles (Akinci et al. 2012, eq. 10) a_i = -sum_b rho0 V_b (p_i / rho_i^2) grad W_ib. (Full
-pressure mirroring, 2 p_i / rho_i^2, balances a uniform pressure exactly at a wall, but made a tank at rest
-with water's viscosity unstable in our tests; Akinci's single term is a stable penalty.) Time integration:
-symplectic Euler (v, then x with the new v).
+boundary particles (Akinci et al. 2012, eq. 10) a_i = -sum_b rho0 V_b (p_i / rho_i^2) grad W_ib, plus with
+``wall_pressure: extrapolated`` (the default with a free surface since session 8) the walls' own pressure,
+-sum_b rho0 V_b (p_b / rho_b^2) grad W_ib, p_b relaxing towards Adami et al.'s (2012) extrapolation from the
+liquid (wall_pressure.py: why it relaxes). (Full pressure mirroring, 2 p_i / rho_i^2, balances a uniform
+pressure exactly at a wall, but made a tank at rest with water's viscosity unstable in our tests; so did
+the extrapolation taken at once: both are non-conservative forces that pump the acoustic noise. Akinci's
+single term alone is stable, and leaves the wall layer at 1.7x the hydrostatic pressure.)
+Time integration: symplectic Euler (v, then x with the new v).
 """
 
 
@@ -34,10 +38,16 @@ def make_wcsph(S):
             pi = ti.max(pi, 0.0)
         p[i] = pi + p_bg
 
+    wp = S.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
+    ext = wp is not None
+
     @ti.func
     def boundary_pressure_acceleration(i):
         ri = rho[i]
-        return -mat_rho0[mid[i]] * (p[i] / (ri * ri)) * B[i]  # Akinci et al. 2012, eq. 10
+        a = -mat_rho0[mid[i]] * (p[i] / (ri * ri)) * B[i]  # Akinci et al. 2012, eq. 10
+        if ti.static(ext):
+            a += wp.wcsph_wall_force(i)  # the walls' own pressure (Adami et al. 2012)
+        return a
 
     @ti.kernel
     def pressure_from_density():
@@ -52,6 +62,9 @@ def make_wcsph(S):
         for i in range(n):
             S.neighbours_density(i)
             equation_of_state(i)
+        if ti.static(ext):
+            wp.mark()  # the walls in reach of the liquid and their hydrostatic part
+            wp.wcsph_pressure(dt)
         for i in range(n):
             # non_pressure and the liquid's pressure force in one pass over the neighbour list
             vnew[i] = v[i] + dt * (S.non_pressure(i, True) + boundary_pressure_acceleration(i))
