@@ -4,12 +4,9 @@ the particle solvers consume (re-exported by ``simcli.solvers.base``). No Taichi
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
-
-if TYPE_CHECKING:  # pragma: no cover
-    from simcli.scene.models import Entity
 
 
 @dataclass
@@ -22,7 +19,7 @@ class Body:
     """
 
     name: str
-    entity: Entity
+    entity: Any  # a simcli.scene.models.Entity (geometry sits below the scene models)
     x: np.ndarray
     v: np.ndarray
     volume: np.ndarray

@@ -6,17 +6,14 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
 from simcli.scene.lines import sort_lines
 
-if TYPE_CHECKING:  # pragma: no cover - the loader calls check_scene
-    from simcli.scene.loader import LoadedScene
 
-
-def check_scene(loaded: LoadedScene) -> list[str]:
+def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene (the loader calls this)
     s = loaded.scene
     loc = loaded.located
     dim = s.sim.dim
