@@ -88,10 +88,12 @@ class ActiveSet:
         self._built = False
 
     # ------------------------------------------------------------------ build
-    def build(self, solver, persistent: list, consts: dict, f) -> None:
+    def build(self, solver, persistent: list, consts: dict, f, buffer_layers: int = 0) -> None:
         """``persistent``: every per-particle field that carries state (moved by compaction, reset from the
         fresh row on emission), x, v and pid among them (``solver.x``, ``solver.v``, ``solver.pid``);
-        ``consts``: field -> per-emitter values (mass, material id, volume) written on emission."""
+        ``consts``: field -> per-emitter values (mass, material id, volume) written on emission;
+        ``buffer_layers``: the newest layers of each emitter keep the nozzle's prescribed (ballistic) motion,
+        an inflow buffer (SPH: the kernel support), see before_substep."""
         dim = self.dim
         self.solver = solver
         self.f = f
@@ -113,6 +115,13 @@ class ActiveSet:
         self.lat = ti.Vector.field(dim, f, shape=int(lat_off[-1]))
         npf = np.float64 if f == ti.f64 else np.float32
         self.lat.from_numpy(np.concatenate(lat).astype(npf))
+        self.em_i = ti.field(ti.i32, shape=(ne, 3))  # pid0, particles per layer, lattice offset
+        self.em_t = ti.field(ti.f64, shape=(ne, 3))  # start, layer interval, buffer age
+        for k, e in enumerate(self.emitters):
+            self.em_i[k, 0], self.em_i[k, 1], self.em_i[k, 2] = e["pid0"], len(e["lattice"]), int(lat_off[k])
+            self.em_t[k, 0], self.em_t[k, 1] = float(e["cfg"].start), e["dt_layer"]
+            self.em_t[k, 2] = buffer_layers * e["dt_layer"]
+        self.buffer_layers = buffer_layers
         self.em_c = ti.Vector.field(dim, f, shape=ne)
         self.em_u = ti.Vector.field(dim, f, shape=ne)  # normal x speed
         for k, e in enumerate(self.emitters):
@@ -211,6 +220,30 @@ class ActiveSet:
                 for c in ti.static(range(nP)):
                     P[c][a] = P[c][b]
 
+        em_i, em_t = self.em_i, self.em_t
+        n_em = len(self.emitters)
+        caps = ti.field(ti.i32, shape=ne)
+        for k, e in enumerate(self.emitters):
+            caps[k] = e["cap"]
+
+        @ti.kernel
+        def drive(t: ti.f64):
+            """The inflow buffer: particles younger than buffer_layers layer intervals move as the nozzle
+            prescribes (positions and velocities of ballistic flight from their layer's time)."""
+            g = gravity[None]
+            for i in range(nact[None]):
+                p = pid[i]
+                for e in range(n_em):
+                    q = p - em_i[e, 0]
+                    if 0 <= q and q < caps[e]:
+                        npl = em_i[e, 1]
+                        a64 = t - (em_t[e, 0] + (q // npl + 0.5) * em_t[e, 1])
+                        if a64 < em_t[e, 2]:
+                            a = ti.cast(a64, f)
+                            x[i] = em_c[e] + lat_f[em_i[e, 2] + q % npl] + a * em_u[e] + (0.5 * a * a) * g
+                            v[i] = em_u[e] + a * g
+
+        self._drive = drive
         self._emit, self._sink_count, self._sink_plan, self._sink_move = (
             emit,
             sink_count,
@@ -231,16 +264,20 @@ class ActiveSet:
 
     # ------------------------------------------------------------------ stepping
     def before_substep(self, t: float) -> bool:
-        """Emit the layers due by time t; True if the active count changed."""
+        """The inflow buffer moved to time t, then the layers due by t emitted; True if the active count
+        changed."""
         changed = False
+        if self.buffer_layers and self.n_active > self.n0:
+            self._drive(t)
         for k, e in enumerate(self.emitters):
             cfg = e["cfg"]
             if e["full"] or t < cfg.start - 1e-12:
                 continue
             t_end = t if cfg.stop is None else min(t, cfg.stop)
             dtl = e["dt_layer"]
-            due = int(math.floor((t_end - cfg.start) / dtl + 1e-9)) + 1
-            if cfg.stop is not None:  # layer q stands for [t_q, t_q + dtl): the ones mostly before stop
+            # layer q stands for [start + q dtl, start + (q + 1) dtl) and leaves the nozzle at its middle
+            due = int(math.floor((t_end - cfg.start) / dtl - 0.5 + 1e-9)) + 1
+            if cfg.stop is not None:  # the layers whose middle is before stop
                 due = min(due, int(math.floor((cfg.stop - cfg.start) / dtl + 0.5)))
             nl = due - e["layers"]
             if nl <= 0:
@@ -256,7 +293,7 @@ class ActiveSet:
                 )
             if nl <= 0:
                 continue
-            age0 = t - (cfg.start + e["layers"] * dtl)
+            age0 = t - (cfg.start + (e["layers"] + 0.5) * dtl)
             self._emit(
                 self.n_active,
                 e["pid0"] + e["layers"] * npl,
