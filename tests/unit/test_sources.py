@@ -198,6 +198,7 @@ def test_sph_emitter_flux_sink_probes_and_resume(tmp_path):
     assert len(vtu) == len(full["t"])
 
 
+@pytest.mark.slow
 def test_mpm_emitter_flux_sink_and_resume(tmp_path):
     full, _out = _resume_equals(tmp_path, MPM_JET)
     # MPM particle volume: the nozzle's share of its area times the layer gap, so the flux is exact
