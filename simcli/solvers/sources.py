@@ -250,6 +250,13 @@ class ActiveSet:
             sink_plan,
             sink_move,
         )
+        # compiled now, with the build (run.json's compile time), not at the first emission: no-op launches
+        if self.emitters:
+            emit(self.n_active, 0, 0, 1, 0, 0.0, 0.0, 0)
+            if buffer_layers:
+                drive(0.0)
+        if self.sinks:
+            sink_count()
         self._built = True
 
     def count_func(self):
@@ -268,11 +275,22 @@ class ActiveSet:
         changed."""
         changed = False
         if self.buffer_layers and self.n_active > self.n0:
-            self._drive(t)
+            # only while some emitter's youngest layer is still in its buffer (a stopped jet costs nothing)
+            if any(
+                e["layers"]
+                and t - (e["cfg"].start + (e["layers"] - 0.5) * e["dt_layer"])
+                < self.buffer_layers * e["dt_layer"]
+                for e in self.emitters
+            ):
+                self._drive(t)
         for k, e in enumerate(self.emitters):
             cfg = e["cfg"]
             if e["full"] or t < cfg.start - 1e-12:
                 continue
+            if cfg.stop is not None and e["layers"] >= int(
+                math.floor((cfg.stop - cfg.start) / e["dt_layer"] + 0.5)
+            ):
+                continue  # every layer before stop has left
             t_end = t if cfg.stop is None else min(t, cfg.stop)
             dtl = e["dt_layer"]
             # layer q stands for [start + q dtl, start + (q + 1) dtl) and leaves the nozzle at its middle
