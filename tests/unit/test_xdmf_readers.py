@@ -218,7 +218,7 @@ def test_a_varying_particle_count_reads_only_the_live_rows(tmp_path, reader):
     """Emitters and sinks: an entity of capacity 10 whose live count changes per frame (sim.h5 pads the rest,
     /entities/<name>/count says how many); both readers see exactly the live particles of each frame."""
     e = EntityMeta("jet", "particles", 10, 2, {"position": (2, "m"), "velocity": (2, "m/s")}, variable=True)
-    counts = [1, 7, 4]
+    counts = [0, 7, 4]  # an emitter's first frame holds no particle yet
     rng = np.random.default_rng(1)
     sink = FrameSink(tmp_path, ["hdf5", "vtk"])
     sink.open([e], "version: 1\nname: t\n", {"name": "t", "dt": DT, "dim": 2})
@@ -238,6 +238,8 @@ def test_a_varying_particle_count_reads_only_the_live_rows(tmp_path, reader):
         fr = int(fr_s)
         b = list(blocks.values())[0]
         assert b["points"] == counts[fr] and b["cells"] == counts[fr], (reader, fr, b["points"])
+        if counts[fr] == 0:
+            continue
         np.testing.assert_allclose(np.asarray(b["xyz"])[:, :2], sent[fr]["position"], rtol=1e-6)
         np.testing.assert_allclose(
             np.asarray(b["point_data"]["velocity"])[:, :2], sent[fr]["velocity"], rtol=1e-6
