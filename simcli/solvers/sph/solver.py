@@ -440,7 +440,15 @@ class SPHSolver(Solver):
 
             return count
         src = self.sources
-        persistent = [self.x, self.v, self.mass, self.mid, self.pid, self.rho, self.p]  # (rho, p: written out)
+        persistent = [
+            self.x,
+            self.v,
+            self.mass,
+            self.mid,
+            self.pid,
+            self.rho,
+            self.p,
+        ]  # (rho, p: written out)
         persistent += [self.kappa, self.kappav] if self.kappa is not None else []
         mids = [self.body_mid[e["body"]] for e in src.emitters]
         masses = [self.materials[m].rho * self.V_rest for m in mids]
