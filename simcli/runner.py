@@ -335,6 +335,10 @@ class Runner:
         from simcli.geometry.sampling import family_spacing, sample_scene
 
         bodies = sample_scene(scene, self.loaded.scene_dir, sim.seed)
+        if scene.emitters:  # each emitter's reserved slots (simcli/solvers/sources.py)
+            from simcli.scene.sources import emitter_bodies
+
+            bodies += emitter_bodies(scene)
         for b in bodies:
             for w in getattr(b, "warnings", []) or []:
                 self.warn(f"{b.name}: {w}")
@@ -380,6 +384,9 @@ class Runner:
                 self.warn(w)
         self.timings["build_s"] = time.perf_counter() - t0
         self._startup_point("building the solvers")
+        from simcli.solvers.sources import make_source_run  # emitters and sinks (None without any)
+
+        sources = self._sources = make_source_run(scene, solvers)
         self.info["counts"] = {s.family: s.counts() for s in solvers}
         n_particles = sum(int(s.counts().get("particles", 0)) for s in solvers)
         self.info["particles"] = n_particles
@@ -433,6 +440,7 @@ class Runner:
             resume_frame=(frame + 1) if ckpt is not None else None,
             **(probes.open(step if ckpt is not None else None) if probes else {}),
             colliders=self._collider_meta(),
+            frame_series=self._frame_series(),
         )
         self._cvtk = self._collider_vtk((frame + 1) if ckpt is not None else None)
         no_loads = sorted(scene.families & {"SPH", "SF"})
@@ -449,7 +457,14 @@ class Runner:
             # the first substep: the fixed one, or with substeps: auto the stable one (not sim.dt: a long step
             # with auto_check: substep would make any initial speed look like a runaway)
             self._check_frame(solvers, 0, sim.dt / substeps_now if substeps_now else min(sim.dt, stable))
-            sink.write_frame(0, 0, 0.0, self._frame_data(), colliders=self._collider_loads(solvers, 0.0))
+            sink.write_frame(
+                0,
+                0,
+                0.0,
+                self._frame_data(),
+                colliders=self._collider_loads(solvers, 0.0),
+                **self._frame_vals(),
+            )
             if self._cvtk is not None:
                 self._cvtk.write_frame(0, 0.0)
             if probes:
@@ -500,6 +515,8 @@ class Runner:
                     sub_dt = rem / n_left
                 else:
                     n_left, sub_dt = substeps_now - k, sim.dt / substeps_now
+                if sources:  # the layers due by this substep's start enter (no host sync)
+                    sources.before_substep(step * sim.dt + done_t)
                 for s in solvers:
                     s.substep(sub_dt)
                 k += 1
@@ -516,6 +533,9 @@ class Runner:
             substeps_now = k
             for s in solvers:
                 s.sync()
+            if sources:  # sinks remove what entered them (one small read)
+                for w in sources.after_step():
+                    self.warn(w)
             self.timings["stepping_s"] += time.perf_counter() - ts
             substeps_done += substeps_now
             sub_hist.append(substeps_now)
@@ -531,7 +551,9 @@ class Runner:
                     frame += 1
                     loads = self._collider_loads(solvers, (step - self._load_step) * sim.dt)
                     self._load_step = step
-                    sink.write_frame(frame, step, step * sim.dt, self._frame_data(), colliders=loads)
+                    sink.write_frame(
+                        frame, step, step * sim.dt, self._frame_data(), colliders=loads, **self._frame_vals()
+                    )
                     if self._cvtk is not None:
                         self._cvtk.write_frame(frame, step * sim.dt)
                     stop = next((r for r in (s.steady() for s in solvers) if r), None)
@@ -613,8 +635,24 @@ class Runner:
         return EXIT_OK, info
 
     # ------------------------------------------------------------------ pieces
+    def _frame_series(self) -> dict[str, str] | None:
+        """sim.h5 per-frame scalars: emitted and removed mass, and the live count of each entity whose count
+        varies (emitters, sinks)."""
+        if getattr(self, "_sources", None) is None:
+            return None
+        unit = "kg" if self.scene.sim.dim == 3 else "kg/m"
+        out = {k: unit for k in self._sources.frame_values()}
+        return out
+
+    def _frame_vals(self) -> dict:
+        if getattr(self, "_sources", None) is None:
+            return {}
+        return {"values": self._sources.frame_values()}
+
     def _finish_stats(self, step, n_particles, sub_hist, stepping0, substeps_done):
         sim = self.scene.sim
+        if getattr(self, "_sources", None) is not None:
+            self.info["sources"] = self._sources.info()
         for s in getattr(self, "_solvers", []):
             try:
                 self.info.setdefault("solvers", {})[s.family] = s.info()
@@ -713,7 +751,9 @@ class Runner:
         from simcli.io.frames import EntityMeta
 
         metas, self._entity_fields = [], {}
-        for e in self.scene.entities:
+        from simcli.scene.sources import EmitterEntity
+
+        for e in list(self.scene.entities) + [EmitterEntity(em) for em in self.scene.emitters]:
             s = next(s for s in solvers if s.owns(e.name))
             fields = self._fields(s, e.name)
             avail = s.output_fields()
@@ -729,7 +769,8 @@ class Runner:
                 EntityMeta(
                     name=e.name,
                     kind=s.entity_kind(e.name),
-                    n=s.entity_size(e.name),
+                    n=s.entity_size(e.name) - (1 if getattr(e, "is_emitter", False) else 0),
+                    variable=getattr(s, "sources", None) is not None,
                     dim=self.scene.sim.dim,
                     fields={f: avail[f] for f in fields},
                     cells=s.entity_cells(e.name),

@@ -90,8 +90,10 @@ class FrameSink:
         series: dict[str, tuple[int, str]] | None = None,
         series_until: float | None = None,
         colliders: dict[str, int] | None = None,
+        frame_series: dict[str, str] | None = None,
     ) -> None:
-        """``series``: named time series (probes) written to sim.h5 as ``/probes/<name>/time`` and ``/value``
+        """``frame_series``: sim.h5 path -> unit of a scalar written with every frame (``values`` of
+        write_frame: emitted and removed mass). ``series``: named time series (probes) written to sim.h5 as ``/probes/<name>/time`` and ``/value``
         by :meth:`write_series`, name -> (components, unit); on a resume their samples after time
         ``series_until`` are dropped. ``colliders``: named collider -> dim, for sim.h5
         /colliders/<name>/force (dim components) and /torque (3 in 3D, 1 in 2D) per frame."""
@@ -118,9 +120,10 @@ class FrameSink:
                     series,
                     series_until,
                     colliders=self.colliders,
+                    frame_series=frame_series,
                 )
                 self._xdmf = XdmfWriter(self.out_dir / "sim.xdmf", self.h5_path.name, self.entities)
-                self._xdmf.reset(self._h5.times())
+                self._xdmf.reset(self._h5.times(), self._h5.counts())
                 t1 = perf_counter()
                 self.seconds["hdf5"] += t1 - t0
                 t0 = t1
@@ -146,8 +149,9 @@ class FrameSink:
         time: float,
         data: dict[str, dict[str, np.ndarray]],
         colliders: dict[str, dict[str, np.ndarray]] | None = None,
+        values: dict[str, float] | None = None,
     ) -> None:
-        """``colliders``: named collider -> {"force", "torque"} (see ``open``)."""
+        """``colliders``: named collider -> {"force", "torque"}; ``values``: the frame_series (see ``open``)."""
         if not self._open:
             raise RuntimeError("FrameSink.write_frame before open()")
         if frame != self.next_frame:
@@ -158,8 +162,9 @@ class FrameSink:
         t = float(time)
         t0 = perf_counter()
         if self._h5 is not None:
-            self._h5.write_frame(frame, int(step), t, prepared, colliders=colliders)
-            self._xdmf.add_frame(frame, t)
+            self._h5.write_frame(frame, int(step), t, prepared, colliders=colliders, values=values)
+            counts = {e.name: len(prepared[e.name]["position"]) for e in self.entities if e.variable}
+            self._xdmf.add_frame(frame, t, counts)
             t1 = perf_counter()
             self.seconds["hdf5"] += t1 - t0
             t0 = t1

@@ -375,6 +375,16 @@ class H5Writer:
     def times(self) -> list[float]:
         return list(self._times)
 
+    def counts(self) -> list[dict[str, int]]:
+        """Per frame held: the live count of each entity whose count varies."""
+        k = len(self._times)
+        per = {
+            e.name: [int(c) for c in self._fsd[f"entities/{e.name}/count"][:k]]
+            for e in self.entities
+            if e.variable
+        }
+        return [{name: c[i] for name, c in per.items()} for i in range(k)]
+
     # ------------------------------------------------------------------------------------
     def open(
         self,
@@ -385,11 +395,17 @@ class H5Writer:
         series: dict[str, tuple[int, str]] | None = None,
         series_until: float | None = None,
         colliders: dict[str, int] | None = None,
+        frame_series: dict[str, str] | None = None,
     ) -> None:
         from simcli import __version__
 
         self.entities = list(entities)
         self.colliders = dict(colliders or {})
+        # per-frame scalars (sim.h5 path -> unit): the live count of each entity whose count varies, and
+        # the caller's (emitted and removed mass)
+        self.frame_series = {f"entities/{e.name}/count": "1" for e in self.entities if e.variable}
+        self.frame_series.update(frame_series or {})
+        self._fsd: dict = {}
         if resume_frame is None:
             with guard(self.path, "create"):
                 f = _h5file(self.path, "w", libver=LIBVER)
@@ -437,6 +453,8 @@ class H5Writer:
                 g.attrs["grid_shape"] = np.asarray(e.grid_shape, dtype="i8")
                 g.attrs["origin"] = np.asarray(e.origin, dtype="f8")
                 g.attrs["spacing"] = np.asarray(e.spacing, dtype="f8")
+            if e.variable:
+                g.attrs["variable_count"] = True  # rows past /entities/<name>/count[frame] are padding
             if e.cells is not None:
                 c = g.create_dataset("cells", data=e.cells, dtype="i8")
                 c.attrs["unit"] = "1"
@@ -458,6 +476,11 @@ class H5Writer:
                 elif fname in e.cell_fields:  # one value per cell of the mesh (rows of "cells")
                     d.attrs["center"] = "cell"
                 self._ds.append((d, e.name, fname))
+        for path, unit in self.frame_series.items():
+            dt = "i8" if path.endswith("/count") else "f8"
+            d = f.create_dataset(path, shape=(0,), maxshape=(None,), chunks=(1024,), dtype=dt)
+            d.attrs["unit"] = unit
+            self._fsd[path] = d
         if self.colliders:
             cg = f.create_group("colliders")
             for name, dim in self.colliders.items():
@@ -494,6 +517,11 @@ class H5Writer:
                     )
                 d.resize(k, axis=0)
                 self._ds.append((d, e.name, fname))
+        for path in self.frame_series:
+            if path not in f or f[path].shape[0] < k:
+                raise OutputError(f"cannot resume: {self.path} has no complete {path} (scene changed?)")
+            f[path].resize(k, axis=0)
+            self._fsd[path] = f[path]
         for name in self.colliders:
             for fname in ("force", "torque"):
                 path = f"colliders/{name}/{fname}"
@@ -575,6 +603,7 @@ class H5Writer:
         time: float,
         data: dict[str, dict[str, np.ndarray]],
         colliders: dict[str, dict[str, np.ndarray]] | None = None,
+        values: dict[str, float] | None = None,
     ) -> None:
         f = self.f
         assert f is not None, "H5Writer not open"
@@ -586,9 +615,23 @@ class H5Writer:
             self.abandon()
             raise
         try:
+            counts = {}
             for d, ename, fname in self._ds:
                 d.resize(frame + 1, axis=0)
-                d.write_direct(data[ename][fname], dest_sel=np.s_[frame])
+                a = data[ename][fname]
+                if a.shape != d.shape[1:]:  # a varying count: the live rows, then padding (NaN, -1)
+                    counts[ename] = a.shape[0]
+                    pad = np.full(d.shape[1:], np.nan if a.dtype.kind == "f" else -1, dtype=a.dtype)
+                    pad[: a.shape[0]] = a
+                    a = pad
+                elif f"entities/{ename}/count" in self._fsd:
+                    counts[ename] = a.shape[0]
+                d.write_direct(np.ascontiguousarray(a), dest_sel=np.s_[frame])
+            vals = dict(values or {})
+            vals.update({f"entities/{k}/count": c for k, c in counts.items()})
+            for path, d in self._fsd.items():
+                d.resize(frame + 1, axis=0)
+                d[frame] = vals.get(path, 0)
             for d, cname, fname in self._cds:
                 d.resize(frame + 1, axis=0)
                 d[frame] = np.asarray((colliders or {})[cname][fname], dtype="f8").reshape(d.shape[1:])

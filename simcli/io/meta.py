@@ -30,6 +30,9 @@ class EntityMeta:
     spacing: tuple | None = None  # cell size, x y z order
     dtype: str = "float32"  # default storage type of the fields
     cell_fields: tuple = ()  # names in ``fields`` given per cell (n_cells values) of a mesh, not per point
+    # particles whose count changes over the run (emitters, sinks): ``n`` is the capacity, a frame gives
+    # its live particles (rows <= n); sim.h5 pads the rows past /entities/<name>/count
+    variable: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -112,6 +115,13 @@ class EntityMeta:
         comps, _unit, dtype = self.fields[fname]
         a = np.asarray(arr)
         want = self.frame_shape(fname)
+        if self.variable:  # any number of rows up to the capacity
+            rows = a.shape[0] if a.ndim else -1
+            if not 0 <= rows <= self.n or a.size != rows * comps:
+                raise ValueError(
+                    f"entity {self.name!r} field {fname!r}: expected up to {self.n} rows of {comps}, got {a.shape}"
+                )
+            return np.ascontiguousarray(a.reshape((rows,) + want[1:]), dtype=dtype)
         if a.shape != want:
             rows = self.n if self.kind == "grid" else self._rows(fname)
             flat = (rows,) + ((comps,) if comps > 1 else ())

@@ -169,7 +169,7 @@ class _EntityFiles:
                 continue
             a = data[fname]
             if self.e.kind != "grid":
-                rows = self.e.frame_shape(fname)[0]
+                rows = self.e.frame_shape(fname)[0] if not self.e.variable else len(data["position"])
                 a = a.reshape(rows, comps) if comps > 1 else a.reshape(rows)
             if comps == 2 and self.e.dim == 2:  # 2D vectors as 3D so ParaView glyphs them
                 a = np.concatenate([a, np.zeros(a.shape[:-1] + (1,), a.dtype)], axis=-1)
@@ -208,8 +208,14 @@ class _EntityFiles:
 
     def _vtu(self, data: dict[str, np.ndarray]) -> list[bytes]:
         e = self.e
+        n = len(data["position"])
+        if e.variable and n != getattr(self, "_n_static", None):  # a varying count: its own vertex cells
+            self._static, self._n_static = None, n
         if self._static is None:  # topology never changes: compress it once
-            if e.kind == "particles":
+            if e.kind == "particles" and e.variable:
+                conn = np.arange(n, dtype=np.int64)
+                npc, ncell = 1, n
+            elif e.kind == "particles":
                 conn = np.arange(e.n, dtype=np.int64)
                 npc, ncell = 1, e.n
             else:
@@ -226,11 +232,11 @@ class _EntityFiles:
             self._ncell = ncell
         pos = data["position"]
         if e.dim == 2:
-            pos = np.concatenate([pos, np.zeros((e.n, 1), pos.dtype)], axis=1)
+            pos = np.concatenate([pos, np.zeros((len(pos), 1), pos.dtype)], axis=1)
         head = (
             '<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" '
             'header_type="UInt64" compressor="vtkZLibDataCompressor">\n<UnstructuredGrid>\n'
-            f'<Piece NumberOfPoints="{e.n}" NumberOfCells="{self._ncell}">'
+            f'<Piece NumberOfPoints="{len(pos)}" NumberOfCells="{self._ncell}">'
         )
         sections = [("PointData", self._point_arrays(data))]
         if e.cell_fields:

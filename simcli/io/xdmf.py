@@ -96,21 +96,33 @@ class XdmfWriter:
         self._frames: list[str] = []  # per-frame XML per entity, in entity order
         self._nframes = 0
 
-    def reset(self, times: list[float]) -> None:
-        """Start over with the frames already in sim.h5 (fresh: none; resume: 0..k-1)."""
-        self._frames = [[self._grid(e, i, t) for e in self.entities] for i, t in enumerate(times)]
+    def reset(self, times: list[float], counts: list[dict] | None = None) -> None:
+        """Start over with the frames already in sim.h5 (fresh: none; resume: 0..k-1); ``counts``: per frame,
+        the live count of each entity whose count varies."""
+        counts = counts or [{} for _ in times]
+        self._frames = [
+            [self._grid(e, i, t, c.get(e.name)) for e in self.entities]
+            for i, (t, c) in enumerate(zip(times, counts))
+        ]
         self._write()
 
-    def add_frame(self, frame: int, time: float) -> None:
+    def add_frame(self, frame: int, time: float, counts: dict | None = None) -> None:
         assert frame == len(self._frames)
-        self._frames.append([self._grid(e, frame, time) for e in self.entities])
+        counts = counts or {}
+        self._frames.append([self._grid(e, frame, time, counts.get(e.name)) for e in self.entities])
         self._write()
 
     # ------------------------------------------------------------------------------------
-    def _slab(self, e: EntityMeta, fname: str, frame: int) -> str:
-        """Frame ``frame`` of /entities/<e>/<fname>, readable by both XDMF readers (module doc)."""
+    def _slab(self, e: EntityMeta, fname: str, frame: int, rows: int | None = None) -> str:
+        """Frame ``frame`` of /entities/<e>/<fname>, readable by both XDMF readers (module doc); ``rows``: only
+        the first rows (the live particles of an entity whose count varies)."""
         dtype = e.fields[fname][2]
         shape = e.frame_shape(fname)
+        if rows is not None:
+            full = (frame + 1,) + shape
+            part = (rows,) + shape[1:]
+            start = (frame,) + (0,) * len(shape)
+            return _heavy(f"{self.h5}:/entities/{e.name}/{fname}", dtype, part, full, start, (1,) + part)
         dims = shape
         if e.kind == "grid" and e.dim == 2:
             dims = (1,) + shape  # the one-layer 3D mesh of a 2D grid
@@ -119,7 +131,7 @@ class XdmfWriter:
         count = (1,) + shape
         return _heavy(f"{self.h5}:/entities/{e.name}/{fname}", dtype, dims, full, start, count)
 
-    def _grid(self, e: EntityMeta, frame: int, time: float) -> str:
+    def _grid(self, e: EntityMeta, frame: int, time: float, rows: int | None = None) -> str:
         name = quoteattr(f"{e.name}_{frame:06d}")
         parts = [f'<Grid Name={name} GridType="Uniform"><Time Value="{_fmt(time)}"/>']
         center = "Node"
@@ -149,11 +161,10 @@ class XdmfWriter:
             if e.kind == "particles":
                 # connectivity from the static /vertices (0..n-1), a whole-array hyperslab as the cells
                 # below: without it the XDMF 3 reader makes points but no cells
-                verts = _heavy(
-                    f"{self.h5}:/entities/{e.name}/vertices", "int64", (e.n,), (e.n,), (0,), (e.n,)
-                )
+                nv = e.n if rows is None else rows
+                verts = _heavy(f"{self.h5}:/entities/{e.name}/vertices", "int64", (nv,), (e.n,), (0,), (nv,))
                 parts.append(
-                    f'<Topology TopologyType="Polyvertex" NumberOfElements="{e.n}" NodesPerElement="1">'
+                    f'<Topology TopologyType="Polyvertex" NumberOfElements="{nv}" NodesPerElement="1">'
                     f"{verts}</Topology>"
                 )
             else:
@@ -170,7 +181,7 @@ class XdmfWriter:
                     f"{cells}</Topology>"
                 )
             parts.append(f'<Geometry GeometryType="{"XYZ" if e.dim == 3 else "XY"}">')
-            parts.append(self._slab(e, "position", frame))
+            parts.append(self._slab(e, "position", frame, rows))
             parts.append("</Geometry>")
         for fname, (comps, _unit, _dt) in e.fields.items():
             if fname == "position" and e.kind != "grid":
@@ -178,7 +189,7 @@ class XdmfWriter:
             c = "Cell" if fname in e.cell_fields else center
             parts.append(
                 f'<Attribute Name={quoteattr(fname)} AttributeType="{_attribute_type(comps, e.dim)}" '
-                f'Center="{c}">{self._slab(e, fname, frame)}</Attribute>'
+                f'Center="{c}">{self._slab(e, fname, frame, rows)}</Attribute>'
             )
         parts.append("</Grid>")
         return "".join(parts)

@@ -192,11 +192,18 @@ def _who_answers(probe) -> str:
     return ", ".join(TOTAL_FAMILIES[probe.quantity])
 
 
+def all_entities(scene) -> list:
+    """The scene's entities and its emitters (each an entity of its own name, simcli/scene/sources.py)."""
+    from simcli.scene.sources import EmitterEntity
+
+    return list(scene.entities) + [EmitterEntity(em) for em in getattr(scene, "emitters", [])]
+
+
 def probe_entities(scene, probe) -> list:
     """The scene entities a probe reads (after check_probes has passed)."""
     if probe.entity != "*":
-        return [e for e in scene.entities if e.name == probe.entity]
-    ents = [e for e in scene.entities if default_entity(e, probe)]
+        return [e for e in all_entities(scene) if e.name == probe.entity]
+    ents = [e for e in all_entities(scene) if default_entity(e, probe)]
     if probe.type == "point" and any(e.family == "SF" for e in ents) and len(ents) > 1:
         return []  # refused by check_probes
     return ents
@@ -209,7 +216,7 @@ def check_probes(scene, err) -> None:
     if len(lo) != dim or len(hi) != dim:
         return
     seen: dict[str, int] = {}
-    names = {e.name: e for e in scene.entities}
+    names = {e.name: e for e in all_entities(scene)}
     for i, p in enumerate(scene.probes):
         base = ("probes", i)
         if p.name in seen:
@@ -274,8 +281,8 @@ def check_probes(scene, err) -> None:
                     f"{_who_answers(p)}",
                 )
             continue
-        ents = [e for e in scene.entities if default_entity(e, p)]
-        if not ents and p.type == "height" and any(answers(e, p) for e in scene.entities):
+        ents = [e for e in all_entities(scene) if default_entity(e, p)]
+        if not ents and p.type == "height" and any(answers(e, p) for e in all_entities(scene)):
             err(
                 base + ("entity",),
                 "a height gauge reads the liquids (SPH.Liquid, MPM.Liquid, PBD.Liquid) unless it names an "
@@ -283,7 +290,7 @@ def check_probes(scene, err) -> None:
                 "entity: <name>",
             )
         elif not ents:
-            present = ", ".join(sorted({e.material.type for e in scene.entities})) or "no entities"
+            present = ", ".join(sorted({e.material.type for e in all_entities(scene)})) or "no entities"
             qpath = base + ("quantity",) if p.type != "height" else base + ("type",)
             err(
                 qpath,
@@ -300,9 +307,9 @@ def check_probes(scene, err) -> None:
         elif (
             p.type == "total"
             and p.quantity == "elastic_energy"
-            and any(not answers(e, p) for e in scene.entities if e.family != "SF")
+            and any(not answers(e, p) for e in all_entities(scene) if e.family != "SF")
         ):
-            bad = [e.name for e in scene.entities if e.family != "SF" and not answers(e, p)]
+            bad = [e.name for e in all_entities(scene) if e.family != "SF" and not answers(e, p)]
             err(
                 base + ("quantity",),
                 f"elastic_energy is available for MPM entities only, not for {', '.join(bad)}; name "

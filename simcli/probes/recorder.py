@@ -22,7 +22,15 @@ import numpy as np
 
 from simcli.errors import OutputError
 from simcli.probes import sampling
-from simcli.probes.config import UNITS, components, height_axis, probe_entities, probe_every, quantity
+from simcli.probes.config import (
+    UNITS,
+    all_entities,
+    components,
+    height_axis,
+    probe_entities,
+    probe_every,
+    quantity,
+)
 
 CSV_NAME = "probes.csv"
 
@@ -50,7 +58,7 @@ class ProbeRecorder:
         self.ncomp = [components(p, self.dim) for p in self.probes]
         self.entities = [probe_entities(scene, p) for p in self.probes]
         self.owner = {}
-        for e in scene.entities:
+        for e in all_entities(scene):
             self.owner[e.name] = next((s for s in solvers if s.owns(e.name)), None)
         self.columns = ["time"]
         for p, c in zip(self.probes, self.ncomp):
@@ -113,9 +121,13 @@ class ProbeRecorder:
     def _masses(self, entity) -> np.ndarray:
         name = entity.name
         m = self._mass.get(name)
-        if m is not None:
-            return m
         s = self.owner[name]
+        varying = getattr(s, "sources", None) is not None  # emitters, sinks: the count changes
+        if m is not None and not varying:
+            return m
+        if varying and s.family == "sph":
+            n = len(s.entity_arrays(name, ["position"])["position"])
+            return np.full(n, entity.material.rho * float(s.V_rest))
         if "mass" in s.output_fields():  # MPM
             m = s.entity_arrays(name, ["mass"])["mass"]
         elif s.family == "sph":  # every particle carries rho0 x V_rest (simcli.solvers.sph.solver)

@@ -121,8 +121,14 @@ def read_frame(run: Run, k: int, extra: tuple[str, ...] = ()) -> list[EntityFram
             kind = str(g.attrs.get("kind", "particles"))
             dim = int(g.attrs.get("dim", run.dim))
             e = EntityFrame(name=name, kind=kind, dim=dim)
+            # emitters and sinks: the live rows of the frame (the rest is padding)
+            live = slice(int(g["count"][k])) if "count" in g and g["count"].shape[0] > k else slice(None)
             if "velocity" in g and g["velocity"].shape[0] > k:
-                e.velocity = np.asarray(g["velocity"][k], dtype=float)
+                e.velocity = (
+                    np.asarray(g["velocity"][k], dtype=float)[live]
+                    if kind != "grid"
+                    else np.asarray(g["velocity"][k], dtype=float)
+                )
             if kind == "grid":
                 e.grid = {
                     "origin": np.asarray(g.attrs.get("origin", np.zeros(dim)), float),
@@ -135,12 +141,12 @@ def read_frame(run: Run, k: int, extra: tuple[str, ...] = ()) -> list[EntityFram
             else:
                 if "position" not in g or g["position"].shape[0] <= k:
                     continue
-                e.position = np.asarray(g["position"][k], dtype=float)
+                e.position = np.asarray(g["position"][k], dtype=float)[live]
                 if "cells" in g:
                     e.cells = np.asarray(g["cells"][:], dtype=np.int64)
                 for fname in ("material_id",) + tuple(extra):
                     if fname in g and g[fname].shape[0] > k:
-                        e.fields[fname] = np.asarray(g[fname][k])
+                        e.fields[fname] = np.asarray(g[fname][k])[live]
             res.append(e)
     return res
 

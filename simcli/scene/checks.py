@@ -160,6 +160,10 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
         from simcli.probes.config import check_probes
 
         check_probes(s, err)
+    if s.emitters or s.sinks:
+        from simcli.scene.sources import check_sources
+
+        check_sources(s, err)
     sph_rho = sorted({e.material.rho for e in s.entities if e.family == "SPH"})
     if sph.pressure_solver == "DFSPH" and not sph.clamp_pressure and len(sph_rho) > 1:
         err(

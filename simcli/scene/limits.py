@@ -93,7 +93,7 @@ def check_limits(loaded, geometry_ok: bool = True) -> list[str]:
         dotted = ".".join(str(p) for p in path) or "(top level)"
         out.append(f"{loc.where(path, prefer_key=key)}: {dotted}: {msg}")
 
-    if not s.entities:
+    if not s.entities and not getattr(s, "emitters", None):
         err(
             ("entities",) if "entities" in loc.data else (),
             "the scene has no entities: add at least one under entities: (a name, a material and a morph)",

@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from simcli.probes.config import Probe
 from simcli.scene.materials import Material
 from simcli.scene.morphs import Morph, Region
+from simcli.scene.sources import Emitter, Sink
 from simcli.solvers.fem.config import FEMOptions
 from simcli.solvers.mpm.config import MPMOptions
 from simcli.solvers.pbd.config import PBDOptions
@@ -369,10 +370,18 @@ class Scene(Strict):
         description="Time series measured while the run goes (point, height gauge, total), sampled every N "
         "steps, written to OUT/probes.csv and sim.h5 /probes/<name>/time, /value.",
     )
+    emitters: list[Emitter] = Field(
+        default_factory=list,
+        description="Nozzles through which particles enter over time (MPM.*, SPH.Liquid); each is an output "
+        "entity of its name.",
+    )
+    sinks: list[Sink] = Field(
+        default_factory=list, description="Regions (Box) whose particles leave the simulation (MPM, SPH)."
+    )
 
     @property
     def families(self) -> set[str]:
-        return {e.family for e in self.entities}
+        return {e.family for e in self.entities} | {em.family for em in self.emitters}
 
 
 def resolved_scene_dict(scene: Scene, name: str) -> dict:

@@ -22,7 +22,7 @@ FAMILIES: dict[str, str] = {
 def make_solvers(scene, bodies, scene_dir=None) -> list:
     """One solver per family present in the scene, in order of first appearance."""
     families: list[str] = []
-    for e in scene.entities:
+    for e in list(scene.entities) + list(getattr(scene, "emitters", [])):  # an emitter's family too
         if e.family not in families:
             families.append(e.family)
     solvers = []

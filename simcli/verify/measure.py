@@ -692,3 +692,7 @@ def collider_penetration(f, entity, collider, spacing=None, **_):
         out.append(max(0.0, -float(sdf_numpy(spec, xb).min())))
     out = np.asarray(out)
     return t, out / spacing if spacing else out
+
+
+# emitters and sinks (emitted and removed mass, a draining tank's level and jet)
+from simcli.verify import source_measures as _source_measures  # noqa: E402,F401

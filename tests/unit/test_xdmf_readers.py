@@ -211,3 +211,38 @@ def test_xdmf_and_pvd_escape_names(tmp_path):
     files = [d.get("file") for d in pvd.iter("DataSet")]
     assert files == [f"{ODD}/{ODD}_{i:06d}.vtu" for i in range(NFRAMES)]
     assert all((tmp_path / "vtk" / f).exists() for f in files)
+
+
+@pytest.mark.parametrize("reader", ["vtkXdmf3Reader", "vtkXdmfReader"])
+def test_a_varying_particle_count_reads_only_the_live_rows(tmp_path, reader):
+    """Emitters and sinks: an entity of capacity 10 whose live count changes per frame (sim.h5 pads the rest,
+    /entities/<name>/count says how many); both readers see exactly the live particles of each frame."""
+    e = EntityMeta("jet", "particles", 10, 2, {"position": (2, "m"), "velocity": (2, "m/s")}, variable=True)
+    counts = [0, 7, 4]  # an emitter's first frame holds no particle yet
+    rng = np.random.default_rng(1)
+    sink = FrameSink(tmp_path, ["hdf5", "vtk"])
+    sink.open([e], "version: 1\nname: t\n", {"name": "t", "dt": DT, "dim": 2})
+    sent = []
+    for fr, c in enumerate(counts):
+        d = {f: rng.random((c, 2)) + 10 * fr for f in e.fields}
+        sent.append(d)
+        sink.write_frame(fr, fr * 5, fr * DT, {"jet": d})
+    sink.close()
+    with h5py.File(tmp_path / "sim.h5", "r") as f:
+        assert list(f["entities/jet/count"][:]) == counts
+        assert f["entities/jet/position"].shape == (3, 10, 2)
+        assert np.isnan(f["entities/jet/position"][1, 7:]).all()
+    result = read_with(reader, tmp_path / "sim.xdmf")
+    assert len(result["frames"]) == len(counts)
+    for fr_s, blocks in result["frames"].items():
+        fr = int(fr_s)
+        b = list(blocks.values())[0]
+        assert b["points"] == counts[fr] and b["cells"] == counts[fr], (reader, fr, b["points"])
+        if counts[fr] == 0:
+            continue
+        np.testing.assert_allclose(np.asarray(b["xyz"])[:, :2], sent[fr]["position"], rtol=1e-6)
+        np.testing.assert_allclose(
+            np.asarray(b["point_data"]["velocity"])[:, :2], sent[fr]["velocity"], rtol=1e-6
+        )
+    vtu = (tmp_path / "vtk" / "jet" / "jet_000001.vtu").read_bytes()
+    assert b'NumberOfPoints="7" NumberOfCells="7"' in vtu

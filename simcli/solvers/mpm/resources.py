@@ -40,6 +40,8 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
     mpm = scene.solvers.mpm
     fp = fp_factor(scene)
     n = sum(particle_count(e.morph, mpm.spacing, dim, scene_dir) for e in scene.entities if e.family == "MPM")
+    # emitters' reserved slots (and their fresh row): allocated up front (simcli/solvers/sources.py)
+    n += sum(em.max_particles + 1 for em in getattr(scene, "emitters", []) if em.family == "MPM")
     nodes = math.prod(
         cnt(math.ceil(min((hi[a] - lo[a]) * mpm.grid_density, 1e30) - 1e-6)) + 7 for a in range(dim)
     )

@@ -55,6 +55,7 @@ from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import ConstitutiveLaw, elastic_moduli, law_key
 from simcli.solvers.mpm.laws import LAWS
 from simcli.solvers.mpm.transfer import FlipTransfer
+from simcli.solvers.sources import ActiveSet, has_sources
 from simcli.solvers.taichi_funcs import make_body_of, make_finite
 
 with stdout_to_stderr():
@@ -159,6 +160,8 @@ class MPMSolver(Solver):
         # "auto": private grid copies on the CPU, atomics elsewhere; "atomic" forces the GPU path
         # (tests run it on the CPU), "chunked" the CPU one
         self.p2g_mode = "auto"
+        # emitters and sinks (simcli/solvers/sources.py): an active count; None in scenes without them
+        self.sources = ActiveSet(scene, bodies, "MPM") if has_sources(scene, "MPM") else None
         self._built = False
 
     # ------------------------------------------------------------------ build
@@ -197,6 +200,7 @@ class MPMSolver(Solver):
         self.vol = ti.field(f, shape=n)
         self.mid = ti.field(ti.i32, shape=n)
         self.fixed = ti.field(ti.u8, shape=n) if self.has_fixed else None
+        self.pid = ti.field(ti.i32, shape=n) if self.sources is not None else None  # identity (sources.py)
 
         # grid: T private copies of (momentum, mass[, fixed mass]) + the updated velocity
         self.gdim = dim + 1 + (1 if self.has_fixed else 0)
@@ -236,6 +240,7 @@ class MPMSolver(Solver):
         self._upload()
         for law in self.laws:
             law.bind(self)
+        self.count = self._count_func()
         self.wave_factor = max(law.max_wave_factor(self.materials) for law in self.laws)
         self.stiff_cap = max(law.max_stiffness_factor(self.materials) for law in self.laws)
         # a hardening law (snow) can stiffen a hundredfold within one frame of an impact, which the
@@ -270,8 +275,10 @@ class MPMSolver(Solver):
         if self.fixed is not None:
             self.fixed.from_numpy(np.concatenate([b.fixed for b in self.bodies]).astype(np.uint8))
         self.chunk_start.from_numpy(
-            (np.arange(self.T + 1, dtype=np.int64) * self.n // self.T).astype(np.int32)
+            (np.arange(self.T + 1, dtype=np.int64) * self.n_live() // self.T).astype(np.int32)
         )
+        if self.pid is not None:
+            self.pid.from_numpy(np.arange(self.n, dtype=np.int32))
         self.body_offsets.from_numpy(self.offsets.astype(np.int32))
         self.set_gravity(self.scene.sim.gravity_vec)
         self.mat_mu.from_numpy(np.array([elastic_moduli(m)[0] for m in self.materials], npf))
@@ -279,6 +286,43 @@ class MPMSolver(Solver):
         self.mat_law_id.from_numpy(np.array(self.mat_law, np.int32))
         for law in self.laws:
             law.init_state()
+
+    def _count_func(self):
+        """The particle loops' bound: the active count with emitters or sinks, else the constant n."""
+        if self.sources is None:
+            n = self.n
+
+            @ti.func
+            def count():
+                return n
+
+            return count
+        src = self.sources
+        persistent = [self.x, self.v, self.C, self.F, self.mass, self.vol, self.mid, self.pid]
+        persistent += [self.fixed] if self.fixed is not None else []
+        for law in self.laws:  # the laws' per-particle state (Jp, rotation, stress, ...)
+            for fld in vars(law).values():
+                if isinstance(fld, ti.Field) and fld.shape[:1] == (self.n,) and fld not in persistent:
+                    persistent.append(fld)
+        mids = [self.body_mid[e["body"]] for e in src.emitters]
+        vol = src.spacing**self.dim
+        masses = [float(self.materials[m].rho) * vol for m in mids]
+        for e, m in zip(src.emitters, masses):
+            e["mass"] = m
+        src.build(self, persistent, {self.mass: masses, self.vol: [vol] * len(mids), self.mid: mids}, self.f)
+        return src.count_func()
+
+    def n_live(self) -> int:
+        """Particles in the simulation now (the active count)."""
+        return self.n if self.sources is None else self.sources.n_active
+
+    def active_changed(self) -> None:
+        """After emission or removal: the chunks of p2g and the node boxes follow the new count."""
+        self.chunk_start.from_numpy(
+            (np.arange(self.T + 1, dtype=np.int64) * self.n_live() // self.T).astype(np.int32)
+        )
+        self._compute_bbox()
+        self._version += 1
 
     def set_gravity(self, g: list[float]) -> None:
         """Gravity is run-time data: changing it does not recompile anything."""
@@ -289,7 +333,10 @@ class MPMSolver(Solver):
     # ---------------------------------------------------------------- kernels
 
     def _make_kernels(self) -> None:
-        dim, f, n, T = self.dim, self.f, self.n, self.T
+        dim, f, T = self.dim, self.f, self.T
+        N = self.count  # the active count (emitters, sinks) or the constant n
+        pid = self.pid
+        dynamic = pid is not None
         gdim, chunked, has_fixed = self.gdim, self.chunked, self.has_fixed
         x, v, C, F, mass, vol, mid, fixed = (
             self.x,
@@ -514,7 +561,7 @@ class MPMSolver(Solver):
                         for p in range(chunk_start[t], chunk_start[t + 1]):
                             p2g_particle(p, t, dt)
             else:
-                for p in range(n):
+                for p in range(N()):
                     p2g_particle(p, 0, dt)
 
         @ti.func
@@ -587,7 +634,7 @@ class MPMSolver(Solver):
             else:
                 bbox[0, 0] = ti.Vector([big] * dim)
                 bbox[0, 1] = ti.Vector([-big] * dim)
-                for p in range(n):
+                for p in range(N()):
                     if ti.static(move):
                         g2p_particle(p, dt)
                     bp = particle_base(p)
@@ -656,8 +703,10 @@ class MPMSolver(Solver):
                 stat_speed[b] = 0.0
                 stat_bad[b] = 0
             stat_stiff[None] = 1.0
-            for p in range(n):
+            for p in range(N()):
                 b = body_of(p)
+                if ti.static(dynamic):
+                    b = body_of(pid[p])
                 vp = v[p]
                 if finite(x[p]) and finite(vp):
                     ti.atomic_max(stat_speed[b], vp.norm())
@@ -695,7 +744,7 @@ class MPMSolver(Solver):
 
             @ti.kernel
             def outputs():
-                for p in range(n):
+                for p in range(N()):
                     Fp = ti.Matrix.identity(f, dim) + F[p]  # F stores H = F - I
                     m = mid[p]
                     J = Fp.determinant()
@@ -770,6 +819,8 @@ class MPMSolver(Solver):
         hardening factor (snow) and by the largest muscle activation."""
         self._frame_stats()
         vmax = float(np.max(self.stat_speed.to_numpy()))
+        if self.sources is not None:  # what an emitter will bring in
+            vmax = max([vmax] + [float(e["cfg"].speed) for e in self.sources.emitters])
         if self.boundary.any_moving:  # a moving collider must not cross more than cfl cells a substep either
             vmax = max(vmax, self.boundary.poses.max_surface_speed(self.time))
         stiff = min(self.stiff_cap, max(1.0, float(self.stat_stiff[None]))) * self.wave_factor
@@ -808,6 +859,14 @@ class MPMSolver(Solver):
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
         k = self._index[name]
         lo, hi = int(self.offsets[k]), int(self.offsets[k + 1])
+        if self.sources is not None:  # the entity's live particles (active slots), in pid order
+            hit = self._cache.get("pid")
+            if hit is None or hit[0] != self._version:
+                self._cache["pid"] = (self._version, self.pid.to_numpy())
+            pid = self._cache["pid"][1][: self.sources.n_active]
+            sel = np.flatnonzero((pid >= lo) & (pid < hi))
+            sel = sel[np.argsort(pid[sel], kind="stable")]
+            return {fld: np.array(self._full(fld)[sel]) for fld in fields}
         return {fld: np.array(self._full(fld)[lo:hi]) for fld in fields}
 
     # ------------------------------------------------------------------- state
@@ -827,6 +886,16 @@ class MPMSolver(Solver):
         }
         for law in self.laws:
             state.update(law.get_state())
+        if self.sources is not None:  # what emission and removal change besides the above
+            state.update(
+                mass=self.mass.to_numpy(),
+                vol=self.vol.to_numpy(),
+                mid=self.mid.to_numpy(),
+                pid=self.pid.to_numpy(),
+            )
+            if self.fixed is not None:
+                state["fixed"] = self.fixed.to_numpy()
+            state.update(self.sources.get_state())
         return state
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
@@ -848,6 +917,20 @@ class MPMSolver(Solver):
             law.set_state(state)
         if "time" in state:
             self.time = float(np.asarray(state["time"]).reshape(-1)[0])
+        if self.sources is not None:
+            self.sources.set_state(state)
+            for key, fld, dt in (
+                ("mass", self.mass, npf),
+                ("vol", self.vol, npf),
+                ("mid", self.mid, np.int32),
+                ("pid", self.pid, np.int32),
+                ("fixed", self.fixed, np.uint8),
+            ):
+                if fld is not None:
+                    upload_state_array(fld, state, key, (self.n,), dt, "MPM")
+            self.chunk_start.from_numpy(
+                (np.arange(self.T + 1, dtype=np.int64) * self.n_live() // self.T).astype(np.int32)
+            )
         self._compute_bbox()
         self._version += 1
 
@@ -885,7 +968,7 @@ class MPMSolver(Solver):
             b = self.bbox.to_numpy()
             active = int(np.prod(np.maximum(b[:, 1].max(axis=0) - b[:, 0].min(axis=0), 0)))
         return {
-            "particles": self.n,
+            "particles": self.n_live(),
             "grid_cells": int(np.prod(self.grid_shape)),
             "grid_copies": self.T if self._built else 0,
             "active_cells": active,

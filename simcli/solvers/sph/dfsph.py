@@ -78,6 +78,7 @@ def make_dfsph(S):
     clamp = S.opts.clamp_pressure
     warm = S.opts.warm_start
     n = S.n
+    N = S.count  # the active count (emitters, sinks) or the constant n
     min_nb = MIN_NEIGHBOURS[dim]
     DIV, DENS = 0, 1
 
@@ -199,13 +200,13 @@ def make_dfsph(S):
     def serial_dot(a, b, slot):
         acc = ti.cast(0.0, ti.f64)
         ti.loop_config(serialize=True)
-        for i in range(n):
+        for i in range(N()):
             acc += ti.cast(a[i], ti.f64) * ti.cast(b[i], ti.f64)
         cg_s[slot] = acc
 
     @ti.func
     def cg_start(dt, mode: ti.template()):
-        for i in range(n):
+        for i in range(N()):
             r = residual(i, dt, mode)
             cg_r[i] = r
             cg_z[i] = alpha[i] * r
@@ -214,9 +215,9 @@ def make_dfsph(S):
 
     @ti.func
     def cg_iteration(dt):
-        for i in range(n):  # dvt = -dt G p
+        for i in range(N()):  # dvt = -dt G p
             dvt[i] = -dt * pressure_gradient(i, cg_p, BFAC * cg_p[i] * corr(i, B[i]))
-        for i in range(n):  # Ap = -dt D(dvt) = dt^2 D G p
+        for i in range(N()):  # Ap = -dt D(dvt) = dt^2 D G p
             dv = dvt[i]
             d = dv.dot(corr(i, B[i]))
             for k in range(nb_cnt[i]):
@@ -229,7 +230,7 @@ def make_dfsph(S):
             a = cg_s[0] / cg_s[1]
         af = ti.cast(a, f)
         err_acc[None] = 0
-        for i in range(n):
+        for i in range(N()):
             kacc[i] += af * cg_p[i]
             v[i] += af * dvt[i]
             r = cg_r[i] - af * cg_Ap[i]
@@ -241,7 +242,7 @@ def make_dfsph(S):
         beta = ti.cast(0.0, f)
         if rz_old > 0:
             beta = ti.cast(cg_s[0] / rz_old, f)
-        for i in range(n):
+        for i in range(N()):
             cg_p[i] = cg_z[i] + beta * cg_p[i]
 
     @ti.func
@@ -249,17 +250,17 @@ def make_dfsph(S):
         """One Jacobi step: the velocities from the current stiffness, then the residual after it."""
         if ti.static(ext):
             wp.update(kk)
-        for i in range(n):
+        for i in range(N()):
             velocity_update(i, dt)
         err_acc[None] = 0
-        for i in range(n):
+        for i in range(N()):
             density_change(i, dt, mode, False)
 
     @ti.func
     def solve_begin(dt, mode: ti.template()):
         """First residual, then (warm start) the previous substep's stiffness and the residual after it."""
         err_acc[None] = 0
-        for i in range(n):
+        for i in range(N()):
             kacc[i] = 0.0
             density_change(i, dt, mode, True)
         if ti.static(warm):
@@ -276,8 +277,8 @@ def make_dfsph(S):
 
     @ti.func
     def neighbours():
-        S.sort(n)
-        for i in range(n):
+        S.sort(N())
+        for i in range(N()):
             S.neighbours_density(i)
         if ti.static(ext):
             wp.mark()  # the walls in reach of the liquid, and their hydrostatic k
@@ -294,16 +295,16 @@ def make_dfsph(S):
     @ti.kernel
     def density_begin(dt: f, after_divergence: ti.template()):
         if ti.static(after_divergence):
-            for i in range(n):
+            for i in range(N()):
                 kappav[i] = kacc[i] * dt  # total divergence stiffness, dt independent
         else:
             neighbours()
-        for i in range(n):
+        for i in range(N()):
             a = S.non_pressure(i, False)
             if ti.static(ext):
                 a -= wp.wall_sum(i, wp.bhyd)  # the walls' hydrostatic pressure, once per substep
             vnew[i] = v[i] + dt * a
-        for i in range(n):
+        for i in range(N()):
             v[i] = vnew[i]
         solve_begin(dt, DENS)
 
@@ -313,7 +314,7 @@ def make_dfsph(S):
 
     @ti.kernel
     def finish(dt: f):
-        for i in range(n):
+        for i in range(N()):
             kappa[i] = kacc[i]  # an acceleration-level stiffness: steady under gravity for any dt
             r = rho[i]
             kdiv = ti.cast(0.0, f)
@@ -323,7 +324,7 @@ def make_dfsph(S):
             S.advect(i, v[i], dt)
 
     def error() -> float:
-        return float(err_acc[None]) / FIXED / n
+        return float(err_acc[None]) / FIXED / max(1, S.n_live())
 
     stats = S.dfsph_stats
 

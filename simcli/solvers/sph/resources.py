@@ -50,6 +50,8 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
         for e in scene.entities
         if e.family == "SPH"
     )
+    # emitters' reserved slots (and their fresh row): allocated up front (simcli/solvers/sources.py)
+    n += sum(em.max_particles + 1 for em in getattr(scene, "emitters", []) if em.family == "SPH")
     ext = [hi[a] - lo[a] for a in range(dim)]
     faces = sum(math.prod(ext[b] for b in range(dim) if b != a) for a in range(dim))
     layers = max(2, math.ceil(sph.support_factor - 1e-9))

@@ -27,6 +27,7 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, initial_positions
+from simcli.solvers.sources import ActiveSet, has_sources, is_emitter
 from simcli.solvers.sph.boundary import make_pushout, sample_boundary
 from simcli.solvers.sph.dfsph import SolveStats, make_dfsph
 from simcli.solvers.sph.kernels import (
@@ -117,6 +118,8 @@ class SPHSolver(Solver):
             "sum_sound_share": 0.0,
             "sum_compression_factor": 0.0,
         }
+        # emitters and sinks (simcli/solvers/sources.py): an active count; None in scenes without them
+        self.sources = ActiveSet(scene, bodies, "SPH") if has_sources(scene, "SPH") else None
         self._built = False
 
     def _place_inside_colliders(self, scene: Any, bodies: list[Body]) -> list[Body]:
@@ -136,6 +139,9 @@ class SPHSolver(Solver):
         margin = 0.25 * float(scene.solvers.sph.particle_size)
         out = []
         for b in bodies:
+            if is_emitter(b):  # reserved slots, not yet in the liquid
+                out.append(b)
+                continue
             x, v = b.x.copy(), b.v.copy()
             drop = np.zeros(b.n, bool)
             for spec in specs:
@@ -335,6 +341,7 @@ class SPHSolver(Solver):
         self.pushout, upload_colliders, _ = make_pushout(self.scene, dim, f, self.col_fields)
         upload_colliders()
         self._upload()
+        self.count = self._count_func()
         self._make_kernels()
         # extrapolated wall pressure (wall_pressure.py): only where there are walls and the option asks for it
         self.wall_pressure = make_wall_pressure(self) if self.ext_walls and self.nbp > 0 else None
@@ -376,7 +383,11 @@ class SPHSolver(Solver):
         ):
             fld.from_numpy(np.asarray(vals, npf))
         if self.kappa is not None:
-            self.kappa.from_numpy(self._hydrostatic_stiffness(xs, mids).astype(npf))
+            n0 = self.n if self.sources is None else self.sources.n0  # emitters' slots: no warm start
+            k0 = np.zeros(self.n)
+            if n0:
+                k0[:n0] = self._hydrostatic_stiffness(xs[:n0], mids[:n0])
+            self.kappa.from_numpy(k0.astype(npf))
             self.kappav.fill(0)
         self.set_gravity(self.scene.sim.gravity_vec)
 
@@ -418,6 +429,45 @@ class SPHSolver(Solver):
             p[o[a:b]] = np.cumsum(inc[a:b])
         return p / rho0
 
+    def _count_func(self):
+        """The particle loops' bound: the active count with emitters or sinks, else the constant n."""
+        if self.sources is None:
+            n = self.n
+
+            @ti.func
+            def count():
+                return n
+
+            return count
+        src = self.sources
+        persistent = [
+            self.x,
+            self.v,
+            self.mass,
+            self.mid,
+            self.pid,
+            self.rho,
+            self.p,
+        ]  # (rho, p: written out)
+        persistent += [self.kappa, self.kappav] if self.kappa is not None else []
+        mids = [self.body_mid[e["body"]] for e in src.emitters]
+        masses = [self.materials[m].rho * self.V_rest for m in mids]
+        for e, m in zip(src.emitters, masses):
+            e["mass"] = float(m)
+        # inflow buffer (Federico et al. 2012; Tafuni et al. 2018): the layers within one kernel support of the
+        # nozzle keep its prescribed motion, a piston that feeds the jet at its speed and rest spacing (a free
+        # nozzle lets the newest layer's pressure push the jet back into it)
+        buf = int(math.ceil(self.support / self.ps)) + 1
+        src.build(self, persistent, {self.mass: masses, self.mid: mids}, self.f, buffer_layers=buf)
+        return src.count_func()
+
+    def n_live(self) -> int:
+        """Particles in the simulation now (the active count)."""
+        return self.n if self.sources is None else self.sources.n_active
+
+    def active_changed(self) -> None:
+        self._version += 1
+
     def set_gravity(self, g: list[float]) -> None:
         if len(g) != self.dim:
             raise ValueError(f"gravity needs {self.dim} components")
@@ -426,7 +476,7 @@ class SPHSolver(Solver):
     # ---------------------------------------------------------------- kernels
 
     def _make_kernels(self) -> None:
-        dim, f, n, K, R = self.dim, self.f, self.n, self.K, self.grid.R
+        dim, f, K, R = self.dim, self.f, self.K, self.grid.R
         h = self.support
         h2 = h * h
         eps_visc = VISC_EPS * h2
@@ -744,6 +794,7 @@ class SPHSolver(Solver):
         # ---- per-frame kernels
         nb = len(self.bodies)
         body_offsets, stat_speed, stat_bad, pid = self.body_offsets, self.stat_speed, self.stat_bad, self.pid
+        N = self.count
         f64 = f == ti.f64
 
         finite = make_finite(f64)
@@ -755,7 +806,7 @@ class SPHSolver(Solver):
             for b in range(nb):
                 stat_speed[b] = 0.0
                 stat_bad[b] = 0
-            for i in range(n):
+            for i in range(N()):
                 b = body_of(pid[i])
                 vi = v[i]
                 if finite(x[i]) and finite(vi):
@@ -765,8 +816,8 @@ class SPHSolver(Solver):
 
         @ti.kernel
         def density_only():
-            self.sort(n)
-            for i in range(n):
+            self.sort(N())
+            for i in range(N()):
                 neighbours_density(i)
 
         stat_dt = self.stat_dt
@@ -780,7 +831,7 @@ class SPHSolver(Solver):
             frame_stats' per-body atomics)."""
             stat_dt[0] = 0.0
             stat_dt[1] = 0.0
-            for i in range(n):
+            for i in range(N()):
                 vi = v[i]
                 if finite(vi):
                     ti.atomic_max(stat_dt[0], vi.norm())
@@ -811,6 +862,8 @@ class SPHSolver(Solver):
         before the next check (one frame; the last substep's length with sim.auto_check: substep)."""
         self._dt_stats()
         vmax, rho_ratio = (float(s) for s in self.stat_dt.to_numpy())
+        if self.sources is not None:  # what an emitter will bring in
+            vmax = max([vmax] + [float(e["cfg"].speed) for e in self.sources.emitters])
         if not math.isfinite(vmax):
             return self.opts.max_substep
         # gravity cannot add more than one frame's g t, nor more than a free fall across the domain
@@ -865,6 +918,11 @@ class SPHSolver(Solver):
         pid = self._cache["pid"][1]
         s = self._sorted(key)
         arr = np.empty_like(s)
+        if self.sources is not None:  # only the active slots: the others hold stale pids
+            na = self.sources.n_active
+            arr[pid[:na]] = s[:na]
+            self._cache[key] = (self._version, arr)
+            return arr
         arr[pid] = s
         self._cache[key] = (self._version, arr)
         return arr
@@ -872,6 +930,11 @@ class SPHSolver(Solver):
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
         k = self._index[name]
         lo, hi = int(self.offsets[k]), int(self.offsets[k + 1])
+        if self.sources is not None:  # the entity's live particles, in pid order
+            self._full("position")
+            pid = self._cache["pid"][1][: self.sources.n_active]
+            live = np.sort(pid[(pid >= lo) & (pid < hi)])
+            return {fld: np.array(self._full(fld)[live]) for fld in fields}
         return {fld: np.array(self._full(fld)[lo:hi]) for fld in fields}
 
     # ------------------------------------------------------------------- state
@@ -899,9 +962,13 @@ class SPHSolver(Solver):
             "overflow": int(self.overflow[None]),
         }
         d["run_stats"] = np.frombuffer(json.dumps(stats).encode("utf-8"), dtype=np.uint8)
+        if self.sources is not None:
+            d.update(self.sources.get_state())
         return d
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
+        if self.sources is not None:  # the active count first: the density pass below runs over it
+            self.sources.set_state(state)
         for k, fld in self._state_fields().items():
             if k == "rho" and k not in state:  # checkpoints written before session 6: computed below
                 continue
@@ -947,7 +1014,7 @@ class SPHSolver(Solver):
 
     def counts(self) -> dict[str, int]:
         return {
-            "particles": self.n,
+            "particles": self.n_live(),
             "boundary_particles": self.nbp if self._built else 0,
             "cells": self.grid.ncells if self._built else 0,
         }

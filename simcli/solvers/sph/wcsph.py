@@ -27,7 +27,7 @@ def make_wcsph(S):
     mat_rho0, mat_k, mat_n = S.mat_rho0, S.mat_k, S.mat_n
     clamp = S.opts.clamp_pressure
     p_bg = float(S.opts.background_pressure)
-    n = S.n
+    N = S.count  # the active count (emitters, sinks) or the constant n
 
     @ti.func
     def equation_of_state(i):
@@ -53,22 +53,22 @@ def make_wcsph(S):
     def pressure_from_density():
         """Tait's pressure of the current density: frame 0's pressure, before the first substep
         computes it."""
-        for i in range(n):
+        for i in range(N()):
             equation_of_state(i)
 
     @ti.kernel
     def substep(dt: f):
-        S.sort(n)
-        for i in range(n):
+        S.sort(N())
+        for i in range(N()):
             S.neighbours_density(i)
             equation_of_state(i)
         if ti.static(ext):
             wp.mark()  # the walls in reach of the liquid and their hydrostatic part
             wp.wcsph_pressure(dt)
-        for i in range(n):
+        for i in range(N()):
             # non_pressure and the liquid's pressure force in one pass over the neighbour list
             vnew[i] = v[i] + dt * (S.non_pressure(i, True) + boundary_pressure_acceleration(i))
-        for i in range(n):
+        for i in range(N()):
             S.advect(i, vnew[i], dt)
 
     return substep, pressure_from_density
