@@ -4,9 +4,10 @@
 
 Runs the verify cases mpm_sand_collapse_a0p5 / _a2 / _a4 and mpm_sand_heap at refinement levels
 -1, 0, 1 (grid 64, 128, 256 cells per metre, particle spacing halved with the cell, substeps: auto,
-which halves the step with the cell), plus level 0 with 6x the substeps (the time-step check), and
-prints a markdown table of measured value, reference and error. ``--write-docs`` replaces the table
-between the ``granular-study`` markers of docs/VALIDATION.md. About 15 minutes on 2 CPU cores.
+which halves the step with the cell), plus level 0 with 6x the substeps (the time-step check), with
+each transfer of ``--transfers`` (default: apic, the default transfer, and flip with flip_ratio 1),
+and prints a markdown table of measured value, reference and error. ``--write-docs`` replaces the
+table between the ``granular-study`` markers of docs/VALIDATION.md. About 30 minutes on 2 CPU cores.
 """
 
 from __future__ import annotations
@@ -33,13 +34,21 @@ def _value(msg: str) -> str:
     return m.group(1) if m else "-"
 
 
-def study(out: Path) -> list[str]:
+TRANSFERS = {
+    "apic": {},
+    "flip": {"solvers.mpm.transfer": "flip", "solvers.mpm.flip_ratio": 1.0},
+}
+
+
+def study(out: Path, transfers: list[str]) -> list[str]:
     rows = [
-        "| case | grid [1/m] | substeps per 2 ms | measured | reference | error | tolerance | wall [s] |",
-        "|---|---|---|---|---|---|---|---|",
+        "| case | transfer | grid [1/m] | substeps per 2 ms | measured | reference | error | tolerance "
+        "| wall [s] |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
-    for name in CASES:
+    for name, tr in [(n, t) for n in CASES for t in transfers]:
         case = load_case(default_root() / f"{name}.case.yaml")
+        case = case.model_copy(update={"overrides": {**case.overrides, **TRANSFERS[tr]}})
         runs = [(lvl, case) for lvl in LEVELS]
         fine_dt = case.model_copy(update={"overrides": {**case.overrides, "sim.substeps": 96}})
         runs.append((0, fine_dt))
@@ -54,14 +63,16 @@ def study(out: Path) -> list[str]:
                 else (str(round(r.substeps_total / steps)) if r.substeps_total else "auto")
             )
             if r.exit_code != 0 or r.error is None:
-                rows.append(f"| {name} | {grid} | {sub} | failed: {r.message} | | | | {r.wall_s:.0f} |")
+                rows.append(
+                    f"| {name} | {tr} | {grid} | {sub} | failed: {r.message} | | | | {r.wall_s:.0f} |"
+                )
                 continue
             unit = " deg" if "heap" in name else ""
             err = f"{r.error:.1f} deg" if "heap" in name else f"{100 * r.error:.1f}%"
             tol = f"{case.tolerance:g} deg" if "heap" in name else f"{100 * case.tolerance:.0f}%"
             ref = case.reference.value
             rows.append(
-                f"| {name} | {grid} | {sub} | {float(_value(r.message)):.3g}{unit} | {ref:g}{unit} | {err} "
+                f"| {name} | {tr} | {grid} | {sub} | {float(_value(r.message)):.3g}{unit} | {ref:g}{unit} | {err} "
                 f"| {tol} | {r.wall_s:.0f} |"
             )
             print(rows[-1], flush=True)
@@ -72,8 +83,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--out", default="out/granular_study")
     ap.add_argument("--write-docs", action="store_true")
+    ap.add_argument("--transfers", default="apic,flip", help="comma-separated: apic, flip (flip_ratio 1)")
     args = ap.parse_args()
-    rows = study(Path(args.out))
+    rows = study(Path(args.out), [t.strip() for t in args.transfers.split(",")])
     table = "\n".join(rows)
     print(table)
     if args.write_docs:
