@@ -367,7 +367,6 @@ def test_sand_without_volume_correction_forgets_the_separation(ti_f32):
         (2, "simple_shear", 30.0, 30.0),  # the angle of repose is the friction angle
         (3, "simple_shear", 40.0, 40.0),
         (2, "plane_strain", 30.0, math.degrees(math.atan(math.sin(math.radians(30.0))))),  # Davis: 26.6
-        (3, "compression", 30.0, math.degrees(math.atan(math.sqrt(3.0) / 2.5))),  # 3 alpha / sqrt 2: 34.7
     ],
 )
 def test_sand_in_steady_simple_shear_mobilises_the_cone_s_friction(ti_f32, dim, cone, phi, mobilised):
