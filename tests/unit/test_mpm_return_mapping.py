@@ -361,6 +361,36 @@ def test_sand_without_volume_correction_forgets_the_separation(ti_f32):
     assert np.allclose(np.log(np.linalg.det(Fo)), -0.01, rtol=1e-3)  # all of the compression is elastic
 
 
+@pytest.mark.parametrize(
+    "dim, cone, phi, mobilised",
+    [
+        (2, "simple_shear", 30.0, 30.0),  # the angle of repose is the friction angle
+        (3, "simple_shear", 40.0, 40.0),
+        (2, "plane_strain", 30.0, math.degrees(math.atan(math.sin(math.radians(30.0))))),  # Davis: 26.6
+    ],
+)
+def test_sand_in_steady_simple_shear_mobilises_the_cone_s_friction(ti_f32, dim, cone, phi, mobilised):
+    """A flowing granular layer is in simple shear: compress (sigma_yy < 0), then shear in x-y by
+    small steps of the velocity gradient, F <- (I + d gamma e_x e_y^T) F, each followed by the return
+    mapping. With the zero-dilatancy flow the stress becomes steady with equal normal stresses, and
+    the shear plane's friction tau_xy / -sigma_yy is the cone's 3 alpha / sqrt(2): tan(friction_angle)
+    for the ``simple_shear`` cone, sin(phi) for ``plane_strain`` (Davis 1968, "Theories of plasticity
+    and the failure of soil masses": tan phi* = sin phi cos psi / (1 - sin phi sin psi), psi = 0)."""
+    m = mat(type="MPM.Sand", friction_angle=phi, cone=cone)
+    h = Harness(m, dim=dim, n=1)
+    F = np.eye(dim)
+    F[1, 1] = 0.995  # 0.5% compression: mean stress about -2 kPa
+    Fo, tau = h.run(F)
+    step = np.eye(dim)
+    step[0, 1] = 2.0e-4
+    for _ in range(400):  # total shear 0.08, many times the elastic shear strain at yield
+        Fo, tau = h.run(step @ Fo)
+    t = tau[0]
+    ratio = t[0, 1] / -t[1, 1]
+    assert math.degrees(math.atan(ratio)) == pytest.approx(mobilised, abs=0.3)
+    assert t[0, 0] == pytest.approx(t[1, 1], rel=0.02)  # coaxial, steady: equal normal stresses
+
+
 # ------------------------------------------------------------------------ liquid, muscle
 
 

@@ -153,13 +153,17 @@ class MPMSand(_Solid):
         description="Keep the volume gained when grains separate and give it back on compression "
         "(Tampubolon et al. 2017, sec. 4.3.2), so piles do not lose volume.",
     )
-    cone: Literal["plane_strain", "compression"] = Field(
-        "plane_strain",
-        description="How the Drucker-Prager cone |dev tau| + alpha tr(tau) <= 0 is fitted to the "
-        "Mohr-Coulomb friction angle. plane_strain: the material fails at friction_angle under plane strain "
-        "(slopes, heaps, column collapses; alpha = sqrt(2) sin(phi) / 3). compression: Klar et al. 2016 and "
-        "Genesis, exact in triaxial compression (alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi))); under plane "
-        "strain it acts like a larger angle (44 deg for 30) and never yields in shear beyond 41.8 deg.",
+    cone: Literal["simple_shear", "plane_strain", "compression"] = Field(
+        "simple_shear",
+        description="How the Drucker-Prager cone |dev tau| + alpha tr(tau) <= 0 is fitted to friction_angle. "
+        "simple_shear: a flowing layer (steady simple shear, zero dilatancy) carries tan(friction_angle) times "
+        "its normal stress on its shear planes, so friction_angle is the angle of repose, in 2D and 3D "
+        "(sqrt(J2) <= tan(phi) p as in the mu(I) rheology; alpha = sqrt(2) tan(phi) / 3). plane_strain: "
+        "Mohr-Coulomb phi under plane strain with sigma_zz the in-plane mean (alpha = sqrt(2) sin(phi) / 3); "
+        "with the zero-dilatancy flow a flowing layer then mobilises only tan = sin(phi) (Davis 1968): heaps "
+        "settle at atan(sin(phi)), 26.6 deg for 30. compression: Klar et al. 2016 and Genesis, exact in "
+        "triaxial compression (alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi))); a flowing layer mobilises "
+        "tan = 3 alpha / sqrt(2) (34.7 deg for 30).",
     )
 
     @property
@@ -168,9 +172,14 @@ class MPMSand(_Solid):
         s = math.sin(math.radians(self.friction_angle))
         if self.cone == "compression":
             return math.sqrt(2.0 / 3.0) * 2.0 * s / (3.0 - s)  # Klar et al. 2016, eq. 25
-        # plane strain, zero dilatancy: sigma_zz is the mean in-plane stress at failure, so
-        # |dev tau| = sqrt(2) R and tr tau = 3 c (Mohr circle radius R, centre c): R = -(3 alpha / sqrt 2) c
-        return math.sqrt(2.0) * s / 3.0
+        if self.cone == "plane_strain":
+            # plane strain, sigma_zz the mean in-plane stress at failure, so |dev tau| = sqrt(2) R and
+            # tr tau = 3 c (Mohr circle radius R, centre c): R = -(3 alpha / sqrt 2) c = sin(phi) |c|
+            return math.sqrt(2.0) * s / 3.0
+        # simple shear with the zero-dilatancy (deviatoric, coaxial) flow of the return mapping: the
+        # shear planes carry the largest shear stress R and normal stress c (sigma_xx = sigma_yy, and
+        # sigma_zz = c once flowing), so tau / sigma_n = R / |c| = 3 alpha / sqrt(2) = tan(phi)
+        return math.sqrt(2.0) * math.tan(math.radians(self.friction_angle)) / 3.0
 
 
 class MPMSnow(_Solid):

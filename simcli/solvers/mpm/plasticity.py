@@ -17,7 +17,10 @@ the update F <- (I + dt C) F of g2p:
   et al. 2013 without hardening), fixed corotated elasticity with R = U V^T.
 * ``snow``: the same clamp, J_p <- J_p prod(s / s_clamped), and mu, lambda scaled by
   exp(xi (1 - J_p)) (Stomakhin et al. 2013, eq. 1-3).
-* ``sand``: Drucker-Prager on the Hencky strain (Klar et al. 2016, sec. 6.3 and eq. 26-28),
+* ``sand``: Drucker-Prager on the Hencky strain (Klar et al. 2016, sec. 6.3 and eq. 26-28), the
+  cone's slope alpha fitted to the friction angle by ``MPMSand.cone`` (config.py; by default so that
+  steady simple shear, a flowing layer, mobilises tan(phi): the return below keeps the volume, and with
+  that zero-dilatancy flow a cone fitted to Mohr-Coulomb phi would mobilise only sin(phi), Davis 1968),
   cohesion by moving the cone's apex to the tensile mean stress c / tan(phi), and the volume
   correction of Tampubolon et al. 2017 (sec. 4.3.2): the log-volume a particle gains when it is
   projected to the apex (grains separating) is remembered and given back before it resists
