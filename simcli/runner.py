@@ -435,10 +435,10 @@ class Runner:
             colliders=self._collider_meta(),
         )
         self._cvtk = self._collider_vtk((frame + 1) if ckpt is not None else None)
-        no_loads = sorted(scene.families & {"SPH", "SF"})
+        no_loads = sorted(scene.families & {"SF"})
         if self._collider_meta() and no_loads:
             self.warn(
-                f"named colliders read the loads of MPM, PBD and FEM entities only: the "
+                f"named colliders read the loads of MPM, PBD, FEM and SPH entities only: the "
                 f"{', '.join(no_loads)} "
                 "entities' pressure on them is not in /colliders/<name>/force yet"
             )
