@@ -346,4 +346,4 @@ def _check_collider_motion(loaded, ok_dom: bool, err) -> None:
                 break
 
 
-MOVING_COLLIDER_FAMILIES = {"MPM", "PBD", "FEM", "SPH"}
+MOVING_COLLIDER_FAMILIES = {"MPM", "PBD", "FEM", "SPH", "SF"}
