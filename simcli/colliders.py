@@ -5,7 +5,10 @@ Two halves, like the materials:
 * host side (no Taichi): :func:`collider_specs` and :func:`wall_specs` turn the scene into
   small records. What decides which code is compiled (collider kind, contact kind, cylinder
   axis, wall kind per face) is kept apart from the numbers (points, radii, friction, wall
-  velocity), which live in fields and can change without recompiling;
+  velocity), which live in fields and can change without recompiling; :func:`sdf_np` and
+  :func:`inside_normal_np` are the numpy half of the signed distance (the same formulas and ties as the
+  Taichi ``sdf_*``), used on the host by SPH (sampling, push-out at build), SF (solid cells) and verify:
+  one collider geometry for every family;
 * kernel side: signed-distance functions ``sdf_*`` returning ``(phi, normal)`` with ``phi < 0``
   inside the obstacle and ``normal`` the unit outward normal, :func:`contact_velocity`, the
   slip / sticky / separate condition with Coulomb friction (grid nodes), and
