@@ -137,9 +137,10 @@ def collider_particles(spec, lo, hi, h: float, dim: int, layers: int = LAYERS) -
     return BoundaryParticles(x, np.full(n, vol), np.zeros((n, dim)), np.full(n, spec.contact == "sticky"))
 
 
-def sample_boundary(scene, dim: int, h: float, support: float | None = None) -> BoundaryParticles:
-    """Every boundary particle of the scene: the domain walls, then each collider, in layers that cover the
-    kernel ``support`` (default 2 h)."""
+def sample_boundary(scene, dim: int, h: float, support: float | None = None, specs=None) -> BoundaryParticles:
+    """Every boundary particle of the scene: the domain walls, then each collider (``specs``, default the
+    scene's: simcli.colliders.collider_specs; a solver may pass more, e.g. rigid bodies driven through
+    ColliderPoses), in layers that cover the kernel ``support`` (default 2 h)."""
     layers = LAYERS if support is None else max(LAYERS, math.ceil(support / h - 1e-9))
     from simcli.colliders import collider_specs, wall_specs
 
@@ -148,7 +149,7 @@ def sample_boundary(scene, dim: int, h: float, support: float | None = None) -> 
     kind = {w.name: w.contact for w in walls}
     vel = {w.name: np.asarray(w.velocity, dtype=np.float64) for w in walls}
     parts = [wall_particles(lo, hi, h, dim, kind, vel, layers)]
-    for spec in collider_specs(scene, dim):
+    for spec in collider_specs(scene, dim) if specs is None else specs:
         if spec.moving:  # its whole shell, in its body frame (simcli.solvers.sph.moving)
             from simcli.solvers.sph.moving import moving_bounds
 
@@ -164,7 +165,7 @@ def sample_boundary(scene, dim: int, h: float, support: float | None = None) -> 
     )
 
 
-def make_pushout(scene, dim: int, f, col_fields, poses=None):
+def make_pushout(scene, dim: int, f, col_fields, poses=None, specs=None):
     """Taichi func ``pushout(x, v) -> (x, v)``: a particle inside a collider is moved to its surface and
     loses its inward normal velocity (a guard; see the module docstring). A moving collider (``poses``, a
     simcli.colliders.ColliderPoses) is tested in its body frame at the substep's end pose, and the normal
@@ -175,7 +176,8 @@ def make_pushout(scene, dim: int, f, col_fields, poses=None):
     with stdout_to_stderr():
         import taichi as ti
 
-    specs = collider_specs(scene, dim)
+    if specs is None:
+        specs = collider_specs(scene, dim)
     nc = len(specs)
     col_a, col_b, col_r, col_hh = col_fields
     moving = [c.moving and poses is not None for c in specs]

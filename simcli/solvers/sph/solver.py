@@ -223,14 +223,16 @@ class SPHSolver(Solver):
         cpu = self.arch in ("x64", "arm64")
         dim, n = self.dim, self.n
         self.grid = grid = CellGrid(self.domain_lo, self.domain_hi, self.support, dim)
-        bp = sample_boundary(self.scene, dim, self.ps, self.support)
-        # moving and named colliders (moving.py): poses per substep, loads; compiled only when needed
+        # moving and named colliders (moving.py): poses per substep, loads; compiled only when needed. The
+        # boundary particles, the push-out guard and the loads all follow self.poses.specs (one index k per
+        # collider), so that anything driven through ColliderPoses is sampled and moved alike
         from simcli.colliders import ColliderPoses, collider_motions, collider_specs
 
         self.poses = ColliderPoses(
             collider_specs(self.scene, dim), collider_motions(self.scene, dim, self.scene_dir), dim, f
         )
         self.poses.allocate()
+        bp = sample_boundary(self.scene, dim, self.ps, self.support, self.poses.specs)
         keep = grid.inside_np(bp.x)
         if self.poses.any_moving:  # a moving collider's whole shell: it may enter the grid later
             keep |= np.isin(bp.col, [k for k, c in enumerate(self.poses.specs) if c.moving])
@@ -345,10 +347,10 @@ class SPHSolver(Solver):
         self.mat_nu, self.mat_gamma = ti.field(f, nm), ti.field(f, nm)
         self.gravity = ti.Vector.field(dim, f, shape=())
         self.col_fields = (
-            ti.Vector.field(dim, f, shape=max(1, len(self.scene.colliders))),
-            ti.Vector.field(dim, f, shape=max(1, len(self.scene.colliders))),
-            ti.field(f, shape=max(1, len(self.scene.colliders))),
-            ti.field(f, shape=max(1, len(self.scene.colliders))),
+            ti.Vector.field(dim, f, shape=max(1, len(self.poses.specs))),
+            ti.Vector.field(dim, f, shape=max(1, len(self.poses.specs))),
+            ti.field(f, shape=max(1, len(self.poses.specs))),
+            ti.field(f, shape=max(1, len(self.poses.specs))),
         )
         nb = len(self.bodies)
         self.body_offsets = ti.field(ti.i32, shape=nb + 1)
@@ -359,7 +361,12 @@ class SPHSolver(Solver):
         self.stat_dt = ti.field(f, shape=2)
 
         self.pushout, upload_colliders, _ = make_pushout(
-            self.scene, dim, f, self.col_fields, self.poses if self.poses.any_moving else None
+            self.scene,
+            dim,
+            f,
+            self.col_fields,
+            self.poses if self.poses.any_moving else None,
+            self.poses.specs,
         )
         upload_colliders()
         self._upload()
