@@ -39,6 +39,13 @@ class SFColliders:
         self.x = np.stack([c.ravel() for c in L.cell_centres()], axis=1)
         self.acc: dict[str, np.ndarray] = {}  # impulses summed since the last collider_loads()
 
+    def max_surface_speed(self, t: float) -> float:
+        """Largest speed [m/s] of a moving collider's surface at time t (simcli.colliders.ColliderPoses's
+        estimate; no Taichi field is allocated)."""
+        from simcli.colliders import ColliderPoses
+
+        return ColliderPoses(self.specs, self.motions, self.dim, None).max_surface_speed(t)
+
     def _pose(self, k: int, t: float):
         m = self.motions[k]
         return None if m is None else m.pose(t)

@@ -352,6 +352,8 @@ class SFSolver(Solver):
         """cfl x dx / max speed: the substep `substeps: auto` aims at. Semi-Lagrangian advection and
         the implicit viscosity are stable at any step; this only bounds the accuracy loss."""
         v = self.max_speed() if self._built else 0.0
+        if self._built and self.moving and math.isfinite(v):  # a moving solid must not jump cells either
+            v = max(v, self.cols.max_surface_speed(self.time))
         return self.opts.cfl * min(self.layout.dx) / v if v > 0 and math.isfinite(v) else math.inf
 
     def length_scale(self) -> float:
