@@ -5,7 +5,10 @@ Two halves, like the materials:
 * host side (no Taichi): :func:`collider_specs` and :func:`wall_specs` turn the scene into
   small records. What decides which code is compiled (collider kind, contact kind, cylinder
   axis, wall kind per face) is kept apart from the numbers (points, radii, friction, wall
-  velocity), which live in fields and can change without recompiling;
+  velocity), which live in fields and can change without recompiling; :func:`sdf_np` and
+  :func:`inside_normal_np` are the numpy half of the signed distance (the same formulas and ties as the
+  Taichi ``sdf_*``), used on the host by SPH (sampling, push-out at build), SF (solid cells) and verify:
+  one collider geometry for every family;
 * kernel side: signed-distance functions ``sdf_*`` returning ``(phi, normal)`` with ``phi < 0``
   inside the obstacle and ``normal`` the unit outward normal, :func:`contact_velocity`, the
   slip / sticky / separate condition with Coulomb friction (grid nodes), and
@@ -283,6 +286,69 @@ def sdf_cylinder(x, center, radius, half_height, axis: ti.template()):
         if q1 > q0:
             n = e
     return phi, n
+
+
+# ---------------------------------------------------------- host side (numpy) signed distance
+
+
+def sdf_np(spec: ColliderSpec, x: np.ndarray) -> np.ndarray:
+    """Signed distance (negative inside) of a collider spec at points x (n, dim) [m]: the numpy half of
+    the ``sdf_*`` Taichi functions above (the same formulas)."""
+    a = np.asarray(spec.a, dtype=np.float64)
+    if spec.kind == "Plane":
+        return (x - a) @ np.asarray(spec.b, dtype=np.float64)
+    if spec.kind == "Sphere":
+        return np.linalg.norm(x - a, axis=1) - spec.radius
+    if spec.kind == "Box":
+        b = np.asarray(spec.b, dtype=np.float64)
+        c, half = 0.5 * (a + b), 0.5 * (b - a)
+        q = np.abs(x - c) - half
+        return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
+    if spec.kind == "Cylinder":
+        r = x - a
+        radial = np.linalg.norm(np.delete(r, spec.axis, axis=1), axis=1) - spec.radius
+        along = np.abs(r[:, spec.axis]) - spec.half_height
+        q = np.stack([radial, along], axis=1)
+        return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
+    raise ValueError(spec.kind)
+
+
+def inside_normal_np(spec: ColliderSpec, x: np.ndarray) -> np.ndarray:
+    """The push-out direction of points inside a collider, as the ``sdf_*`` Taichi functions above choose
+    it (ties included), so that the host can tell where a push-out sends a particle."""
+    a = np.asarray(spec.a, dtype=np.float64)
+    n = np.zeros_like(x)
+    if spec.kind == "Plane":
+        n[:] = np.asarray(spec.b, dtype=np.float64)
+    elif spec.kind == "Sphere":
+        d = x - a
+        r = np.linalg.norm(d, axis=1)
+        n[:, -1] = 1.0
+        ok = r > 0
+        n[ok] = d[ok] / r[ok, None]
+    elif spec.kind == "Box":
+        b = np.asarray(spec.b, dtype=np.float64)
+        d = x - 0.5 * (a + b)
+        sgn = np.where(d < 0, -1.0, 1.0)
+        k = np.argmax(np.abs(d) - 0.5 * (b - a), axis=1)  # the first largest q: Taichi's strict >
+        n[np.arange(len(x)), k] = sgn[np.arange(len(x)), k]
+    elif spec.kind == "Cylinder":
+        d = x - a
+        ax = spec.axis
+        r = d.copy()
+        r[:, ax] = 0.0
+        rho = np.linalg.norm(r, axis=1)
+        rhat = np.zeros_like(x)
+        rhat[:, (ax + 1) % x.shape[1]] = 1.0
+        ok = rho > 0
+        rhat[ok] = r[ok] / rho[ok, None]
+        e = np.zeros_like(x)
+        e[:, ax] = np.where(d[:, ax] < 0, -1.0, 1.0)
+        cap = np.abs(d[:, ax]) - spec.half_height > rho - spec.radius
+        n = np.where(cap[:, None], e, rhat)
+    else:
+        raise ValueError(spec.kind)
+    return n
 
 
 # ------------------------------------------------------------- moving and named colliders

@@ -443,13 +443,6 @@ class Runner:
             frame_series=self._frame_series(),
         )
         self._cvtk = self._collider_vtk((frame + 1) if ckpt is not None else None)
-        no_loads = sorted(scene.families & {"SPH", "SF"})
-        if self._collider_meta() and no_loads:
-            self.warn(
-                f"named colliders read the loads of MPM, PBD and FEM entities only: the "
-                f"{', '.join(no_loads)} "
-                "entities' pressure on them is not in /colliders/<name>/force yet"
-            )
         # the stable substep for the frame-0 check and the fixed-substep warning (not asked again on a resumed
         # auto run, whose check counts then match an uninterrupted run's)
         stable = self._stable_dt(solvers, sim.dt) if ckpt is None or sim.substeps != "auto" else sim.dt

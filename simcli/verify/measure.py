@@ -674,8 +674,8 @@ def collider_penetration(f, entity, collider, spacing=None, **_):
     in units of ``spacing`` when given (e.g. the MPM cell size): the collider's exact signed distance at
     its pose at the frame's time (simcli.motion), 0 when no particle is inside."""
     from simcli.colliders import _collider_spec
+    from simcli.colliders import sdf_np as sdf_numpy
     from simcli.motion import collider_motion
-    from simcli.solvers.sph.boundary import sdf_numpy
 
     scene = _scene_of(f)
     dim = scene.sim.dim

@@ -84,3 +84,34 @@ def test_bad_motions_exit_65_with_location(tmp_path):
     assert f"{scene}:11:" in err and "keyframe times must increase" in err  # the motion: line of item 3
     r = _run(["run", str(scene), "-o", str(tmp_path / "out")])
     assert r.returncode == 65 and "Traceback" not in r.stderr
+
+
+def test_moving_named_colliders_validate_for_sph_and_sf(tmp_path):
+    """SPH and SF move colliders and read their loads (issue 19): no longer refused."""
+    sph = """\
+version: 1
+sim: {dim: 2, dt: 2.0e-3, steps: 2}
+domain: {lower: [0, 0], upper: [0.4, 0.2]}
+colliders:
+  - {name: piston, type: Box, lower: [0.0, 0.0], upper: [0.04, 0.2], motion: {linear_velocity: [0.2, 0]}}
+solvers: {sph: {particle_size: 0.01}}
+entities:
+  - name: water
+    material: {type: SPH.Liquid, rho: 1000}
+    morph: {type: Box, lower: [0.05, 0.0], upper: [0.3, 0.1]}
+"""
+    sf = """\
+version: 1
+sim: {dim: 2, dt: 0.01, steps: 2}
+domain: {lower: [0, 0], upper: [1, 1]}
+colliders:
+  - {name: disk, type: Sphere, center: [0.3, 0.5], radius: 0.1, motion: {linear_velocity: [1, 0]}}
+solvers: {sf: {resolution: 16}}
+entities:
+  - {name: air, material: {type: SF.Smoke}}
+"""
+    for name, text in (("sph.yaml", sph), ("sf.yaml", sf)):
+        scene = tmp_path / name
+        scene.write_text(text)
+        r = _run(["validate", str(scene)])
+        assert r.returncode == 0, r.stdout + r.stderr

@@ -169,10 +169,11 @@ def make_foreach_color(n: tuple):
 
 
 class Boundary:
-    def __init__(self, layout: Layout, kinds, wall_vel) -> None:
+    def __init__(self, layout: Layout, kinds, wall_vel, solid_vel=None) -> None:
         self.layout = layout
         self.kinds = kinds  # u8 face kinds, shape (dim, n + 3)
         self.wall_vel = wall_vel  # ti.Vector.field(dim, f, shape=(dim, 2))
+        self.solid_vel = solid_vel  # moving colliders (moving.py): each solid face's value, like vel
         self.at = make_at(layout.dim)
         self.cells = [(0, c) for c in layout.n]
         # loops over the faces of one component (nested, contiguous inner axis) and over the cells
@@ -194,6 +195,8 @@ class Boundary:
         L = self.layout
         dim, n, wall, periodic = L.dim, L.n, L.wall, L.periodic
         kinds, wall_vel, at = self.kinds, self.wall_vel, self.at
+        solid_vel = self.solid_vel
+        moving = solid_vel is not None
 
         # ghost loops: every face (or cell) with the index along the ghost axis pinned to 0
         dup_rng, ghost_rng, cell_rng = [], [], []
@@ -219,6 +222,8 @@ class Boundary:
             v = current
             if k == SOLID_FACE:
                 v = 0.0
+                if ti.static(moving):  # a moving collider's surface velocity (moving.py)
+                    v = solid_vel[at(d, I)]
             elif k == WALL_LO:
                 v = wall_vel[d, 0][d]
             elif k == WALL_HI:

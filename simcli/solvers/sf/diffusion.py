@@ -42,11 +42,17 @@ class Diffusion:
             return ti.field(f, shape=shape, offset=off)
 
         self.K, self.B, self.r, self.p, self.Ap = ff(), ff(), ff(), ff(), ff()
-        ops = [viscosity_operator(layout, d) for d in range(dim)]
-        self.K.from_numpy(np.stack([o[0] for o in ops]).astype(npf))
-        self.B.from_numpy(np.stack([o[1] for o in ops]).astype(npf))
+        self.npf = npf
+        self.update_operator()
         self.sc = ti.field(ti.f64, shape=8)  # rr, pAp, bb, rr_new, nu dt, alpha, beta, max |r|
         self._make()
+
+    def update_operator(self) -> None:
+        """Upload the viscosity operator of the layout's face kinds (at build; again after moving colliders
+        changed them)."""
+        ops = [viscosity_operator(self.layout, d) for d in range(self.layout.dim)]
+        self.K.from_numpy(np.stack([o[0] for o in ops]).astype(self.npf))
+        self.B.from_numpy(np.stack([o[1] for o in ops]).astype(self.npf))
 
     def _make(self) -> None:
         L, f, bc = self.layout, self.f, self.bc

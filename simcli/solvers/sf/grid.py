@@ -116,33 +116,12 @@ def collider_mask(scene, layout: Layout) -> np.ndarray:
     if not scene.colliders:
         return np.zeros(layout.n, dtype=bool)
     x = np.stack([c.ravel() for c in layout.cell_centres()], axis=1)
+    from simcli.colliders import _collider_spec, sdf_np  # the shared collider geometry (numpy half)
+
     solid = np.zeros(len(x), dtype=bool)
     for c in scene.colliders:
-        solid |= _sdf(c, x) < 0
+        solid |= sdf_np(_collider_spec(c, layout.dim), x) < 0
     return solid.reshape(layout.n)
-
-
-def _sdf(c, x: np.ndarray) -> np.ndarray:
-    t = c.type
-    if t == "Sphere":
-        return np.linalg.norm(x - np.asarray(c.center), axis=1) - c.radius
-    if t == "Plane":
-        nrm = np.asarray(c.normal, dtype=np.float64)
-        nrm = nrm / np.linalg.norm(nrm)
-        return (x - np.asarray(c.point)) @ nrm
-    if t == "Box":
-        lo, hi = np.asarray(c.lower), np.asarray(c.upper)
-        q = np.abs(x - (lo + hi) / 2) - (hi - lo) / 2
-        return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
-    if t == "Cylinder":
-        a = "xyz".index(c.axis)
-        r = x - np.asarray(c.center)
-        q = np.stack(
-            [np.linalg.norm(np.delete(r, a, axis=1), axis=1) - c.radius, np.abs(r[:, a]) - c.height / 2],
-            axis=1,
-        )
-        return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
-    raise ValueError(f"unknown collider type {t!r}")
 
 
 # ----------------------------------------------------------------------------- flags, kinds

@@ -53,11 +53,11 @@ PROLONG_SCALE = 2.0
 MAX_RESTARTS = 3  # CG restarts from the true residual before a solve is reported unconverged
 
 # slots of the scalar field
-RZ, PAP, RMAX, RNORM2, BNORM2, BSUM, DT, ALPHA, BETA, RZ_NEW = range(10)
+RZ, PAP, RMAX, RNORM2, BNORM2, BSUM, DT, ALPHA, BETA, RZ_NEW, INV_FLUID = range(11)
 
 
 class Projection:
-    def __init__(self, layout: Layout, f, bc: Boundary, vel, pressure, opts) -> None:
+    def __init__(self, layout: Layout, f, bc: Boundary, vel, pressure, opts, moving: bool = False) -> None:
         self.layout, self.f, self.bc, self.vel, self.pressure = layout, f, bc, vel, pressure
         self.opts = opts
         self.kind = opts.pressure_solver
@@ -77,7 +77,8 @@ class Projection:
         self.xf = ti.f64 if self.kind == "mgpcg" else f
         self.x = ti.field(self.xf, shape=cell, offset=off)
         self.b = cfield()
-        self.sc = ti.field(ti.f64, shape=10)
+        self.sc = ti.field(ti.f64, shape=11)
+        self.moving = moving  # moving colliders: the fluid cells change (update_operator)
         if self.kind == "mgpcg":
             self.r, self.z, self.p, self.Ap = cfield(), cfield(), cfield(), cfield()
             # multigrid vectors of the coarse levels (level 0 uses the CG r and z)
@@ -85,19 +86,27 @@ class Projection:
             self.mr = [self.r] + [cfield(tuple(c + 2 for c in lv.n)) for lv in self.levels[1:]]
         else:
             self.y = cfield()
+        self.E = cfield()
+        self.update_operator()
+        self.singular = not layout.has_open
+        self._make()
+
+    def update_operator(self) -> None:
+        """Upload the diagonals of every level and the fine operator from the layout's levels (at build;
+        again after moving colliders changed the fluid cells)."""
+        dim = self.layout.dim
+        self.levels = self.layout.levels if self.kind == "mgpcg" else self.layout.levels[:1]
         for D, lv in zip(self.D, self.levels):
             arr = np.zeros(tuple(c + 2 for c in lv.n), dtype=self.npf)
             arr[(slice(1, -1),) * dim] = lv.diag
             D.from_numpy(arr)
         # the fine operator in difference form (see make_ops): E = D - 2 sum_a c_a, 0 inside the fluid
         lv0 = self.levels[0]
-        self.E = cfield()
-        arr = np.zeros(cell, dtype=self.npf)
+        arr = np.zeros(tuple(c + 2 for c in self.layout.n), dtype=self.npf)
         arr[(slice(1, -1),) * dim] = np.where(lv0.diag > 0, lv0.diag - 2.0 * sum(lv0.c), 0.0)
         self.E.from_numpy(arr)
         self.n_fluid = int(np.count_nonzero(self.levels[0].diag > 0))
-        self.singular = not layout.has_open
-        self._make()
+        self.sc[INV_FLUID] = 1.0 / max(1, self.n_fluid)
 
     # ------------------------------------------------------------------ kernels
 
@@ -109,6 +118,7 @@ class Projection:
         xf = self.xf
         singular = self.singular
         inv_fluid = 1.0 / max(1, self.n_fluid)
+        moving = self.moving
         kinds, at = bc.kinds, bc.at
         n0 = L.n
 
@@ -205,7 +215,10 @@ class Projection:
         @ti.func
         def remove_mean(I):
             if D0[I] > 0:
-                b[I] -= ti.cast(sc[BSUM] * inv_fluid, f)
+                if ti.static(moving):
+                    b[I] -= ti.cast(sc[BSUM] * sc[INV_FLUID], f)
+                else:
+                    b[I] -= ti.cast(sc[BSUM] * inv_fluid, f)
 
         @ti.func
         def b_squared(I):

@@ -42,6 +42,7 @@ from simcli.solvers.sf.boundary import Boundary
 from simcli.solvers.sf.diffusion import Diffusion
 from simcli.solvers.sf.grid import SOLID, collider_mask, compute_flags, make_layout
 from simcli.solvers.sf.jets import Sources
+from simcli.solvers.sf.moving import SFColliders
 from simcli.solvers.sf.projection import Projection
 
 with stdout_to_stderr():
@@ -77,8 +78,9 @@ class SFSolver(Solver):
 
     family = "sf"
 
-    def __init__(self, scene: Any, bodies: list[Body]) -> None:
+    def __init__(self, scene: Any, bodies: list[Body], scene_dir: Any = None) -> None:
         super().__init__(scene, bodies)
+        self.scene_dir = scene_dir  # collider motion files are relative to it
         ents = [e for e in scene.entities if e.family == "SF"]
         if len(ents) != 1:
             raise ValueError(f"a scene holds exactly one SF.Smoke entity (found {len(ents)})")
@@ -110,7 +112,12 @@ class SFSolver(Solver):
         self.f = ti.f64 if self.precision == "f64" else ti.f32
         self.npf = np.float64 if self.precision == "f64" else np.float32
         f = self.f
-        compute_flags(L, collider_mask(self.scene, L))
+        # named and moving colliders (moving.py); still ones keep the static mask and code path
+        self.cols = SFColliders(self.scene, L, self.scene_dir) if self.scene.colliders else None
+        self.moving = self.cols is not None and self.cols.any_moving
+        self.named = self.cols is not None and bool(self.cols.named)
+        self._own = self.cols.owner(0.0) if self.moving or self.named else None
+        compute_flags(L, self._own >= 0 if self.moving else collider_mask(self.scene, L))
         face_shape = (dim,) + tuple(c + 3 for c in L.n)
         cell_shape = tuple(c + 2 for c in L.n)
         off = (-1,) * dim
@@ -127,7 +134,10 @@ class SFSolver(Solver):
         self.wall_vel.from_numpy(L.wall_velocity.astype(self.npf))
         self.stats = ti.field(ti.f64, shape=2)  # max speed, non-finite count
 
-        self.bc = Boundary(L, self.kinds, self.wall_vel)
+        self.solid_vel = ti.field(f, shape=face_shape, offset=(0,) + off) if self.moving else None
+        if self.moving:
+            self.solid_vel.from_numpy(self.cols.face_velocity(self._own, 0.0).astype(self.npf))
+        self.bc = Boundary(L, self.kinds, self.wall_vel, self.solid_vel)
         self.sources = Sources(
             L,
             f,
@@ -145,7 +155,7 @@ class SFSolver(Solver):
             if self.mat.viscosity > 0
             else None
         )
-        self.projection = Projection(L, f, self.bc, self.vel, self.pressure, self.opts)
+        self.projection = Projection(L, f, self.bc, self.vel, self.pressure, self.opts, self.moving)
         self._make_kernels()
         moving = self._upload_initial()
         if moving:  # make the initial velocity discretely divergence-free (frame 0 included)
@@ -257,7 +267,32 @@ class SFSolver(Solver):
 
     # ---------------------------------------------------------------- stepping
 
+    def _move_colliders(self, t: float) -> None:
+        """Moving colliders (moving.py): the solid cells at time t, the face kinds, the operators and the
+        solid faces' velocities, uploaded."""
+        L = self.layout
+        self._own = self.cols.owner(t)
+        compute_flags(L, self._own >= 0)
+        self.flags.from_numpy(L.flags)
+        self.kinds.from_numpy(np.stack(L.kinds))
+        self.solid_vel.from_numpy(self.cols.face_velocity(self._own, t).astype(self.npf))
+        self.projection.update_operator()
+        if self.diffusion is not None:
+            self.diffusion.update_operator()
+
+    def collider_loads(self) -> dict[str, np.ndarray]:
+        """Named collider -> (dim + 3) impulse [N s] and moment [N m s] of the fluid's pressure on it since
+        the last call, summed over the substeps (moving.py); resets them."""
+        if not self._built or not self.named:
+            return {}
+        out, self.cols.acc = self.cols.acc, {}
+        return {
+            c.name: out.get(c.name, np.zeros(self.dim + 3)) for c in self.cols.specs if c.name is not None
+        }
+
     def substep(self, dt: float) -> None:
+        if self.moving:  # the solids at the substep's end pose, their surface velocity the faces' values
+            self._move_colliders(self.time + dt)
         if self.opts.reflection:
             its, vits = self._reflection_step(dt)
             res, rel = self.projection.last_residual(dt / 2)
@@ -275,6 +310,9 @@ class SFSolver(Solver):
             h["relative_residual"].append(rel)
             h["viscosity_iterations"].append(vits)
             h["converged"].append(self.projection.converged(dt / 2 if self.opts.reflection else dt))
+        if self.named:  # the pressure's impulse on named colliders (one readback of the pressure)
+            for k, v in self.cols.loads(self._own, self._cell(self.pressure), self.time + dt).items():
+                self.cols.acc[k] = self.cols.acc.get(k, 0.0) + v * dt
         self.time += dt
         self.substeps += 1
         self._version += 1
@@ -314,6 +352,8 @@ class SFSolver(Solver):
         """cfl x dx / max speed: the substep `substeps: auto` aims at. Semi-Lagrangian advection and
         the implicit viscosity are stable at any step; this only bounds the accuracy loss."""
         v = self.max_speed() if self._built else 0.0
+        if self._built and self.moving and math.isfinite(v):  # a moving solid must not jump cells either
+            v = max(v, self.cols.max_surface_speed(self.time))
         return self.opts.cfl * min(self.layout.dx) / v if v > 0 and math.isfinite(v) else math.inf
 
     def length_scale(self) -> float:
@@ -474,6 +514,8 @@ class SFSolver(Solver):
             upload_state_array(fld, state, key, fld.shape, self.npf, "SF")
         if "time" in state:
             self.time = float(np.asarray(state["time"]).reshape(-1)[0])
+        if self.moving:  # the solids at the resumed pose
+            self._move_colliders(self.time)
         self._version += 1
 
     # ------------------------------------------------------------------ counts

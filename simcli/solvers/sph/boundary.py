@@ -22,12 +22,13 @@ particles this never acts in a resolved flow, but it makes leaks through thin or
 impossible.
 """
 
-from __future__ import annotations
-
 import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from simcli.colliders import inside_normal_np as inside_normal_numpy  # noqa: F401 - the shared SDF
+from simcli.colliders import sdf_np as sdf_numpy
 
 LAYERS = 2
 
@@ -38,6 +39,7 @@ class BoundaryParticles:
     volume: np.ndarray  # (nb,) volumes [m^dim]
     velocity: np.ndarray  # (nb, dim) wall velocity [m/s]
     no_slip: np.ndarray  # (nb,) bool
+    col: np.ndarray | None = None  # (nb,) collider index, -1 for the domain walls (sample_boundary)
 
     @property
     def n(self) -> int:
@@ -96,65 +98,6 @@ def wall_particles(
     return BoundaryParticles(x, sp, vel, no_slip)
 
 
-def sdf_numpy(spec, x: np.ndarray) -> np.ndarray:
-    """Signed distance (negative inside) of a collider spec (simcli.colliders.ColliderSpec) [m]."""
-    a = np.asarray(spec.a, dtype=np.float64)
-    if spec.kind == "Plane":
-        return (x - a) @ np.asarray(spec.b, dtype=np.float64)
-    if spec.kind == "Sphere":
-        return np.linalg.norm(x - a, axis=1) - spec.radius
-    if spec.kind == "Box":
-        b = np.asarray(spec.b, dtype=np.float64)
-        c, half = 0.5 * (a + b), 0.5 * (b - a)
-        q = np.abs(x - c) - half
-        return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
-    if spec.kind == "Cylinder":
-        r = x - a
-        radial = np.linalg.norm(np.delete(r, spec.axis, axis=1), axis=1) - spec.radius
-        along = np.abs(r[:, spec.axis]) - spec.half_height
-        q = np.stack([radial, along], axis=1)
-        return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
-    raise ValueError(spec.kind)
-
-
-def inside_normal_numpy(spec, x: np.ndarray) -> np.ndarray:
-    """The push-out direction of points inside a collider, as simcli.colliders' Taichi sdf_* functions
-    choose it (ties included), so that the host can tell where the initial push-out sends a particle."""
-    a = np.asarray(spec.a, dtype=np.float64)
-    n = np.zeros_like(x)
-    if spec.kind == "Plane":
-        n[:] = np.asarray(spec.b, dtype=np.float64)
-    elif spec.kind == "Sphere":
-        d = x - a
-        r = np.linalg.norm(d, axis=1)
-        n[:, -1] = 1.0
-        ok = r > 0
-        n[ok] = d[ok] / r[ok, None]
-    elif spec.kind == "Box":
-        b = np.asarray(spec.b, dtype=np.float64)
-        d = x - 0.5 * (a + b)
-        sgn = np.where(d < 0, -1.0, 1.0)
-        k = np.argmax(np.abs(d) - 0.5 * (b - a), axis=1)  # the first largest q: Taichi's strict >
-        n[np.arange(len(x)), k] = sgn[np.arange(len(x)), k]
-    elif spec.kind == "Cylinder":
-        d = x - a
-        ax = spec.axis
-        r = d.copy()
-        r[:, ax] = 0.0
-        rho = np.linalg.norm(r, axis=1)
-        rhat = np.zeros_like(x)
-        rhat[:, (ax + 1) % x.shape[1]] = 1.0
-        ok = rho > 0
-        rhat[ok] = r[ok] / rho[ok, None]
-        e = np.zeros_like(x)
-        e[:, ax] = np.where(d[:, ax] < 0, -1.0, 1.0)
-        cap = np.abs(d[:, ax]) - spec.half_height > rho - spec.radius
-        n = np.where(cap[:, None], e, rhat)
-    else:
-        raise ValueError(spec.kind)
-    return n
-
-
 def collider_particles(spec, lo, hi, h: float, dim: int, layers: int = LAYERS) -> BoundaryParticles:
     """Lattice points of the collider's solid within ``layers x h`` of its surface, inside the domain box
     padded by the same depth (the liquid never sees further). A Box gets a lattice fitted to its size, as the
@@ -194,9 +137,10 @@ def collider_particles(spec, lo, hi, h: float, dim: int, layers: int = LAYERS) -
     return BoundaryParticles(x, np.full(n, vol), np.zeros((n, dim)), np.full(n, spec.contact == "sticky"))
 
 
-def sample_boundary(scene, dim: int, h: float, support: float | None = None) -> BoundaryParticles:
-    """Every boundary particle of the scene: the domain walls, then each collider, in layers that cover the
-    kernel ``support`` (default 2 h)."""
+def sample_boundary(scene, dim: int, h: float, support: float | None = None, specs=None) -> BoundaryParticles:
+    """Every boundary particle of the scene: the domain walls, then each collider (``specs``, default the
+    scene's: simcli.colliders.collider_specs; a solver may pass more, e.g. rigid bodies driven through
+    ColliderPoses), in layers that cover the kernel ``support`` (default 2 h)."""
     layers = LAYERS if support is None else max(LAYERS, math.ceil(support / h - 1e-9))
     from simcli.colliders import collider_specs, wall_specs
 
@@ -205,47 +149,72 @@ def sample_boundary(scene, dim: int, h: float, support: float | None = None) -> 
     kind = {w.name: w.contact for w in walls}
     vel = {w.name: np.asarray(w.velocity, dtype=np.float64) for w in walls}
     parts = [wall_particles(lo, hi, h, dim, kind, vel, layers)]
-    for spec in collider_specs(scene, dim):
-        parts.append(collider_particles(spec, lo, hi, h, dim, layers))
+    for spec in collider_specs(scene, dim) if specs is None else specs:
+        if spec.moving:  # its whole shell, in its body frame (simcli.solvers.sph.moving)
+            from simcli.solvers.sph.moving import moving_bounds
+
+            parts.append(collider_particles(spec, *moving_bounds(spec, lo, hi), h, dim, layers))
+        else:
+            parts.append(collider_particles(spec, lo, hi, h, dim, layers))
     return BoundaryParticles(
         np.concatenate([p.x for p in parts]),
         np.concatenate([p.volume for p in parts]),
         np.concatenate([p.velocity for p in parts]),
         np.concatenate([p.no_slip for p in parts]),
+        np.concatenate([np.full(p.n, k - 1, np.int32) for k, p in enumerate(parts)]),
     )
 
 
-def make_pushout(scene, dim: int, f, col_fields):
+def make_pushout(scene, dim: int, f, col_fields, poses=None, specs=None):
     """Taichi func ``pushout(x, v) -> (x, v)``: a particle inside a collider is moved to its surface and
-    loses its inward normal velocity (a guard; see the module docstring)."""
+    loses its inward normal velocity (a guard; see the module docstring). A moving collider (``poses``, a
+    simcli.colliders.ColliderPoses) is tested in its body frame at the substep's end pose, and the normal
+    velocity removed is the one relative to its surface."""
     from simcli.backend import stdout_to_stderr
     from simcli.colliders import collider_specs, sdf_box, sdf_cylinder, sdf_plane, sdf_sphere
 
     with stdout_to_stderr():
         import taichi as ti
 
-    specs = collider_specs(scene, dim)
+    if specs is None:
+        specs = collider_specs(scene, dim)
     nc = len(specs)
     col_a, col_b, col_r, col_hh = col_fields
+    moving = [c.moving and poses is not None for c in specs]
+
+    @ti.func
+    def sdf(k: ti.template(), x):
+        phi = ti.cast(1.0, f)
+        n = x * 0.0
+        if ti.static(specs[k].kind == "Plane"):
+            phi, n = sdf_plane(x, col_a[k], col_b[k])
+        elif ti.static(specs[k].kind == "Sphere"):
+            phi, n = sdf_sphere(x, col_a[k], col_r[k])
+        elif ti.static(specs[k].kind == "Box"):
+            phi, n = sdf_box(x, col_a[k], col_b[k])
+        elif ti.static(specs[k].kind == "Cylinder"):
+            phi, n = sdf_cylinder(x, col_a[k], col_r[k], col_hh[k], specs[k].axis)
+        return phi, n
 
     @ti.func
     def pushout(x, v):
         for k in ti.static(range(nc)):
-            phi = ti.cast(1.0, f)
-            n = x * 0.0
-            if ti.static(specs[k].kind == "Plane"):
-                phi, n = sdf_plane(x, col_a[k], col_b[k])
-            elif ti.static(specs[k].kind == "Sphere"):
-                phi, n = sdf_sphere(x, col_a[k], col_r[k])
-            elif ti.static(specs[k].kind == "Box"):
-                phi, n = sdf_box(x, col_a[k], col_b[k])
-            elif ti.static(specs[k].kind == "Cylinder"):
-                phi, n = sdf_cylinder(x, col_a[k], col_r[k], col_hh[k], specs[k].axis)
-            if phi < 0:
-                x = x - phi * n
-                vn = v.dot(n)
-                if vn < 0:
-                    v = v - vn * n
+            if ti.static(moving[k]):
+                phi, nb = sdf(k, poses.to_body(k, x, 1))  # the body-frame SDF at the substep's end pose
+                if phi < 0:
+                    n = poses.normal_to_world(k, nb, 1)
+                    x = x - phi * n
+                    vw = poses.velocity(k, x, 1)
+                    vn = (v - vw).dot(n)
+                    if vn < 0:
+                        v = v - vn * n
+            else:
+                phi, n = sdf(k, x)
+                if phi < 0:
+                    x = x - phi * n
+                    vn = v.dot(n)
+                    if vn < 0:
+                        v = v - vn * n
         return x, v
 
     def upload():

@@ -277,6 +277,8 @@ def make_dfsph(S):
 
     @ti.func
     def neighbours():
+        if ti.static(S.moving_boundary):
+            S.move_boundary()  # moving colliders' boundary particles to this substep's pose (moving.py)
         S.sort(N())
         for i in range(N()):
             S.neighbours_density(i)
@@ -304,6 +306,9 @@ def make_dfsph(S):
             if ti.static(ext):
                 a -= wp.wall_sum(i, wp.bhyd)  # the walls' hydrostatic pressure, once per substep
             vnew[i] = v[i] + dt * a
+        if ti.static(S.named_loads):  # no-slip viscosity's reaction on named colliders (moving.py)
+            for i in range(N()):
+                S.load_viscous(i, dt)
         for i in range(N()):
             v[i] = vnew[i]
         solve_begin(dt, DENS)
@@ -314,6 +319,18 @@ def make_dfsph(S):
 
     @ti.kernel
     def finish(dt: f):
+        if ti.static(S.named_loads):
+            # the pressure solves' reaction on named colliders (moving.py): the substep's total stiffness K_i
+            # (in kk, a scratch field until the next solve) and its Shepard average on the walls (bval)
+            for i in range(N()):
+                ktot = kacc[i]
+                if ti.static(S.opts.divergence_solve):
+                    ktot += kappav[i] / dt
+                kk[i] = ktot
+            if ti.static(ext):
+                wp.update(kk)
+            for i in range(N()):
+                S.load_pressure(i, dt)
         for i in range(N()):
             kappa[i] = kacc[i]  # an acceleration-level stiffness: steady under gravity for any dt
             r = rho[i]

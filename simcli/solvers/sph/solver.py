@@ -37,6 +37,7 @@ from simcli.solvers.sph.kernels import (
     make_kernels,
     morris_laplacian_constant,
 )
+from simcli.solvers.sph.moving import make_loads, make_moving_boundary
 from simcli.solvers.sph.neighbours import CellGrid, make_neighbour_funcs, neighbour_capacity
 from simcli.solvers.sph.wall_pressure import make_wall_pressure
 from simcli.solvers.sph.wcsph import make_wcsph
@@ -62,9 +63,11 @@ class SPHSolver(Solver):
 
     family = "sph"
 
-    def __init__(self, scene: Any, bodies: list[Body]) -> None:
+    def __init__(self, scene: Any, bodies: list[Body], scene_dir: Any = None) -> None:
         if not bodies:
             raise ValueError("SPHSolver needs at least one body")
+        self.scene_dir = scene_dir  # collider motion files are relative to it
+        self.time = 0.0  # simulated time at the start of the next substep [s] (moving colliders)
         self.warnings: list[str] = []
         self.removed: dict[str, dict[str, float]] = {}
         if scene.colliders:
@@ -129,11 +132,13 @@ class SPHSolver(Solver):
         simcli.colliders) and drops its inward normal velocity; a particle that this would put outside the
         domain (a collider flush with a domain wall: it would land on the wall, still inside the collider) is
         dropped instead. Records how many were dropped and their mass for the warning and run.json."""
-        from simcli.colliders import collider_specs
-        from simcli.solvers.sph.boundary import inside_normal_numpy, sdf_numpy
+        from simcli.colliders import collider_motions, collider_specs
+        from simcli.colliders import inside_normal_np as inside_normal_numpy
+        from simcli.colliders import sdf_np as sdf_numpy
 
         dim = int(scene.sim.dim)
         specs = collider_specs(scene, dim)
+        pose0 = [None if m is None else m.pose(0.0) for m in collider_motions(scene, dim, self.scene_dir)]
         lo, hi = (np.asarray(v, dtype=np.float64) for v in scene.domain.bounds(dim))
         push = scene.solvers.sph.inside_collider_mode == "push_out"
         margin = 0.25 * float(scene.solvers.sph.particle_size)
@@ -144,22 +149,25 @@ class SPHSolver(Solver):
                 continue
             x, v = b.x.copy(), b.v.copy()
             drop = np.zeros(b.n, bool)
-            for spec in specs:
-                phi = sdf_numpy(spec, x)
+            for spec, p0 in zip(specs, pose0):
+                xb = x if p0 is None else p0.to_body(x)  # a moving collider: its pose at t = 0
+                phi = sdf_numpy(spec, xb)
                 hit = np.flatnonzero((phi < 0.0) & ~drop)
                 if not push:
                     drop[hit] = True
                     continue
-                nrm = inside_normal_numpy(spec, x[hit])
+                nrm = inside_normal_numpy(spec, xb[hit])
+                if p0 is not None:
+                    nrm = nrm @ p0.R.T
                 target = x[hit] - phi[hit, None] * nrm
                 ok = np.all((target >= lo + margin) & (target <= hi - margin), axis=1)
                 drop[hit[~ok]] = True
                 x[hit[ok]] = target[ok]
                 vn = np.einsum("ij,ij->i", v[hit[ok]], nrm[ok])
                 v[hit[ok]] -= np.minimum(vn, 0.0)[:, None] * nrm[ok]
-            for spec in specs:  # pushed out of one collider into another: nothing is left inside any
+            for spec, p0 in zip(specs, pose0):  # pushed out of one collider into another: none left inside
                 drop |= (
-                    sdf_numpy(spec, x) < -1e-6 * margin
+                    sdf_numpy(spec, x if p0 is None else p0.to_body(x)) < -1e-6 * margin
                 )  # (the pushed ones lie on a surface, to round-off)
             k = int(drop.sum())
             if k == b.n > 0:
@@ -221,8 +229,19 @@ class SPHSolver(Solver):
         cpu = self.arch in ("x64", "arm64")
         dim, n = self.dim, self.n
         self.grid = grid = CellGrid(self.domain_lo, self.domain_hi, self.support, dim)
-        bp = sample_boundary(self.scene, dim, self.ps, self.support)
+        # moving and named colliders (moving.py): poses per substep, loads; compiled only when needed. The
+        # boundary particles, the push-out guard and the loads all follow self.poses.specs (one index k per
+        # collider), so that anything driven through ColliderPoses is sampled and moved alike
+        from simcli.colliders import ColliderPoses, collider_motions, collider_specs
+
+        self.poses = ColliderPoses(
+            collider_specs(self.scene, dim), collider_motions(self.scene, dim, self.scene_dir), dim, f
+        )
+        self.poses.allocate()
+        bp = sample_boundary(self.scene, dim, self.ps, self.support, self.poses.specs)
         keep = grid.inside_np(bp.x)
+        if self.poses.any_moving:  # a moving collider's whole shell: it may enter the grid later
+            keep |= np.isin(bp.col, [k for k, c in enumerate(self.poses.specs) if c.moving])
         order, bstart = grid.sort_static(bp.x[keep])
         self.nbp = int(keep.sum())
         self.K = neighbour_capacity(dim, self.support / self.ps)
@@ -310,6 +329,8 @@ class SPHSolver(Solver):
         self.bns = ti.field(ti.i32, shape=nbp)
         self.bstart = ti.field(ti.i32, shape=grid.ncells + 1)
         self.bnear = ti.field(ti.i8, shape=grid.ncells)  # a boundary particle lies in the cell's stencil
+        self.bx0 = ti.Vector.field(dim, f, shape=nbp) if self.poses.needed else None  # body frame
+        self.bcol = ti.field(ti.i32, shape=nbp) if self.poses.needed else None  # collider, -1: walls
         npf = self.npf
         if self.nbp:
             self.bx.from_numpy(bp.x[keep][order].astype(npf))
@@ -318,6 +339,13 @@ class SPHSolver(Solver):
             self.bns.from_numpy(bp.no_slip[keep][order].astype(np.int32))
         self.bstart.from_numpy(bstart.astype(np.int32))
         self.bnear.from_numpy(grid.dilate(np.diff(bstart) > 0).astype(np.int8))
+        if self.poses.needed and self.nbp:
+            self.bx0.from_numpy(bp.x[keep][order].astype(npf))
+            self.bcol.from_numpy(bp.col[keep][order].astype(np.int32))
+        self.moving_boundary = self.poses.any_moving and self.nbp > 0
+        self.named_loads = self.poses.any_named and self.nbp > 0
+        if self.moving_boundary:  # every cell may have a moving boundary particle in reach
+            self.bnear.fill(1)
 
         # materials and run-time parameters
         nm = len(self.materials)
@@ -325,10 +353,10 @@ class SPHSolver(Solver):
         self.mat_nu, self.mat_gamma = ti.field(f, nm), ti.field(f, nm)
         self.gravity = ti.Vector.field(dim, f, shape=())
         self.col_fields = (
-            ti.Vector.field(dim, f, shape=max(1, len(self.scene.colliders))),
-            ti.Vector.field(dim, f, shape=max(1, len(self.scene.colliders))),
-            ti.field(f, shape=max(1, len(self.scene.colliders))),
-            ti.field(f, shape=max(1, len(self.scene.colliders))),
+            ti.Vector.field(dim, f, shape=max(1, len(self.poses.specs))),
+            ti.Vector.field(dim, f, shape=max(1, len(self.poses.specs))),
+            ti.field(f, shape=max(1, len(self.poses.specs))),
+            ti.field(f, shape=max(1, len(self.poses.specs))),
         )
         nb = len(self.bodies)
         self.body_offsets = ti.field(ti.i32, shape=nb + 1)
@@ -338,13 +366,24 @@ class SPHSolver(Solver):
         # rho / rho0 of the last density pass
         self.stat_dt = ti.field(f, shape=2)
 
-        self.pushout, upload_colliders, _ = make_pushout(self.scene, dim, f, self.col_fields)
+        self.pushout, upload_colliders, _ = make_pushout(
+            self.scene,
+            dim,
+            f,
+            self.col_fields,
+            self.poses if self.poses.any_moving else None,
+            self.poses.specs,
+        )
         upload_colliders()
         self._upload()
         self.count = self._count_func()
         self._make_kernels()
         # extrapolated wall pressure (wall_pressure.py): only where there are walls and the option asks for it
         self.wall_pressure = make_wall_pressure(self) if self.ext_walls and self.nbp > 0 else None
+        if self.moving_boundary:
+            self.move_boundary = make_moving_boundary(self)
+        if self.named_loads:
+            self.load_pressure, self.load_viscous = make_loads(self)
         if dfsph:
             self._substep = make_dfsph(self)
         else:
@@ -816,6 +855,8 @@ class SPHSolver(Solver):
 
         @ti.kernel
         def density_only():
+            if ti.static(self.moving_boundary):
+                self.move_boundary()
             self.sort(N())
             for i in range(N()):
                 neighbours_density(i)
@@ -845,7 +886,10 @@ class SPHSolver(Solver):
     # ---------------------------------------------------------------- stepping
 
     def substep(self, dt: float) -> None:
+        if self.poses.any_moving:  # collider poses of this substep (host, one small upload)
+            self.poses.set_time(self.time, dt)
         self._substep(dt)
+        self.time += dt
         if self.per_substep_check:
             self.frame_time = dt
         self._version += 1
@@ -866,6 +910,8 @@ class SPHSolver(Solver):
             vmax = max([vmax] + [float(e["cfg"].speed) for e in self.sources.emitters])
         if not math.isfinite(vmax):
             return self.opts.max_substep
+        if self.poses.any_moving:  # a moving collider's surface must not cross more than cfl ps either
+            vmax = max(vmax, self.poses.max_surface_speed(self.time))
         # gravity cannot add more than one frame's g t, nor more than a free fall across the domain
         v_est = min(
             vmax + self.g_norm * self.frame_time, math.sqrt(vmax**2 + 2.0 * self.g_norm * self.fall_height)
@@ -947,10 +993,14 @@ class SPHSolver(Solver):
             d.update(kappa=self.kappa, kappav=self.kappav)
         if self.wall_pressure is not None and self.wall_pressure.pbar is not None:
             d["wall_pressure"] = self.wall_pressure.pbar  # WCSPH's relaxing wall pressure (wall_pressure.py)
+        if self.moving_boundary:  # the boundary particles' order (re-sorted every substep) and place
+            d.update(bx=self.bx, bV=self.bV, bvel=self.bvel, bns=self.bns, bx0=self.bx0, bcol=self.bcol)
         return d
 
     def get_state(self) -> dict[str, np.ndarray]:
         d = {k: fld.to_numpy() for k, fld in self._state_fields().items()}
+        if self.poses.needed:
+            d["time"] = np.array([self.time])
         d["frame_time"] = np.array(
             [self.frame_time]
         )  # stable_dt's look-ahead (the last substep with auto_check)
@@ -980,6 +1030,9 @@ class SPHSolver(Solver):
                     "akinci"
                 )
             arr = np.asarray(state[k])
+            if k in ("bx", "bV", "bvel", "bns", "bx0", "bcol"):  # a moving boundary (moving.py)
+                fld.from_numpy(arr.astype(np.int32 if k in ("bns", "bcol") else self.npf))
+                continue
             if arr.shape != fld.shape + ((self.dim,) if k in ("x", "v") else ()):
                 hint = (
                     "; the scene's particle count changed (since session 6, DFSPH removes particles sampled "
@@ -991,6 +1044,8 @@ class SPHSolver(Solver):
             fld.from_numpy(arr.astype(np.int32 if k in ("mid", "pid") else self.npf))
         if "rho" not in state:
             self._density_only()  # sorts every per-particle field along: after all of them are loaded
+        if "time" in state:
+            self.time = float(np.asarray(state["time"]).reshape(-1)[0])
         if "frame_time" in state and self.per_substep_check:  # checkpoints before session 6 lack it
             self.frame_time = float(np.asarray(state["frame_time"]).reshape(-1)[0])
         if "run_stats" in state:  # checkpoints before session 7 lack it: statistics restart at the resume
@@ -1002,6 +1057,12 @@ class SPHSolver(Solver):
 
     def length_scale(self) -> float:
         return self.ps
+
+    def collider_loads(self) -> dict[str, np.ndarray]:
+        """Named collider -> (dim + 3) impulse [N s] and its moment about the collider's moving pivot [N m s]
+        the liquid gave it since the last call (the reaction of its boundary particles' pressure and no-slip
+        viscosity on the liquid, moving.py); resets them."""
+        return self.poses.loads_by_name() if self._built else {}
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
         return {

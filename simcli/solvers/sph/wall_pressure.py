@@ -223,4 +223,5 @@ def make_wall_pressure(S):
         wcsph_pressure=wcsph_pressure,
         wcsph_wall_force=wcsph_wall_force,
         pbar=pbar,
+        bq=bq,
     )

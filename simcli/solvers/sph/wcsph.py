@@ -58,6 +58,8 @@ def make_wcsph(S):
 
     @ti.kernel
     def substep(dt: f):
+        if ti.static(S.moving_boundary):
+            S.move_boundary()  # moving colliders' boundary particles to this substep's pose (moving.py)
         S.sort(N())
         for i in range(N()):
             S.neighbours_density(i)
@@ -68,6 +70,10 @@ def make_wcsph(S):
         for i in range(N()):
             # non_pressure and the liquid's pressure force in one pass over the neighbour list
             vnew[i] = v[i] + dt * (S.non_pressure(i, True) + boundary_pressure_acceleration(i))
+        if ti.static(S.named_loads):  # the reaction on named colliders (moving.py), from the same state
+            for i in range(N()):
+                S.load_pressure(i, dt)
+                S.load_viscous(i, dt)
         for i in range(N()):
             S.advect(i, vnew[i], dt)
 
