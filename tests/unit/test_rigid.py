@@ -27,20 +27,20 @@ def test_mass_and_inertia_of_the_shapes():
     from simcli.rigid.body import mass_properties
     from simcli.scene.morphs import BoxShape, CylinderShape, SphereShape
 
-    m, I = mass_properties(BoxShape(type="Box", center=[0, 0, 0], size=[0.1, 0.2, 0.3]), 500.0, 3)
+    m, In = mass_properties(BoxShape(type="Box", center=[0, 0, 0], size=[0.1, 0.2, 0.3]), 500.0, 3)
     assert m == pytest.approx(3.0)
-    assert np.diag(I) == pytest.approx([3.0 * (0.04 + 0.09) / 12, 3.0 * (0.01 + 0.09) / 12, 3.0 * 0.05 / 12])
-    m, I = mass_properties(BoxShape(type="Box", center=[0, 0], size=[0.1, 0.2]), 500.0, 2)
-    assert m == pytest.approx(10.0) and I[2, 2] == pytest.approx(10.0 * 0.05 / 12)
-    m, I = mass_properties(SphereShape(type="Sphere", center=[0, 0, 0], radius=0.1), 1000.0, 3)
-    assert m == pytest.approx(4 / 3 * math.pi) and I[0, 0] == pytest.approx(0.4 * m * 0.01)
-    m, I = mass_properties(SphereShape(type="Sphere", center=[0, 0], radius=0.1), 1000.0, 2)
-    assert m == pytest.approx(10 * math.pi) and I[2, 2] == pytest.approx(0.5 * m * 0.01)
-    m, I = mass_properties(
+    assert np.diag(In) == pytest.approx([3.0 * (0.04 + 0.09) / 12, 3.0 * (0.01 + 0.09) / 12, 3.0 * 0.05 / 12])
+    m, In = mass_properties(BoxShape(type="Box", center=[0, 0], size=[0.1, 0.2]), 500.0, 2)
+    assert m == pytest.approx(10.0) and In[2, 2] == pytest.approx(10.0 * 0.05 / 12)
+    m, In = mass_properties(SphereShape(type="Sphere", center=[0, 0, 0], radius=0.1), 1000.0, 3)
+    assert m == pytest.approx(4 / 3 * math.pi) and In[0, 0] == pytest.approx(0.4 * m * 0.01)
+    m, In = mass_properties(SphereShape(type="Sphere", center=[0, 0], radius=0.1), 1000.0, 2)
+    assert m == pytest.approx(10 * math.pi) and In[2, 2] == pytest.approx(0.5 * m * 0.01)
+    m, In = mass_properties(
         CylinderShape(type="Cylinder", center=[0, 0, 0], radius=0.1, height=0.2), 1000.0, 3
     )
-    assert m == pytest.approx(2 * math.pi) and I[2, 2] == pytest.approx(0.5 * m * 0.01)
-    assert I[0, 0] == pytest.approx(m * (3 * 0.01 + 0.04) / 12)
+    assert m == pytest.approx(2 * math.pi) and In[2, 2] == pytest.approx(0.5 * m * 0.01)
+    assert In[0, 0] == pytest.approx(m * (3 * 0.01 + 0.04) / 12)
 
 
 BASE = textwrap.dedent(
