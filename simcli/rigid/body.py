@@ -74,6 +74,7 @@ class ColliderSpec:
     moving: bool = True
     name: str | None = None
     centre: tuple = ()
+    rigid: bool = True  # a free rigid body (families may count its loads more completely than a collider's)
 
 
 def body_spec(rb, dim: int) -> ColliderSpec:
