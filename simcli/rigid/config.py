@@ -30,7 +30,12 @@ class RigidBody(BaseModel):
     angular_velocity: list[float] | None = Field(
         None, description="Initial angular velocity [rad/s] (3 components in 3D, 1 about z in 2D)."
     )
-    friction: float = Field(0.3, ge=0, description="Coulomb coefficient [-] of its surface.")
+    friction: float = Field(
+        0.0,
+        ge=0,
+        description="Coulomb coefficient [-] of its surface against the materials (as a collider's friction), "
+        "the domain walls and other rigid bodies (the geometric mean of the two).",
+    )
     restitution: float = Field(
         0.0, ge=0, le=1, description="Normal restitution [-] against walls and other rigid bodies."
     )
