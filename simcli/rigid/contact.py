@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-ITERATIONS = 8
+ITERATIONS = 6
 ERP = 0.2  # share of a penetration depth removed per substep (Baumgarte)
 
 
@@ -59,6 +59,23 @@ def surface_points(spec, dim: int, n: int = 4) -> np.ndarray:
         p[:, ax] = s * spec.half_height
         pts.append(p)
     return a + np.concatenate(pts)
+
+
+def wall_points(spec, dim: int) -> np.ndarray:
+    """The points of a convex body that can touch a plane first (body frame): a Box's corners, a
+    Cylinder's rims (a Sphere is exact and needs none)."""
+    if spec.kind == "Box":
+        return surface_points(spec, dim, n=1)
+    if spec.kind == "Cylinder":
+        P = surface_points(spec, dim, n=4)
+        k = 8 * 4  # points per ring; rings 0 and 3 are the two rims (see surface_points)
+        return np.concatenate([P[:k], P[3 * k : 4 * k]])
+    return surface_points(spec, dim)
+
+
+def bounding_radius(spec, dim: int) -> float:
+    c = np.asarray(spec.centre, float) if spec.centre else np.asarray(spec.a, float)
+    return float(np.max(np.linalg.norm(surface_points(spec, dim, n=1) - c, axis=1)))
 
 
 def sdf_local(spec, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -133,8 +150,13 @@ def find_contacts(bodies, pts_local, lo, hi, dt) -> list[Contact]:
     poses = [(bd.R(), bd.state.x, bd.pivot) for bd in bodies]
     world_pts = [(P - piv) @ R.T + x for P, (R, x, piv) in zip(pts_local, poses)]
     for i, bd in enumerate(bodies):
-        P = world_pts[i]
-        vP = bd.state.v + np.array([_cross(dim, bd.state.w, r) for r in (P - bd.state.x)])
+        R, x, piv = poses[i]
+        P = (bd.wall_pts - piv) @ R.T + x
+        r = P - x
+        if dim == 2:
+            vP = bd.state.v + bd.state.w[2] * np.stack([-r[:, 1], r[:, 0]], axis=1)
+        else:
+            vP = bd.state.v + np.cross(bd.state.w, r)
         margin = np.abs(vP).max(initial=0.0) * dt
         e, mu = bd.cfg.restitution, bd.cfg.friction
         for ax in range(dim):
@@ -157,6 +179,9 @@ def find_contacts(bodies, pts_local, lo, hi, dt) -> list[Contact]:
     for i in range(len(bodies)):
         for j in range(i + 1, len(bodies)):
             A, B = bodies[i], bodies[j]
+            reach = np.linalg.norm(B.state.v - A.state.v) * dt + A.reach + B.reach
+            if np.linalg.norm(B.state.x - A.state.x) > reach:  # bounding spheres apart: no contact
+                continue
             e = max(A.cfg.restitution, B.cfg.restitution)
             mu = math.sqrt(A.cfg.friction * B.cfg.friction)
             if A.spec.kind == "Sphere" and B.spec.kind == "Sphere":
@@ -196,65 +221,65 @@ def find_contacts(bodies, pts_local, lo, hi, dt) -> list[Contact]:
 def solve_contacts(bodies, contacts: list[Contact], dt: float) -> np.ndarray:
     """Apply the contact impulses to the bodies' velocities (sequential impulses); returns (n, dim + 3) the
     impulse and angular impulse each body received from contacts (for the force output)."""
-    if not contacts:
-        return np.zeros((len(bodies), 0))
     dim = bodies[0].dim
     recv = np.zeros((len(bodies), dim + 3))
+    if not contacts:
+        return recv
     inv = [b.world_inertia_inv() for b in bodies]
+    imass = [0.0 if np.all(b.lin_fixed) else 1.0 / b.mass for b in bodies]
+    lin_free = [(~b.lin_fixed).astype(float) for b in bodies]
+    ang_free = [(~b.ang_fixed).astype(float) for b in bodies]
+    v = [b.state.v.copy() for b in bodies]
+    w = [b.state.w.copy() for b in bodies]
+    xs = [b.state.x for b in bodies]
 
-    def inv_mass(b):
-        return 0.0 if np.all(b.lin_fixed) else 1.0 / b.mass
+    def k_term(k, r, d):
+        rd = _moment(dim, r, d)
+        return imass[k] + float(rd @ (inv[k] @ rd))
 
-    def vel_at(k, p):
-        b = bodies[k]
-        return b.state.v + _cross(dim, b.state.w, p - b.state.x)
+    def vel(k, r):
+        return v[k] + _cross(dim, w[k], r)
 
-    def apply(k, p, J):
-        b = bodies[k]
-        dv = J / b.mass
-        dv[b.lin_fixed] = 0.0
-        b.state.v = b.state.v + dv
-        L = _moment(dim, p - b.state.x, J)
-        dw = inv[k] @ L
-        dw[b.ang_fixed] = 0.0
-        b.state.w = b.state.w + dw
+    def apply(k, r, J):
+        v[k] += (J / bodies[k].mass) * lin_free[k]
+        L = _moment(dim, r, J)
+        w[k] += (inv[k] @ L) * ang_free[k]
         recv[k, :dim] += J
         recv[k, dim:] += L
 
-    def k_term(k, p, n):
-        b = bodies[k]
-        r = p - b.state.x
-        rn = _moment(dim, r, n)
-        return inv_mass(b) + float(rn @ (inv[k] @ rn))
-
+    rows = []
     for c in contacts:
-        vr = vel_at(c.a, c.p) - (vel_at(c.b, c.p) if c.b is not None else 0.0)
+        ra = c.p - xs[c.a]
+        rb = c.p - xs[c.b] if c.b is not None else None
+        vr = vel(c.a, ra) - (vel(c.b, rb) if rb is not None else 0.0)
         vn = float(vr @ c.n)
-        bias = ERP * max(c.depth, 0.0) / dt
-        c.target = max(-c.e * vn if vn < -1e-6 else 0.0, bias)
-        if c.depth < 0:  # speculative: allow it to close the gap within the substep
-            c.target = c.depth / dt  # negative: an approach up to the gap is allowed
+        if c.depth < 0:  # speculative: an approach up to the gap is allowed within the substep
+            target = c.depth / dt
+        else:
+            target = max(-c.e * vn if vn < -1e-6 else 0.0, ERP * c.depth / dt)
+        kn = k_term(c.a, ra, c.n) + (k_term(c.b, rb, c.n) if rb is not None else 0.0)
+        vt = vr - vn * c.n
+        vt_norm = float(np.linalg.norm(vt))
+        t = vt / vt_norm if vt_norm > 1e-12 else None
+        kt = (k_term(c.a, ra, t) + (k_term(c.b, rb, t) if rb is not None else 0.0)) if t is not None else 0.0
+        rows.append([c, ra, rb, target, kn, t, kt, 0.0, 0.0])
     for _ in range(ITERATIONS):
-        for c in contacts:
-            vr = vel_at(c.a, c.p) - (vel_at(c.b, c.p) if c.b is not None else 0.0)
-            vn = float(vr @ c.n)
-            kn = k_term(c.a, c.p, c.n) + (k_term(c.b, c.p, c.n) if c.b is not None else 0.0)
+        for row in rows:
+            c, ra, rb, target, kn, t, kt, jn, jt = row
             if kn <= 0:
                 continue
-            dj = (c.target - vn) / kn
-            jn_new = max(c.jn + dj, 0.0)
-            dj = jn_new - c.jn
-            c.jn = jn_new
-            J = dj * c.n
-            # friction on the tangential relative velocity, at most mu jn
-            vt = vr - vn * c.n
-            vt_norm = float(np.linalg.norm(vt))
-            if c.mu > 0 and vt_norm > 1e-12:
-                t = vt / vt_norm
-                kt = k_term(c.a, c.p, t) + (k_term(c.b, c.p, t) if c.b is not None else 0.0)
-                jt = min(vt_norm / kt, c.mu * max(dj, 0.0)) if kt > 0 else 0.0
-                J = J - jt * t
-            apply(c.a, c.p, J)
-            if c.b is not None:
-                apply(c.b, c.p, -J)
+            vr = vel(c.a, ra) - (vel(c.b, rb) if rb is not None else 0.0)
+            vn = float(vr @ c.n)
+            jn_new = max(jn + (target - vn) / kn, 0.0)
+            J = (jn_new - jn) * c.n
+            row[7] = jn_new
+            if t is not None and c.mu > 0 and kt > 0:  # friction along the first sliding direction
+                jt_new = min(max(jt - float(vr @ t) / kt, -c.mu * jn_new), c.mu * jn_new)
+                J = J + (jt_new - jt) * t
+                row[8] = jt_new
+            apply(c.a, ra, J)
+            if rb is not None:
+                apply(c.b, rb, -J)
+    for k, b in enumerate(bodies):
+        b.state.v, b.state.w = v[k], w[k]
     return recv

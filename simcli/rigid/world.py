@@ -22,7 +22,7 @@ import numpy as np
 from simcli.motion import quat_from_rotvec, quat_mul
 
 from .body import RigidBodyModel
-from .contact import find_contacts, solve_contacts, surface_points
+from .contact import bounding_radius, find_contacts, solve_contacts, surface_points, wall_points
 
 _WORLDS: dict[int, tuple[Any, RigidWorld]] = {}
 
@@ -61,6 +61,9 @@ class RigidWorld:
         lo, hi = scene.domain.bounds(dim)
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
         self.pts = [surface_points(b.spec, dim) for b in self.bodies]
+        for b in self.bodies:  # what the walls and the bodies' broad phase test
+            b.wall_pts = wall_points(b.spec, dim)
+            b.reach = bounding_radius(b.spec, dim)
         nb = len(self.bodies)
         self.frame_load = np.zeros((nb, dim + 3))  # materials' impulse since the last frame
         self.frame_contact = np.zeros((nb, dim + 3))  # walls' and bodies' impulse since the last frame

@@ -177,3 +177,60 @@ def test_a_small_run_falls_rests_writes_and_resumes_bit_for_bit(tmp_path):
         for k, v in full.items():
             assert np.array_equal(f[f"rigid_bodies/{k}"][()], v), k
         assert np.array_equal(f["entities/block/position"][()], block)
+
+
+def _world(yaml_text: str):
+    import yaml
+
+    from simcli.rigid.world import RigidWorld
+    from simcli.scene.models import Scene
+
+    return RigidWorld(Scene.model_validate(yaml.safe_load(yaml_text)))
+
+
+def test_body_body_and_wall_contacts_conserve_momentum_and_hold():
+    """Host-side contacts alone (no family): two spheres meeting head on exchange momentum exactly (no
+    gravity), a box and a sphere dropped on the floor come to rest on it, a held DOF stays held."""
+    w = _world(
+        textwrap.dedent(
+            """\
+            version: 1
+            sim: {dim: 3, dt: 1.0e-3, gravity: [0, 0, 0]}
+            domain: {lower: [-1, -1, 0], upper: [1, 1, 1]}
+            rigid_bodies:
+              - {name: a, morph: {type: Sphere, center: [-0.2, 0, 0.5], radius: 0.05}, rho: 1000, velocity: [1, 0, 0]}
+              - {name: b, morph: {type: Sphere, center: [0.2, 0, 0.5], radius: 0.05}, rho: 3000, velocity: [-1, 0, 0]}
+              - {name: c, morph: {type: Box, center: [0.5, 0.5, 0.5], size: [0.1, 0.1, 0.1]}, rho: 500,
+                 velocity: [0, 0, 1], angular_velocity: [0, 0, 2], fixed_dofs: [rz]}
+            """
+        )
+    )
+    a, b, c = w.bodies
+    p0 = a.mass * a.state.v + b.mass * b.state.v
+    for _ in range(400):
+        w.step([], 1e-3)
+    p1 = a.mass * a.state.v + b.mass * b.state.v
+    assert np.allclose(p1, p0, atol=1e-12 * np.abs(p0).max())
+    assert a.state.v[0] < -0.5 and b.state.v[0] < 0  # they met and separated (restitution 0: together)
+    assert np.linalg.norm(b.state.x - a.state.x) >= 0.1 - 1e-3  # no interpenetration beyond a millimetre
+    assert c.state.w[2] == 2.0  # held at its initial angular velocity
+    assert c.state.x[2] <= 0.95 + 1e-3  # it reached the ceiling and stopped there
+
+    w = _world(
+        textwrap.dedent(
+            """\
+            version: 1
+            sim: {dim: 2, dt: 1.0e-3}
+            domain: {lower: [0, 0], upper: [1, 1]}
+            rigid_bodies:
+              - {name: box, morph: {type: Box, center: [0.3, 0.2], size: [0.1, 0.05]}, rho: 500,
+                 angular_velocity: [1.0], friction: 0.5}
+              - {name: disk, morph: {type: Sphere, center: [0.7, 0.3], radius: 0.05}, rho: 500}
+            """
+        )
+    )
+    for _ in range(600):
+        w.step([], 1e-3)
+    box, disk = w.bodies
+    assert disk.state.x[1] == pytest.approx(0.05, abs=1e-3) and abs(disk.state.v[1]) < 1e-2
+    assert box.state.x[1] == pytest.approx(0.025, abs=2e-3) and np.abs(box.state.v).max() < 2e-2
