@@ -125,6 +125,16 @@ class RigidWorld:
             s.q = q / np.linalg.norm(q)
             b.t = self.t + dt
         self.t += dt
+        for b in self.bodies:
+            s = b.state
+            if not (np.isfinite(s.x).all() and np.isfinite(s.v).all() and np.isfinite(s.w).all()):
+                from simcli.errors import NumericalError
+
+                raise NumericalError(
+                    f"numerical failure in rigid body '{b.name}' at t = {self.t:.6g} s: its state is not finite "
+                    "(the materials' load on it blew up). Every earlier frame is kept. To fix: lower sim.dt or "
+                    "use substeps: auto, make the body larger than a few cells or particles, or denser"
+                )
         self.frame_load += J
         if C is not None:
             self.frame_contact += C
