@@ -113,8 +113,8 @@ def check_rigid_bodies(loaded: Any, err) -> None:
                 continue
             x = _lattice(a, b, n)
             both = points_in_shape(rb.morph, x) & points_in_shape(om, x)
-            if both.any():
-                vol = float(both.mean() * np.prod(b - a))
+            vol = float(both.mean() * np.prod(b - a))
+            if vol > 1e-6 * float(np.prod(bhi - blo)):  # touching is not overlapping
                 err(
                     base,
                     f"rigid body '{rb.name}' overlaps {what} at the start (about {vol:.3g} "

@@ -234,3 +234,13 @@ def test_body_body_and_wall_contacts_conserve_momentum_and_hold():
     box, disk = w.bodies
     assert disk.state.x[1] == pytest.approx(0.05, abs=1e-3) and abs(disk.state.v[1]) < 1e-2
     assert box.state.x[1] == pytest.approx(0.025, abs=2e-3) and np.abs(box.state.v).max() < 2e-2
+
+
+def test_a_body_touching_an_entity_is_not_an_overlap(tmp_path):
+    scene = tmp_path / "touch.yaml"
+    scene.write_text(
+        BASE
+        + "rigid_bodies:\n  - {name: b, morph: {type: Box, lower: [0.0, 0.04], upper: [0.04, 0.06]}, rho: 500}\n"
+    )
+    r = _run(["validate", str(scene)])
+    assert r.returncode == 0, r.stderr
