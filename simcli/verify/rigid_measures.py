@@ -92,28 +92,3 @@ def rigid_momentum_error(f, entity="*", axis=None, **_):
         P = P[:, axis : axis + 1]
     ref = np.linalg.norm(P[0])
     return t, np.linalg.norm(P - P[0], axis=1) / (ref if ref > 0 else 1.0)
-
-
-@measurement("rigid_penetration")
-def rigid_penetration(f, entity, body, axis=None, spacing=0.0, radius=None, **_):
-    """Penetration depth [m] of a rigid body into a granular bed: the bed's initial free surface (the mean
-    highest particle per column of width ``spacing``, plus half a spacing, at the first frame) minus the
-    body's lowest point (its centre less ``radius``, default its morph's radius or half height)."""
-    scene, rb = _rb_scene(f, body)
-    dim = scene.sim.dim
-    ax = dim - 1 if axis is None else axis
-    if radius is None:
-        lo, hi = (np.asarray(b, float)[:dim] for b in rb.morph.bounds())
-        radius = 0.5 * (hi - lo)[ax]
-    _, g = entity_group(f, entity)
-    x = np.asarray(g["position"][0], dtype=np.float64)
-    lat = [a for a in range(dim) if a != ax]
-    ps = float(spacing) if spacing else 0.01
-    keys = np.floor(x[:, lat] / ps).astype(np.int64)
-    _, inv = np.unique(keys, axis=0, return_inverse=True)
-    tops = np.full(inv.max() + 1, -np.inf)
-    np.maximum.at(tops, inv.ravel(), x[:, ax])
-    surface = float(np.median(tops)) + 0.5 * float(spacing)
-    pos = np.asarray(_body(f, body)["position"][...], dtype=np.float64)
-    n = min(len(pos), len(f["time"]))
-    return f["time"][:n], surface - (pos[:n, ax] - float(radius))
