@@ -75,14 +75,24 @@ def collider_specs(scene: Any, dim: int) -> list[ColliderSpec]:
                 name=c.name,
                 centre=tuple(float(x) for x in collider_centre(c, dim)),
             )
-    return specs
+    return specs + _rigid(scene, "specs")
+
+
+def _rigid(scene: Any, what: str) -> list:
+    """Free rigid bodies (simcli.rigid) follow the colliders: moving, named colliders whose pose is
+    integrated instead of prescribed (none without ``rigid_bodies``)."""
+    if not getattr(scene, "rigid_bodies", None):
+        return []
+    from simcli.rigid.world import world_for
+
+    return getattr(world_for(scene), what)()
 
 
 def collider_motions(scene: Any, dim: int, scene_dir: Any = None) -> list:
     """simcli.motion.Motion (or None) of every collider, in scene order."""
     from simcli.motion import collider_motion
 
-    return [collider_motion(c, dim, scene_dir) for c in scene.colliders]
+    return [collider_motion(c, dim, scene_dir) for c in scene.colliders] + _rigid(scene, "motions")
 
 
 def _collider_spec(c: Any, dim: int) -> ColliderSpec:
@@ -528,4 +538,4 @@ def collider_vtk_items(scene: Any, scene_dir: Any = None) -> list[tuple[str, Any
         if c.name is None and c.motion is None:
             continue
         out.append((c.name or f"collider{k}", _collider_spec(c, dim), collider_motion(c, dim, scene_dir)))
-    return out
+    return out + [(s.name, s, m) for s, m in zip(_rigid(scene, "specs"), _rigid(scene, "motions"))]

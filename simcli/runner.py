@@ -218,6 +218,8 @@ class Runner:
                 self.signals.restore()
             if self._lock is not None:
                 self._lock.release()
+            if getattr(self, "_rigid", None) is not None:
+                self._rigid.close()
 
     def _abort_sink(self) -> None:
         sink, self._sink = self._sink, None
@@ -368,6 +370,9 @@ class Runner:
             versions=_versions(ti_info),
         )
         t0 = time.perf_counter()
+        from simcli.rigid.run import rigid_run  # free rigid bodies (None without rigid_bodies)
+
+        self._rigid = rigid_run(scene)
         if solver_factory is None:
             from simcli.solvers import make_solvers
 
@@ -417,6 +422,8 @@ class Runner:
                         "(another -o, or without --resume after removing the folder)"
                     )
                     raise SceneError([msg]) from None
+            if self._rigid is not None:
+                self._rigid.set_state(state)
             step = int(meta["step"])
             frame = int(meta["frame"])
             substeps_now = meta.get("substeps_now", substeps_now)
@@ -443,6 +450,8 @@ class Runner:
             frame_series=self._frame_series(),
         )
         self._cvtk = self._collider_vtk((frame + 1) if ckpt is not None else None)
+        if self._rigid is not None:
+            self._rigid.open(sink, (frame + 1) if ckpt is not None else None)
         # the stable substep for the frame-0 check and the fixed-substep warning (not asked again on a resumed
         # auto run, whose check counts then match an uninterrupted run's)
         stable = self._stable_dt(solvers, sim.dt) if ckpt is None or sim.substeps != "auto" else sim.dt
@@ -450,6 +459,8 @@ class Runner:
             # the first substep: the fixed one, or with substeps: auto the stable one (not sim.dt: a long step
             # with auto_check: substep would make any initial speed look like a runaway)
             self._check_frame(solvers, 0, sim.dt / substeps_now if substeps_now else min(sim.dt, stable))
+            if self._rigid is not None:
+                self._rigid.write_frame(0)
             sink.write_frame(
                 0,
                 0,
@@ -512,6 +523,8 @@ class Runner:
                     sources.before_substep(step * sim.dt + done_t)
                 for s in solvers:
                     s.substep(sub_dt)
+                if self._rigid is not None:  # the bodies take the substep's loads and move
+                    self._rigid.step(solvers, sub_dt)
                 k += 1
                 done_t += sub_dt
                 dt_range[0], dt_range[1] = min(dt_range[0], sub_dt), max(dt_range[1], sub_dt)
@@ -544,6 +557,8 @@ class Runner:
                     frame += 1
                     loads = self._collider_loads(solvers, (step - self._load_step) * sim.dt)
                     self._load_step = step
+                    if self._rigid is not None:
+                        self._rigid.write_frame(frame)
                     sink.write_frame(
                         frame, step, step * sim.dt, self._frame_data(), colliders=loads, **self._frame_vals()
                     )
@@ -573,6 +588,8 @@ class Runner:
                 state = {}
                 for s in solvers:
                     state.update({f"{s.family}/{k}": v for k, v in s.get_state().items()})
+                if self._rigid is not None:
+                    state.update(self._rigid.get_state())
                 p = write_checkpoint(self.out / "checkpoints", step, state, meta, scene.checkpoint.keep)
                 self.info["checkpoint"] = str(p)
                 self.timings["checkpoint_s"] += time.perf_counter() - t0
@@ -615,6 +632,8 @@ class Runner:
         self.log(
             f"done: {plural(step, 'step')}, {plural(frame + 1, 'frame')} in {self.out} ({', '.join(rates)})"
         )
+        for line in self._rigid.log_lines() if self._rigid is not None else []:
+            self.log(line)
         for name, d in info.get("colliders", {}).items():
 
             def fmt(v):
@@ -651,6 +670,8 @@ class Runner:
                 self.info.setdefault("solvers", {})[s.family] = s.info()
             except Exception as e:  # reporting must never fail a run
                 self.info.setdefault("solvers", {})[s.family] = {"info_error": str(e)}
+        if getattr(self, "_rigid", None) is not None:
+            self.info["rigid_bodies"] = self._rigid.summary()
         t = self.timings["stepping_s"] - stepping0
         # the first substep carries the kernel compilation: leave it out of throughput
         steady = max(t, 1e-12)
@@ -805,7 +826,8 @@ class Runner:
         tot = {name: np.zeros(dim + 3) for name in meta}
         for s in solvers:
             for name, a in (s.collider_loads() if hasattr(s, "collider_loads") else {}).items():
-                tot[name] += a
+                if name in tot:  # (rigid bodies are named colliders too: simcli.rigid reads theirs)
+                    tot[name] += a
         out = {}
         for name, a in tot.items():
             a = a / span if span > 0 else np.zeros_like(a)

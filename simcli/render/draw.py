@@ -18,6 +18,7 @@ SPEED_CMAP = "viridis"
 HEIGHT_CMAP = "copper"
 GRID_CMAP = "inferno"
 COLLIDER_RGBA = (0.62, 0.62, 0.66, 0.55)
+RIGID_RGBA = (0.75, 0.45, 0.2, 0.9)  # rigid bodies: solid, brown
 MAX_PARTICLES = 250_000
 
 
@@ -182,6 +183,7 @@ class Painter:
         fig, run = self.fig, self.run
         fig.clf()
         ents = read_frame(run, k)
+        self._k = k  # rigid bodies are drawn at their pose of this frame
         t = run.times[k]
         if self.auto_height or (self.color_meshes == "auto" and self.color == "speed"):
             # auto: a settled heap in one colour says nothing; once the particles are at rest
@@ -346,6 +348,17 @@ class Painter:
                 ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, **kw))
             elif o[0] == "polygon":
                 ax.add_patch(Polygon(o[1], closed=True, **kw))
+        if drop is None:  # rigid bodies (2D scenes), at the frame's pose
+            from .rigid import rigid_surfaces
+
+            for _name, pts, _cells in rigid_surfaces(run, getattr(self, "_k", 0)):
+                ax.add_patch(
+                    Polygon(
+                        pts, closed=True, facecolor=RIGID_RGBA, edgecolor=(0.3, 0.2, 0.1), lw=0.8, zorder=5
+                    )
+                )
+                c = pts.mean(axis=0)  # a spoke to its first surface point shows the rotation
+                ax.plot([c[0], pts[0, 0]], [c[1], pts[0, 1]], color=(0.3, 0.2, 0.1), lw=0.8, zorder=6)
 
     # -- 3D -----------------------------------------------------------------------------
     def _draw3d(self, ents):
@@ -383,6 +396,13 @@ class Painter:
                 tris.append(t)
                 f = shade(t)[:, None] * np.asarray(COLLIDER_RGBA[:3])
                 cols.append(np.hstack([f, np.full((len(t), 1), COLLIDER_RGBA[3])]))
+        from .rigid import rigid_surfaces
+
+        for _name, pts, cells in rigid_surfaces(run, getattr(self, "_k", 0)):  # at the frame's pose
+            t = pts[cells]
+            tris.append(t)
+            f = shade(t)[:, None] * np.asarray(RIGID_RGBA[:3])
+            cols.append(np.hstack([f, np.full((len(t), 1), RIGID_RGBA[3])]))
         cmap = self.plt.get_cmap(SPEED_CMAP)
         diag = float(np.linalg.norm(hi - lo))
         pts_per_m = self.fig.get_size_inches()[0] * 72.0 * 0.75 / diag

@@ -61,6 +61,9 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
                 f"lower must be < upper on every axis (got lower {c.lower}, upper {c.upper})",
             )
     _check_collider_motion(loaded, ok_dom, err)
+    from simcli.rigid.checks import check_rigid_bodies  # rigid_bodies: names, shapes, overlaps
+
+    check_rigid_bodies(loaded, err)
 
     # entities
     seen: dict[str, int] = {}

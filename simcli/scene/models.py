@@ -11,6 +11,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simcli.probes.config import Probe
+from simcli.rigid.config import RigidBody
 from simcli.scene.materials import Material
 from simcli.scene.morphs import Morph, Region
 from simcli.scene.sources import Emitter, Sink
@@ -361,6 +362,11 @@ class Scene(Strict):
     colliders: list[Collider] = Field(
         default_factory=list, description="Rigid obstacles, still or in prescribed motion."
     )
+    rigid_bodies: list[RigidBody] = Field(
+        default_factory=list,
+        description="Free rigid bodies (Box, Sphere, Cylinder), two-way coupled with MPM, PBD and FEM entities "
+        "through the moving-collider path; sim.h5 /rigid_bodies/<name>/....",
+    )
     solvers: Solvers = Field(default_factory=Solvers, description="Options per solver family.")
     entities: list[Entity] = Field(default_factory=list, description="Simulated bodies.")
     output: Output = Field(default_factory=Output, description="What is written, where and how often.")
@@ -399,5 +405,7 @@ def resolved_scene_dict(scene: Scene, name: str) -> dict:
         for key in ("name", "motion"):
             if c.get(key) is None:
                 c.pop(key, None)
+    if not d.get("rigid_bodies"):  # scenes without rigid bodies echo as before
+        d.pop("rigid_bodies", None)
     d["output"]["dir"] = scene.output.dir if scene.output.dir is not None else f"out/{name}"
     return d

@@ -1,0 +1,129 @@
+"""Scene checks of ``rigid_bodies`` (no Taichi): each problem is an error line with the key's location
+(exit 65): names (file names, unique among rigid bodies, colliders and entities), dimensions, degrees of
+freedom that do not exist in 2D, a body outside the domain or overlapping an entity, a collider or another
+body at the start, and families whose colliders do not move yet."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import numpy as np
+
+RIGID_FAMILIES = {"MPM", "PBD", "FEM"}  # families whose colliders move and report loads
+
+
+def _lattice(lo, hi, n: int) -> np.ndarray:
+    axes = [lo[a] + (np.arange(n) + 0.5) * (hi[a] - lo[a]) / n for a in range(len(lo))]
+    return np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
+
+
+def check_rigid_bodies(loaded: Any, err) -> None:
+    from simcli.geometry.regions import points_in_shape
+
+    s = loaded.scene
+    dim = s.sim.dim
+    if not s.rigid_bodies:
+        return
+    unsupported = sorted(s.families - RIGID_FAMILIES)
+    if unsupported:
+        err(
+            ("rigid_bodies",),
+            f"rigid bodies are coupled with {', '.join(sorted(RIGID_FAMILIES))} entities only (their "
+            f"colliders move and report loads); this scene has {', '.join(unsupported)} entities: remove "
+            "rigid_bodies or those entities",
+            key=True,
+        )
+    ents = {e.name for e in s.entities}
+    cols = {c.name for c in s.colliders if c.name is not None}
+    seen: dict[str, int] = {}
+    lo, hi = (np.asarray(b, float) for b in s.domain.bounds(dim))
+    ok_shapes = []
+    for i, rb in enumerate(s.rigid_bodies):
+        base = ("rigid_bodies", i)
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+", rb.name) or rb.name.startswith("."):
+            err(
+                base + ("name",),
+                f"rigid body name '{rb.name}': use letters, digits, _, - and . (it names files)",
+            )
+        if rb.name in seen:
+            err(
+                base + ("name",),
+                f"duplicate rigid body name '{rb.name}' (also rigid_bodies.{seen[rb.name]}.name)",
+            )
+        seen.setdefault(rb.name, i)
+        if rb.name in ents:
+            err(
+                base + ("name",),
+                f"rigid body name '{rb.name}' is also an entity's name (both name vtk/<name>.pvd)",
+            )
+        if rb.name in cols:
+            err(base + ("name",), f"rigid body name '{rb.name}' is also a collider's name")
+        ok = True
+        m = rb.morph
+        for key in ("center", "size", "lower", "upper"):
+            v = getattr(m, key, None)
+            if v is not None and len(v) != dim:
+                err(base + ("morph", key), f"expected {dim} components for dim {dim} (got {len(v)})")
+                ok = False
+        if m.type == "Cylinder" and dim == 2:
+            err(base + ("morph", "type"), "Cylinder rigid bodies need dim 3 (a Sphere is a disk in 2D)")
+            ok = False
+        if rb.velocity is not None and len(rb.velocity) != dim:
+            err(base + ("velocity",), f"expected {dim} components for dim {dim} (got {len(rb.velocity)})")
+        na = 1 if dim == 2 else 3
+        if rb.angular_velocity is not None and len(rb.angular_velocity) != na:
+            err(
+                base + ("angular_velocity",),
+                f"expected {na} component{'s' if na > 1 else ''} for dim {dim} (got {len(rb.angular_velocity)})",
+            )
+        if dim == 2:
+            bad = [d for d in rb.fixed_dofs if d in ("z", "rx", "ry")]
+            if bad:
+                err(
+                    base + ("fixed_dofs",),
+                    f"unknown degree(s) of freedom {', '.join(bad)} in 2D (a 2D body has x, y and rz)",
+                )
+        if not ok:
+            continue
+        blo, bhi = (np.asarray(b, float)[:dim] for b in m.bounds())
+        if np.any(blo < lo) or np.any(bhi > hi):
+            err(
+                base + ("morph",),
+                f"the body ({blo.tolist()} .. {bhi.tolist()}) is not inside the domain ({lo.tolist()} .. "
+                f"{hi.tolist()}): move it or enlarge the domain",
+            )
+        ok_shapes.append((i, rb, blo, bhi))
+    n = 24 if dim == 3 else 96
+    for k, (i, rb, blo, bhi) in enumerate(ok_shapes):
+        base = ("rigid_bodies", i, "morph")
+        others = [
+            (f"entity '{e.name}' (entities.{j})", e.morph)
+            for j, e in enumerate(s.entities)
+            if e.morph is not None and e.morph.type in ("Box", "Sphere", "Cylinder") and e.family != "SF"
+        ]
+        others += [(f"rigid body '{o.name}' (rigid_bodies.{j})", o.morph) for j, o, *_ in ok_shapes[k + 1 :]]
+        for what, om in others:
+            try:
+                olo, ohi = (np.asarray(b, float)[:dim] for b in om.bounds())
+            except (TypeError, ValueError):
+                continue
+            a, b = np.maximum(blo, olo), np.minimum(bhi, ohi)
+            if np.any(b <= a):
+                continue
+            x = _lattice(a, b, n)
+            both = points_in_shape(rb.morph, x) & points_in_shape(om, x)
+            vol = float(both.mean() * np.prod(b - a))
+            if vol > 1e-6 * float(np.prod(bhi - blo)):  # touching is not overlapping
+                err(
+                    base,
+                    f"rigid body '{rb.name}' overlaps {what} at the start (about {vol:.3g} "
+                    f"{'m^3' if dim == 3 else 'm^2'}): move one of them apart",
+                )
+        x = _lattice(blo, bhi, n)
+        x = x[points_in_shape(rb.morph, x)]
+        from simcli.scene.limits import _collider_inside
+
+        for ci, c in enumerate(s.colliders):
+            if len(x) and c.motion is None and _collider_inside(c, x).any():
+                err(base, f"rigid body '{rb.name}' overlaps colliders.{ci} ({c.type}) at the start: move it")

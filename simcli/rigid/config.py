@@ -1,0 +1,49 @@
+"""The scene's ``rigid_bodies:`` entries (pydantic, no Taichi)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from simcli.scene.morphs import BoxShape, CylinderShape, SphereShape
+
+DOFS = ("x", "y", "z", "rx", "ry", "rz")
+
+RigidShape = Annotated[BoxShape | SphereShape | CylinderShape, Field(discriminator="type")]
+
+
+class RigidBody(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+    name: str = Field(
+        min_length=1,
+        description="Unique name (among rigid bodies, colliders and entities): sim.h5 /rigid_bodies/<name>/..., "
+        "vtk/<name>.pvd.",
+    )
+    morph: RigidShape = Field(
+        description="Shape at t = 0: Box (axis-aligned), Sphere (a disk in 2D) or Cylinder (3D). Mass and "
+        "inertia follow from it and rho; the centre of mass is its centre."
+    )
+    rho: float = Field(gt=0, description="Density [kg/m^3] (2D: per metre of depth).")
+    velocity: list[float] | None = Field(None, description="Initial velocity of the centre of mass [m/s].")
+    angular_velocity: list[float] | None = Field(
+        None, description="Initial angular velocity [rad/s] (3 components in 3D, 1 about z in 2D)."
+    )
+    friction: float = Field(
+        0.0,
+        ge=0,
+        description="Coulomb coefficient [-] of its surface against the materials (as a collider's friction), "
+        "the domain walls and other rigid bodies (the geometric mean of the two).",
+    )
+    restitution: float = Field(
+        0.0, ge=0, le=1, description="Normal restitution [-] against walls and other rigid bodies."
+    )
+    boundary: Literal["slip", "sticky", "separate"] = Field(
+        "separate", description="Contact condition the materials meet on its surface (as for colliders)."
+    )
+    fixed_dofs: list[Literal["x", "y", "z", "rx", "ry", "rz"]] = Field(
+        default_factory=list,
+        description="Degrees of freedom held at their initial velocity (e.g. [x, y, z, rx, ry] for a wheel "
+        "turning about z on a fixed axle). 2D: x, y, rz.",
+    )
