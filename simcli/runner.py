@@ -371,8 +371,14 @@ class Runner:
         else:
             solvers = solver_factory(scene, bodies)
         self._solvers = solvers
+        from simcli.coupling import make_coupler  # None unless two coupled families meet (docs/COUPLING.md)
+
+        coupler = self._coupler = make_coupler(scene, solvers, self.warn)
         for s in solvers:
             s.build()
+        if coupler is not None:
+            coupler.build()
+            self.info["coupling"] = coupler.names
         for (
             s
         ) in solvers:  # what a solver changed of the scene as given (e.g. SPH particles inside a collider)
@@ -500,8 +506,11 @@ class Runner:
                     sub_dt = rem / n_left
                 else:
                     n_left, sub_dt = substeps_now - k, sim.dt / substeps_now
-                for s in solvers:
-                    s.substep(sub_dt)
+                if coupler is None:
+                    for s in solvers:
+                        s.substep(sub_dt)
+                else:  # pre_couple -> coupling phase -> post_couple
+                    coupler.substep(sub_dt)
                 k += 1
                 done_t += sub_dt
                 dt_range[0], dt_range[1] = min(dt_range[0], sub_dt), max(dt_range[1], sub_dt)

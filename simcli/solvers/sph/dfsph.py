@@ -322,12 +322,28 @@ def make_dfsph(S):
             p[i] = (kacc[i] + kdiv) * r * r / mat_rho0[mid[i]]
             S.advect(i, v[i], dt)
 
+    # coupled scenes (simcli/coupling/): finish in two halves around the coupling phase, which edits v
+    @ti.kernel
+    def finish_pressure(dt: f):
+        for i in range(n):
+            kappa[i] = kacc[i]
+            r = rho[i]
+            kdiv = ti.cast(0.0, f)
+            if ti.static(S.opts.divergence_solve):
+                kdiv = kappav[i] / dt
+            p[i] = (kacc[i] + kdiv) * r * r / mat_rho0[mid[i]]
+
+    @ti.kernel
+    def advect_all(dt: f):
+        for i in range(n):
+            S.advect(i, v[i], dt)
+
     def error() -> float:
         return float(err_acc[None]) / FIXED / n
 
     stats = S.dfsph_stats
 
-    def substep(dt: float) -> None:
+    def solves(dt: float) -> None:
         o = S.opts
         if o.divergence_solve:
             divergence_begin(dt)
@@ -348,8 +364,16 @@ def make_dfsph(S):
             it += 1
             err = error()
         stats.add("density", it, err, it >= o.max_density_iterations and err > eta)
+
+    def substep(dt: float) -> None:
+        solves(dt)
         finish(dt)
 
+    def pre_couple(dt: float) -> None:
+        solves(dt)
+        finish_pressure(dt)
+
+    S._couple_phases = (pre_couple, advect_all, v)  # (pre, post, the velocity the coupling edits)
     return substep
 
 

@@ -71,4 +71,24 @@ def make_wcsph(S):
         for i in range(n):
             S.advect(i, vnew[i], dt)
 
+    # coupled scenes (simcli/coupling/): the same substep in two halves around the coupling phase, which edits
+    # vnew (the velocity at the substep's end) before advect
+    @ti.kernel
+    def pre_couple(dt: f):
+        S.sort(n)
+        for i in range(n):
+            S.neighbours_density(i)
+            equation_of_state(i)
+        if ti.static(ext):
+            wp.mark()
+            wp.wcsph_pressure(dt)
+        for i in range(n):
+            vnew[i] = v[i] + dt * (S.non_pressure(i, True) + boundary_pressure_acceleration(i))
+
+    @ti.kernel
+    def post_couple(dt: f):
+        for i in range(n):
+            S.advect(i, vnew[i], dt)
+
+    S._couple_phases = (pre_couple, post_couple, vnew)
     return substep, pressure_from_density
