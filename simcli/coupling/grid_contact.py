@@ -19,12 +19,14 @@ normal velocities of the two are merged inelastically, which never adds kinetic 
 du back to the particles adds none either, by the convexity of the weights). The merge is weighted by the
 nodal masses, so where the B-spline tails of the two barely overlap (a node with little of either) it barely
 acts: the contact stiffens as the materials meet. The normal is the gradient of phi_other - phi_MPM by
-central differences on the grid, phi a material's volume fraction at the node (its splatted mass / (its
-density dx^dim)): the average of both materials' normals (Nairn 2013). A set without a meaningful volume
+central differences on the grid, phi a material's volume fraction at the node (its particles' volumes
+splatted with the same weights, MPM's current J V0, the other's mass / density, over dx^dim): the average of
+both materials' normals (Nairn 2013). A set without a meaningful volume
 (cloth, rope) passes ``rho = None``: the normal is MPM's own, -grad phi_MPM.
 
 Nodes on or outside the domain faces keep MPM's wall condition (they are not touched). One kernel launch per
-substep: scatter, node pass over MPM's node box, gather, clear (four parallel loops).
+substep: scatter the other set, MPM's volumes, node pass over MPM's node box, gather, clear (five parallel
+loops).
 """
 
 import math
@@ -69,12 +71,13 @@ class GridContact:
         dim, f = mpm.dim, mpm.f
         shape = mpm.grid_shape
         self.ms = ti.field(f, shape=shape)  # the other set's node mass
+        self.vm = ti.field(f, shape=shape)  # MPM's node volume (splatted here: MPM's grid keeps none)
         self.pm = ti.Vector.field(dim, f, shape=shape)  # its node momentum, then its node velocity change
         sep = o.rho is not None and o.shift_x is not None
         self.px = ti.Vector.field(dim, f, shape=shape) if sep else None  # node overlap correction [m]
         self.impulse = ti.Vector.field(dim, f, shape=())  # momentum given to MPM (diagnostics, tests)
         self.bytes = (
-            int(np.prod(shape)) * (dim + 1 + (dim if sep else 0)) * (8 if mpm.precision == "f64" else 4)
+            int(np.prod(shape)) * (dim + 2 + (dim if sep else 0)) * (8 if mpm.precision == "f64" else 4)
         )
 
         ms, pm, px, impulse = self.ms, self.pm, self.px, self.impulse
@@ -89,8 +92,10 @@ class GridContact:
         lo_node = ti.Vector(list(mpm.lo_node))
         hi_node = ti.Vector(list(mpm.hi_node))
         cell = mpm.dx**dim
-        rho_m = min(float(m.rho) for m in mpm.materials)
-        inv_vm = 1.0 / (rho_m * cell)  # phi_MPM = m / (rho dx^dim)
+        inv_cell = 1.0 / cell  # phi_MPM = (sum_p w_ip J_p V0_p) / dx^dim: volumes, so that materials of any
+        # density on MPM's grid (a light jelly, heavy sand) count by the space they fill
+        vm = self.vm
+        mx, mF, mvol, n_mpm = mpm.x, mpm.F, mpm.vol, mpm.n
         use_phi = o.rho is not None
         inv_vo = 1.0 / (float(o.rho) * cell) if use_phi else 0.0
         pos, mass, vel, vdim, move_x = o.pos, o.mass, o.vel, o.vel_dim, o.move_x
@@ -119,7 +124,7 @@ class GridContact:
             where grid_m is stale)."""
             r = ti.cast(0.0, f)
             if in_box(I, lo, hi):
-                r = -grid_m[I] * inv_vm
+                r = -vm[I] * inv_cell
                 if ti.static(use_phi):
                     r += ms[I] * inv_vo
             return r
@@ -144,7 +149,7 @@ class GridContact:
                     if gn > eps:
                         nrm = g / gn
                         if ti.static(sep):
-                            over = m * inv_vm + M * inv_vo - (1.0 + OVERLAP_TOL)
+                            over = vm[I] * inv_cell + M * inv_vo - (1.0 + OVERLAP_TOL)
                             if over > 0:
                                 px[I] = (sep_dx * ti.min(over, 1.0)) * nrm
                         v = grid_v[I]
@@ -177,6 +182,16 @@ class GridContact:
                                 wt *= w[off[d]][d]
                             ms[I] += wt * mp
                             pm[I] += wt * mv
+            for p in range(n_mpm):  # MPM's volumes (current: J V0) onto its own node box
+                base, w = weights(mx[p])
+                Vp = mvol[p] * (ti.Matrix.identity(f, dim) + mF[p]).determinant()  # F stores H = F - I
+                for off in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):
+                    I = base + off
+                    if in_box(I, lo, hi):
+                        wt = ti.cast(1.0, f)
+                        for d in ti.static(range(dim)):
+                            wt *= w[off[d]][d]
+                        vm[I] += wt * Vp
             if ti.static(dim == 2):  # contact at each node; pm becomes the other set's velocity change
                 for i, j in ti.ndrange((lo[0], hi[0]), (lo[1], hi[1])):
                     I = ti.Vector([i, j])
@@ -209,12 +224,14 @@ class GridContact:
             if ti.static(dim == 2):
                 for i, j in ti.ndrange((lo[0], hi[0]), (lo[1], hi[1])):
                     ms[i, j] = 0.0
+                    vm[i, j] = 0.0
                     pm[i, j] = ti.Vector.zero(f, dim)
                     if ti.static(sep):
                         px[i, j] = ti.Vector.zero(f, dim)
             else:
                 for i, j, k in ti.ndrange((lo[0], hi[0]), (lo[1], hi[1]), (lo[2], hi[2])):
                     ms[i, j, k] = 0.0
+                    vm[i, j, k] = 0.0
                     pm[i, j, k] = ti.Vector.zero(f, dim)
                     if ti.static(sep):
                         px[i, j, k] = ti.Vector.zero(f, dim)

@@ -96,3 +96,12 @@ def speed_excess(f, entity="*", bound=1.0, **_):
         s = np.sqrt((v * v).sum(axis=2)).max(axis=1)
         out = s if out is None else np.maximum(out, s)
     return f["time"][...], np.maximum(0.0, out - float(bound))
+
+
+@measurement("lowest_so_far")
+def lowest_so_far(f, entity, axis=None, **_):
+    """The lowest coordinate along ``axis`` (default: the last) any particle of ``entity`` has reached up to
+    each frame [m] (a running minimum: whether a body ever reached the floor, bouncing or not)."""
+    x = _pos(f, entity)
+    ax = x.shape[2] - 1 if axis is None else int(axis)
+    return f["time"][...], np.minimum.accumulate(x[:, :, ax].min(axis=1))
