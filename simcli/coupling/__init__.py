@@ -6,7 +6,7 @@ every pair turned off, then steps exactly as before (``substep`` per solver, the
 
 With a coupler, each substep is::
 
-    for s in solvers: s.pre_couple(dt)      # MPM: p2g + grid update; SPH: forces + pressure solve; others: all
+    for s in solvers: s.pre_couple(dt)      # MPM: p2g + grid update; SPH: forces, pressure solve; others: all
     for pair in pairs: pair.couple(dt)      # the only phase that reads more than one family
     for s in solvers: s.post_couple(dt)     # MPM: g2p; SPH: advect; others: nothing
 """

@@ -1,5 +1,5 @@
-"""MPM <-> PBD: PBD particles (granular, liquid, cloth and rope vertices, soft-body vertices) meet the MPM grid
-as the second material of a grid contact (grid_contact.py).
+"""MPM <-> PBD: PBD particles (granular, liquid, cloth and rope vertices, soft-body vertices) meet the MPM
+grid as the second material of a grid contact (grid_contact.py).
 
 PBD keeps its substep whole (predict, constraints, contacts, velocity update) before the coupling phase; the
 contact then reads its particles at the substep's start (``xp``, where the MPM grid was built) with their new

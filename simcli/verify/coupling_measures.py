@@ -24,8 +24,8 @@ def _lattice_spacing(x0: np.ndarray, axis: int) -> float:
 def draft_fraction(f, entity, liquid, axis=None, spacing=0.0, margin=0.05, **_):
     """How much of a floating body's height is below the liquid's free surface [-], per frame: (level -
     bottom) / (top - bottom). The body's bottom and top are its lowest and highest particles, extended by half
-    its particle spacing (from its initial lattice); the level is the median over the liquid's columns (bins of
-    ``spacing`` [m], the liquid's particle size) farther than ``margin`` [m] from the body of the highest
+    its particle spacing (from its initial lattice); the level is the median over the liquid's columns (bins
+    of ``spacing`` [m], the liquid's particle size) farther than ``margin`` [m] from the body of the highest
     particle, plus half the liquid's spacing."""
     b = _pos(f, entity)
     w = _pos(f, liquid)

@@ -632,7 +632,7 @@ class MPMSolver(Solver):
 
         @ti.kernel
         def pre_couple_k(dt: f):
-            # coupled scenes: the substep up to the updated grid velocities (the coupling phase then edits them)
+            # coupled scenes: the substep up to the updated grid velocities (the coupling phase edits them)
             clear_grid()
             p2g(dt)
             grid_update(dt)
