@@ -29,7 +29,6 @@ substep: scatter the other set, MPM's volumes, node pass over MPM's node box, ga
 loops).
 """
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -76,12 +75,11 @@ class GridContact:
         self.pm = ti.Vector.field(dim, f, shape=shape)  # its node momentum, then its node velocity change
         sep = o.rho is not None and o.shift_x is not None
         self.px = ti.Vector.field(dim, f, shape=shape) if sep else None  # node overlap correction [m]
-        self.impulse = ti.Vector.field(dim, f, shape=())  # momentum given to MPM (diagnostics, tests)
         self.bytes = (
             int(np.prod(shape)) * (dim + 2 + (dim if sep else 0)) * (8 if mpm.precision == "f64" else 4)
         )
 
-        ms, pm, px, impulse = self.ms, self.pm, self.px, self.impulse
+        ms, pm, px = self.ms, self.pm, self.px
         shift_x = o.shift_x
         sep_dx = SEPARATION * float(mpm.dx)
         grid_v, grid_m, bbox_all = mpm.grid_v, mpm.grid_m, mpm.bbox_all
@@ -99,7 +97,7 @@ class GridContact:
         mx, mF, mvol, n_mpm = mpm.x, mpm.F, mpm.vol, mpm.n
         use_phi = o.rho is not None
         inv_vo = 1.0 / (float(o.rho) * cell) if use_phi else 0.0
-        pos, mass, vel, vdim, move_x = o.pos, o.mass, o.vel, o.vel_dim, o.move_x
+        pos, mass, vel, move_x = o.pos, o.mass, o.vel, o.move_x  # vel may have more components (PBD: 3)
         has_move = move_x is not None
         n = o.n
         eps = 1e-12
@@ -162,7 +160,6 @@ class GridContact:
                             grid_v[I] = v + dv
                             if ti.static(use_flip):
                                 flip.grid_dv[I] += dv
-                            impulse[None] += m * dv
             return du
 
         @ti.kernel
@@ -238,7 +235,6 @@ class GridContact:
                         px[i, j, k] = ti.Vector.zero(f, dim)
 
         self._couple = couple
-        _ = vdim, math
 
     def couple(self, dt: float) -> None:
         self._couple(dt)
