@@ -380,8 +380,14 @@ class Runner:
         else:
             solvers = solver_factory(scene, bodies)
         self._solvers = solvers
+        from simcli.coupling import make_coupler  # None unless two coupled families meet (docs/COUPLING.md)
+
+        coupler = self._coupler = make_coupler(scene, solvers, self.warn)
         for s in solvers:
             s.build()
+        if coupler is not None:
+            coupler.build()
+            self.info["coupling"] = coupler.names
         for (
             s
         ) in solvers:  # what a solver changed of the scene as given (e.g. SPH particles inside a collider)
@@ -521,8 +527,11 @@ class Runner:
                     n_left, sub_dt = substeps_now - k, sim.dt / substeps_now
                 if sources:  # the layers due by this substep's start enter (no host sync)
                     sources.before_substep(step * sim.dt + done_t)
-                for s in solvers:
-                    s.substep(sub_dt)
+                if coupler is None:
+                    for s in solvers:
+                        s.substep(sub_dt)
+                else:  # pre_couple -> coupling phase -> post_couple
+                    coupler.substep(sub_dt)
                 if self._rigid is not None:  # the bodies take the substep's loads and move
                     self._rigid.step(solvers, sub_dt)
                 k += 1

@@ -21,6 +21,8 @@ import re
 
 import numpy as np
 
+from simcli.scene.coupling import coupled, coupling_warnings
+
 # ------------------------------------------------------------------ bounds
 
 # A run of more substeps than this is refused: at a (fast) 1e-6 s per substep of a tiny scene it is
@@ -431,7 +433,12 @@ def check_overlaps(loaded) -> tuple[list[str], list[str]]:
         if a.family == b.family and share > OVERLAP_FRACTION:
             errors.append(f"{head}{text}; their particles would sit on top of each other: move one")
         elif a.family != b.family:
-            warns.append(f"{head}warning: {text}; {a.family} and {b.family} do not interact")
+            if coupled(s, a.family, b.family):  # coupled families push each other apart in the first substeps
+                warns.append(
+                    f"{head}warning: {text}; {a.family} and {b.family} push each other out at the start"
+                )
+            else:
+                warns.append(f"{head}warning: {text}; {a.family} and {b.family} do not interact")
     for i, ci, vol, frac in inside:
         e = s.entities[i]
         head = f"{loc.where(('entities', i, 'morph'))}: entities.{i}.morph: "
@@ -468,4 +475,5 @@ def scene_warnings(loaded) -> list[str]:
             f"may use {cores} cores; running with {cores} (more threads than cores only slow a run down)"
         )
     out += check_overlaps(loaded)[1]
+    out += coupling_warnings(loaded)  # coupling keys of pairs not in the scene
     return out

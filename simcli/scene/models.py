@@ -354,6 +354,30 @@ class Checkpoint(Strict):
 # ------------------------------------------------------------------------- scene
 
 
+class Coupling(Strict):
+    """Forces between entities of different families (docs/COUPLING.md). Every pair of families present in the
+    scene is coupled unless its key is false; a key for a pair that is not present is a warning."""
+
+    mpm_sph: bool = Field(
+        True, description="MPM <-> SPH: contact on the MPM grid (two-way, momentum conserving)."
+    )
+    mpm_pbd: bool = Field(
+        True, description="MPM <-> PBD: contact on the MPM grid (two-way, momentum conserving)."
+    )
+    mpm_fem: bool = Field(
+        True, description="MPM <-> FEM: not implemented yet (a warning; they do not interact)."
+    )
+    sph_pbd: bool = Field(
+        True, description="SPH <-> PBD: not implemented yet (a warning; they do not interact)."
+    )
+    sph_fem: bool = Field(
+        True, description="SPH <-> FEM: not implemented yet (a warning; they do not interact)."
+    )
+    pbd_fem: bool = Field(
+        True, description="PBD <-> FEM: not implemented yet (a warning; they do not interact)."
+    )
+
+
 class Scene(Strict):
     version: Literal[1] = Field(1, description="Scene format version.")
     name: str | None = Field(None, description="Scene name; default: the file name without extension.")
@@ -371,6 +395,11 @@ class Scene(Strict):
     entities: list[Entity] = Field(default_factory=list, description="Simulated bodies.")
     output: Output = Field(default_factory=Output, description="What is written, where and how often.")
     checkpoint: Checkpoint = Field(default_factory=Checkpoint, description="Restart files.")
+    coupling: Coupling | None = Field(
+        None,
+        description="Coupling between families: every pair present is coupled by default; `<pair>: false` "
+        "turns one off.",
+    )
     probes: list[Probe] = Field(
         default_factory=list,
         description="Time series measured while the run goes (point, height gauge, total), sampled every N "
@@ -407,5 +436,7 @@ def resolved_scene_dict(scene: Scene, name: str) -> dict:
                 c.pop(key, None)
     if not d.get("rigid_bodies"):  # scenes without rigid bodies echo as before
         d.pop("rigid_bodies", None)
+    if d.get("coupling") is None:  # scenes without the key echo as before
+        d.pop("coupling", None)
     d["output"]["dir"] = scene.output.dir if scene.output.dir is not None else f"out/{name}"
     return d

@@ -100,6 +100,16 @@ class Solver:
         """Advance by ``dt`` seconds; no allocation, no host sync."""
         raise NotImplementedError
 
+    # The coupling phase between families (simcli/coupling/, docs/COUPLING.md): a coupled scene runs
+    # pre_couple -> the coupler -> post_couple instead of substep. A family that exposes no state to the
+    # coupler keeps these defaults (its whole substep before the coupling phase); MPM and SPH split theirs.
+    def pre_couple(self, dt: float) -> None:
+        """The substep up to the state the coupling phase reads and edits (default: all of it)."""
+        self.substep(dt)
+
+    def post_couple(self, dt: float) -> None:
+        """The rest of the substep after the coupling phase (default: nothing)."""
+
     def frame_check(self) -> dict[str, FrameStats]:
         """Per entity: all finite? largest speed? (one small reduction)."""
         raise NotImplementedError

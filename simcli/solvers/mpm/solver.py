@@ -162,6 +162,9 @@ class MPMSolver(Solver):
         self.p2g_mode = "auto"
         # emitters and sinks (simcli/solvers/sources.py): an active count; None in scenes without them
         self.sources = ActiveSet(scene, bodies, "MPM") if has_sources(scene, "MPM") else None
+        # coupling between families (simcli/coupling/): set by the coupler before build; then the grid keeps
+        # each node's mass (grid_m) for the coupling phase. Off: nothing below changes.
+        self.store_node_mass = False
         self._built = False
 
     # ------------------------------------------------------------------ build
@@ -209,6 +212,7 @@ class MPMSolver(Solver):
             self.gdim = self.flip.allocate(self.gdim)
         self.grid = ti.Vector.field(self.gdim, f, shape=(T,) + self.grid_shape)
         self.grid_v = ti.Vector.field(dim, f, shape=self.grid_shape)
+        self.grid_m = ti.field(f, shape=self.grid_shape) if self.store_node_mass else None
         self.bbox = ti.Vector.field(dim, ti.i32, shape=(T, 2))  # per chunk [lo, hi) node box
         self.bbox_all = ti.Vector.field(dim, ti.i32, shape=2)
         self.chunk_start = ti.field(ti.i32, shape=T + 1)
@@ -357,6 +361,8 @@ class MPMSolver(Solver):
         )
         gravity, mat_mu, mat_lam, mat_law_id = self.gravity, self.mat_mu, self.mat_lam, self.mat_law_id
         laws, boundary = self.laws, self.boundary
+        grid_m = self.grid_m  # None unless coupled (the coupling phase reads node masses)
+        keep_m = grid_m is not None
         flip = self.flip  # None under APIC (the default): nothing below compiles FLIP code then
         use_flip = flip is not None
         n_laws = len(laws)
@@ -592,6 +598,8 @@ class MPMSolver(Solver):
                 else:
                     vI = boundary.apply(I, vI, m)
             grid_v[I] = vI
+            if ti.static(keep_m):
+                grid_m[I] = m
             if ti.static(use_flip):
                 flip.store(I, g, vI)
 
@@ -668,6 +676,13 @@ class MPMSolver(Solver):
         @ti.kernel
         def stage_g2p(dt: f):
             g2p(dt)
+
+        @ti.kernel
+        def pre_couple_k(dt: f):
+            # coupled scenes: the substep up to the updated grid velocities (the coupling phase edits them)
+            clear_grid()
+            p2g(dt)
+            grid_update(dt)
 
         @ti.kernel
         def compute_bbox():
@@ -781,6 +796,7 @@ class MPMSolver(Solver):
             return outputs
 
         self._substep = substep
+        self._pre_couple_k = pre_couple_k
         self._stage_p2g, self._stage_grid_update, self._stage_g2p = stage_p2g, stage_grid_update, stage_g2p
         self._compute_bbox, self._frame_stats, self._make_outputs = compute_bbox, frame_stats, make_outputs
         self._outputs = None
@@ -802,6 +818,23 @@ class MPMSolver(Solver):
         if self.boundary.any_moving:  # collider poses of this substep (host, no sync)
             self.boundary.set_time(self.time, dt)
         self._substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
+        self.time += dt
+        self._version += 1
+
+    # Coupled scenes (simcli/coupling/): the same substep in two phases around the coupling phase, which
+    # edits grid_v between them: pre_couple = muscle, collider poses, clear_grid -> p2g -> grid_update;
+    # post_couple = g2p. MPM's own hardening split (guard_hardening) is not applied in coupled scenes: the
+    # runner's auto substep, which asks stable_dt, bounds the substep instead.
+
+    def pre_couple(self, dt: float) -> None:
+        for law in self.laws:
+            law.host_update(self.time)
+        if self.boundary.any_moving:
+            self.boundary.set_time(self.time, dt)
+        self._pre_couple_k(dt)
+
+    def post_couple(self, dt: float) -> None:
+        self._stage_g2p(dt)
         self.time += dt
         self._version += 1
 

@@ -317,8 +317,8 @@ def make_dfsph(S):
     def density_iteration(dt: f):
         iteration(dt, DENS)
 
-    @ti.kernel
-    def finish(dt: f):
+    @ti.func
+    def named_loads(dt):
         if ti.static(S.named_loads):
             # the pressure solves' reaction on named colliders (moving.py): the substep's total stiffness K_i
             # (in kk, a scratch field until the next solve) and its Shepard average on the walls (bval)
@@ -331,13 +331,33 @@ def make_dfsph(S):
                 wp.update(kk)
             for i in range(N()):
                 S.load_pressure(i, dt)
+
+    @ti.func
+    def pressure(i, dt):
+        kappa[i] = kacc[i]  # an acceleration-level stiffness: steady under gravity for any dt
+        r = rho[i]
+        kdiv = ti.cast(0.0, f)
+        if ti.static(S.opts.divergence_solve):
+            kdiv = kappav[i] / dt
+        p[i] = (kacc[i] + kdiv) * r * r / mat_rho0[mid[i]]
+
+    @ti.kernel
+    def finish(dt: f):
+        named_loads(dt)
         for i in range(N()):
-            kappa[i] = kacc[i]  # an acceleration-level stiffness: steady under gravity for any dt
-            r = rho[i]
-            kdiv = ti.cast(0.0, f)
-            if ti.static(S.opts.divergence_solve):
-                kdiv = kappav[i] / dt
-            p[i] = (kacc[i] + kdiv) * r * r / mat_rho0[mid[i]]
+            pressure(i, dt)
+            S.advect(i, v[i], dt)
+
+    # coupled scenes (simcli/coupling/): finish in two halves around the coupling phase, which edits v
+    @ti.kernel
+    def finish_pressure(dt: f):
+        named_loads(dt)
+        for i in range(N()):
+            pressure(i, dt)
+
+    @ti.kernel
+    def advect_all(dt: f):
+        for i in range(N()):
             S.advect(i, v[i], dt)
 
     def error() -> float:
@@ -345,7 +365,7 @@ def make_dfsph(S):
 
     stats = S.dfsph_stats
 
-    def substep(dt: float) -> None:
+    def solves(dt: float) -> None:
         o = S.opts
         if o.divergence_solve:
             divergence_begin(dt)
@@ -366,8 +386,16 @@ def make_dfsph(S):
             it += 1
             err = error()
         stats.add("density", it, err, it >= o.max_density_iterations and err > eta)
+
+    def substep(dt: float) -> None:
+        solves(dt)
         finish(dt)
 
+    def pre_couple(dt: float) -> None:
+        solves(dt)
+        finish_pressure(dt)
+
+    S._couple_phases = (pre_couple, advect_all, v)  # (pre, post, the velocity the coupling edits)
     return substep
 
 

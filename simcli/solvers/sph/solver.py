@@ -894,6 +894,24 @@ class SPHSolver(Solver):
             self.frame_time = dt
         self._version += 1
 
+    # Coupled scenes (simcli/coupling/): pre_couple = everything up to the end-of-substep velocity
+    # (couple_velocity: DFSPH's v, WCSPH's vnew), post_couple = advect; substep() is not used then.
+    def pre_couple(self, dt: float) -> None:
+        if self.poses.any_moving:  # collider poses of this substep (host, one small upload)
+            self.poses.set_time(self.time, dt)
+        self._couple_phases[0](dt)
+
+    def post_couple(self, dt: float) -> None:
+        self._couple_phases[1](dt)
+        self.time += dt
+        if self.per_substep_check:
+            self.frame_time = dt
+        self._version += 1
+
+    @property
+    def couple_velocity(self):
+        return self._couple_phases[2]
+
     def frame_check(self) -> dict[str, FrameStats]:
         self._frame_stats()
         return frame_stats_per_body(

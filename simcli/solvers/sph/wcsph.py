@@ -56,8 +56,8 @@ def make_wcsph(S):
         for i in range(N()):
             equation_of_state(i)
 
-    @ti.kernel
-    def substep(dt: f):
+    @ti.func
+    def forces(dt):
         if ti.static(S.moving_boundary):
             S.move_boundary()  # moving colliders' boundary particles to this substep's pose (moving.py)
         S.sort(N())
@@ -74,7 +74,26 @@ def make_wcsph(S):
             for i in range(N()):
                 S.load_pressure(i, dt)
                 S.load_viscous(i, dt)
+
+    @ti.func
+    def advect_all(dt):
         for i in range(N()):
             S.advect(i, vnew[i], dt)
 
+    @ti.kernel
+    def substep(dt: f):
+        forces(dt)
+        advect_all(dt)
+
+    # coupled scenes (simcli/coupling/): the same substep in two halves around the coupling phase, which edits
+    # vnew (the velocity at the substep's end) before advect
+    @ti.kernel
+    def pre_couple(dt: f):
+        forces(dt)
+
+    @ti.kernel
+    def post_couple(dt: f):
+        advect_all(dt)
+
+    S._couple_phases = (pre_couple, post_couple, vnew)
     return substep, pressure_from_density

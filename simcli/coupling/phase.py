@@ -1,0 +1,105 @@
+"""The coupling phase: which pairs are coupled, their build, and the substep in three phases."""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable
+
+# the scene's coupling keys, as (key, family a, family b) in the order the coupling phase runs them
+PAIRS = (
+    ("mpm_sph", "mpm", "sph"),
+    ("mpm_pbd", "mpm", "pbd"),
+    ("mpm_fem", "mpm", "fem"),
+    ("sph_pbd", "sph", "pbd"),
+    ("sph_fem", "sph", "fem"),
+    ("pbd_fem", "pbd", "fem"),
+)
+
+
+def _mpm_sph(mpm, sph):
+    from simcli.coupling.mpm_sph import make_mpm_sph
+
+    return make_mpm_sph(mpm, sph)
+
+
+def _mpm_pbd(mpm, pbd):
+    from simcli.coupling.mpm_pbd import make_mpm_pbd
+
+    return make_mpm_pbd(mpm, pbd)
+
+
+IMPLEMENTED: dict[str, Callable] = {"mpm_sph": _mpm_sph, "mpm_pbd": _mpm_pbd}
+
+
+def make_coupler(scene: Any, solvers: list, warn: Callable[[str], None] | None = None) -> Coupler | None:
+    """The coupler of the pairs present and on, made before the solvers are built (a pair may ask a solver
+    to keep what it reads, e.g. MPM's node masses); None when nothing is coupled."""
+    by_family = {s.family: s for s in solvers}
+    cfg = getattr(scene, "coupling", None)
+    pairs = []
+    for key, a, b in PAIRS:
+        if a not in by_family or b not in by_family:
+            continue
+        on = True if cfg is None else bool(getattr(cfg, key))
+        if not on:
+            continue
+        if key not in IMPLEMENTED:
+            if warn is not None:
+                warn(
+                    f"coupling.{key}: {a.upper()} and {b.upper()} entities do not interact yet (this pair is "
+                    "not implemented; docs/COUPLING.md)"
+                )
+            continue
+        pairs.append(IMPLEMENTED[key](by_family[a], by_family[b]))
+    return Coupler(solvers, pairs) if pairs else None
+
+
+class Coupler:
+    """The substep of a coupled scene: every solver's pre_couple, the pairs, every solver's post_couple."""
+
+    def __init__(self, solvers: list, pairs: list) -> None:
+        self.solvers, self.pairs = solvers, pairs
+        self.profile = False  # sync and time each phase (benchmarks, docs/PERFORMANCE.md)
+        self.times = {"pre": 0.0, "couple": 0.0, "post": 0.0}
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.pairs]
+
+    def build(self) -> None:
+        """After the solvers' build: the pairs' fields and kernels."""
+        for p in self.pairs:
+            p.build()
+
+    def memory_bytes(self) -> int:
+        return sum(int(getattr(p, "bytes", 0)) for p in self.pairs)
+
+    def substep(self, dt: float) -> None:
+        if self.profile:
+            return self._substep_timed(dt)
+        for s in self.solvers:
+            s.pre_couple(dt)
+        for p in self.pairs:
+            p.couple(dt)
+        for s in self.solvers:
+            s.post_couple(dt)
+
+    def _substep_timed(self, dt: float) -> None:
+        import taichi as ti
+
+        t0 = time.perf_counter()
+        for s in self.solvers:
+            s.pre_couple(dt)
+        ti.sync()
+        t1 = time.perf_counter()
+        for p in self.pairs:
+            p.couple(dt)
+        ti.sync()
+        t2 = time.perf_counter()
+        for s in self.solvers:
+            s.post_couple(dt)
+        ti.sync()
+        t3 = time.perf_counter()
+        self.times["pre"] += t1 - t0
+        self.times["couple"] += t2 - t1
+        self.times["post"] += t3 - t2

@@ -1,0 +1,42 @@
+"""Scene-level checks of the ``coupling:`` key (no Taichi): a key for a pair of families the scene does not
+hold is a warning with its location (it does nothing), never an error. Which pairs exist and which are
+implemented is the coupling phase's business (simcli/coupling/phase.py); the keys are the model's fields."""
+
+from __future__ import annotations
+
+from typing import Any
+
+# implemented pairs (simcli/coupling/phase.py IMPLEMENTED; a test keeps the two in step)
+IMPLEMENTED_PAIRS = ("mpm_sph", "mpm_pbd")
+
+
+def pair_families(key: str) -> tuple[str, str]:
+    a, b = key.split("_")
+    return a.upper(), b.upper()
+
+
+def coupled(scene: Any, fam_a: str, fam_b: str) -> bool:
+    """Whether entities of families ``fam_a`` and ``fam_b`` (``"MPM"``, ...) interact in this scene."""
+    for key in IMPLEMENTED_PAIRS:
+        if {fam_a, fam_b} == set(pair_families(key)):
+            cfg = scene.coupling
+            return cfg is None or bool(getattr(cfg, key))
+    return False
+
+
+def coupling_warnings(loaded: Any) -> list[str]:
+    s = loaded.scene
+    if s.coupling is None:
+        return []
+    loc = loaded.located
+    fams = s.families
+    out = []
+    for key in sorted(s.coupling.model_fields_set):
+        a, b = pair_families(key)
+        missing = [x for x in (a, b) if x not in fams]
+        if missing:
+            out.append(
+                f"{loc.where(('coupling', key), prefer_key=True)}: coupling.{key}: warning: the scene has no "
+                f"{' and no '.join(missing)} entity, so this key does nothing (remove it, or add the entity)"
+            )
+    return out

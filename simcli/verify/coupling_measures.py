@@ -1,0 +1,107 @@
+"""Validation measurements of coupled runs (two families meeting; docs/COUPLING.md), registered in
+simcli.verify.registry's MEASUREMENTS: each takes the open sim.h5, the entity name and the case's params and
+returns (t, values)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simcli.verify.registry import entity_group, measurement
+
+
+def _pos(f, name: str) -> np.ndarray:
+    _, g = entity_group(f, name)
+    return np.asarray(g["position"][...], dtype=np.float64)
+
+
+def _lattice_spacing(x0: np.ndarray, axis: int) -> float:
+    """The spacing of a body's initial particle lattice along ``axis`` [m]."""
+    c = np.unique(np.round(x0[:, axis], 9))
+    return float(np.median(np.diff(c))) if len(c) > 1 else 0.0
+
+
+@measurement("draft_fraction")
+def draft_fraction(f, entity, liquid, axis=None, spacing=0.0, margin=0.05, **_):
+    """How much of a floating body's height is below the liquid's free surface [-], per frame: (level -
+    bottom) / (top - bottom). The body's bottom and top are its lowest and highest particles, extended by half
+    its particle spacing (from its initial lattice); the level is the median over the liquid's columns (bins
+    of ``spacing`` [m], the liquid's particle size) farther than ``margin`` [m] from the body of the highest
+    particle, plus half the liquid's spacing."""
+    b = _pos(f, entity)
+    w = _pos(f, liquid)
+    ax = b.shape[2] - 1 if axis is None else int(axis)
+    lat = [a for a in range(b.shape[2]) if a != ax]
+    hb = 0.5 * _lattice_spacing(b[0], ax)
+    out = []
+    for xb, xw in zip(b, w):
+        far = np.ones(len(xw), bool)
+        for a in lat:
+            far &= (xw[:, a] < xb[:, a].min() - margin) | (xw[:, a] > xb[:, a].max() + margin)
+        cols = {}
+        keys = np.floor(xw[far][:, lat] / spacing).astype(np.int64)
+        for k, z in zip(map(tuple, keys), xw[far][:, ax]):
+            cols[k] = max(cols.get(k, -np.inf), z)
+        level = float(np.median(list(cols.values()))) + 0.5 * spacing if cols else np.nan
+        bot, top = xb[:, ax].min() - hb, xb[:, ax].max() + hb
+        out.append((level - bot) / (top - bot))
+    return f["time"][...], np.asarray(out)
+
+
+@measurement("probe_growth")
+def probe_growth(f, entity=None, names=(), **_):
+    """Growth of the sum of scalar probes (e.g. kinetic + elastic energy) over its first sample, relative to
+    it, clipped below at 0 [-]: 0 while the sum never exceeds its start."""
+    s = None
+    t = None
+    for name in names:
+        g = f["probes"][name]
+        n = min(g["time"].shape[0], g["value"].shape[0])
+        v = np.asarray(g["value"][:n], dtype=np.float64).reshape(n, -1).sum(axis=1)
+        t = g["time"][:n] if t is None else t[:n]
+        s = v if s is None else s[:n] + v[: len(s)]
+    if s is None:
+        raise KeyError("probe_growth: give params: {names: [<probe>, ...]}")
+    return t, np.maximum(0.0, (s - s[0]) / abs(s[0]))
+
+
+@measurement("depth_inside")
+def depth_inside(f, entity, other, spacing, **_):
+    """Deepest penetration of ``other``'s particles into ``entity`` in units of ``spacing`` [-], per frame:
+    for each particle of ``other`` inside the bounding box of ``entity``, its distance to the box's nearest
+    face (0 when none is inside). For a convex, roughly box-shaped body (a block), an upper bound of how deep
+    the other material went in."""
+    a = _pos(f, entity)
+    b = _pos(f, other)
+    out = []
+    for xa, xb in zip(a, b):
+        lo, hi = xa.min(axis=0), xa.max(axis=0)
+        inside = np.all((xb > lo) & (xb < hi), axis=1)
+        if not inside.any():
+            out.append(0.0)
+            continue
+        d = np.minimum(xb[inside] - lo, hi - xb[inside]).min(axis=1)
+        out.append(float(d.max()) / spacing)
+    return f["time"][...], np.asarray(out)
+
+
+@measurement("speed_excess")
+def speed_excess(f, entity="*", bound=1.0, **_):
+    """How much the largest particle speed of ``entity`` (``"*"``: every entity) exceeds ``bound`` [m/s], per
+    frame, clipped below at 0: 0 while nothing moves faster than the bound (an explosion check)."""
+    names = list(f["entities"].keys()) if entity == "*" else [entity]
+    out = None
+    for name in names:
+        _, g = entity_group(f, name)
+        v = np.asarray(g["velocity"][...], dtype=np.float64)
+        s = np.sqrt((v * v).sum(axis=2)).max(axis=1)
+        out = s if out is None else np.maximum(out, s)
+    return f["time"][...], np.maximum(0.0, out - float(bound))
+
+
+@measurement("lowest_so_far")
+def lowest_so_far(f, entity, axis=None, **_):
+    """The lowest coordinate along ``axis`` (default: the last) any particle of ``entity`` has reached up to
+    each frame [m] (a running minimum: whether a body ever reached the floor, bouncing or not)."""
+    x = _pos(f, entity)
+    ax = x.shape[2] - 1 if axis is None else int(axis)
+    return f["time"][...], np.minimum.accumulate(x[:, :, ax].min(axis=1))
