@@ -63,6 +63,12 @@ def _build(ti):
     mpm.x = ti.Vector.field(dim, f, shape=n_m)
     mpm.F = ti.Matrix.field(dim, dim, f, shape=n_m)
     mpm.vol = ti.field(f, shape=n_m)
+
+    @ti.func
+    def count():  # MPM's particle loops' bound (the active count with emitters or sinks)
+        return n_m
+
+    mpm.count = count
     mpm.x.from_numpy(xm.astype(np.float32))
     mpm.vol.from_numpy(np.full(n_m, 0.05**2, np.float32))
     # node masses and velocities as MPM's P2G would leave them: the particles' splat (uniform mass)
