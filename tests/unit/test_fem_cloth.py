@@ -81,9 +81,13 @@ def test_rigid_motion_costs_no_energy():
 
 @pytest.mark.parametrize("phi", [0.0, np.pi / 4, 0.3])
 def test_bending_energy_of_a_cylinder_is_the_plate_energy_in_any_direction(phi):
-    """D/2 kappa^2 per unit area over the interior vertices' area: isotropic on the criss-cross mesh."""
-    X, t = _sheet(40, (1.0, 1.0))
+    """D/2 kappa^2 per unit area: isotropic on the criss-cross mesh, within 4 % at 40 x 40 (the free edges'
+    flux is first order: 0.90, 0.95, 0.975 at 10, 20, 40 cells along the bent direction)."""
+    X, t = rectangle_mesh(
+        SimpleNamespace(resolution=[40, 40], normal=[0, 0, 1], center=[0, 0, 0], size=[1, 1])
+    )
     mod = ShellModel(X, t, mu=1.0, lam_ps=1.0, thickness=0.1, D=1.0)
+    assert np.abs(mod.quadratic @ X).max() < 1e-9  # no bending force at rest
     d = np.array([np.cos(phi), np.sin(phi)])
     s, o = X[:, :2] @ d, X[:, :2] @ np.array([-d[1], d[0]])
     R = 1.0
@@ -91,8 +95,7 @@ def test_bending_energy_of_a_cylinder_is_the_plate_energy_in_any_direction(phi):
         [R * np.sin(s / R) * d[0] - o * d[1], R * np.sin(s / R) * d[1] + o * d[0], R * (1 - np.cos(s / R))], 1
     )
     eb = mod.energy_grad_hess(x, 1)[0] - mod.membrane(x, 1)[0]
-    interior = 1.0 - 2 * (1.0 / 40) * 2 * 0.5  # the sheet less a half-cell strip along the free edges
-    assert eb == pytest.approx(0.5 / R**2 * interior, rel=0.01)
+    assert 0.96 <= eb / (0.5 / R**2) <= 1.0
 
 
 def test_mesh_problems_name_degenerate_and_non_manifold():

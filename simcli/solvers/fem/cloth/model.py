@@ -10,10 +10,11 @@ Bending, two discretisations of the plate energy D/2 int (2H)^2 dA (cylinder of 
 unit area), chosen by the rest shape:
 - flat rest mesh (Rectangle, planar Mesh): the quadratic model of Bergou, Wardetzky, Harmon, Zorin and
   Grinspun 2006 ("A quadratic bending model for inextensible surfaces"), vertex form
-  W = D/2 sum_v |(L x)_v|^2 / A_v, L the cotangent Laplacian of the rest mesh and A_v the Voronoi area,
-  over interior vertices; rotation invariant, constant Hessian D L^T A^-1 L. Measured on the criss-cross
-  Rectangle mesh bent into cylinders of any direction: 0.9999 of the plate energy over the interior
-  vertices' area (40 x 40), isotropic. Free-edge vertices carry no bending term (an O(h) strip).
+  W = D/2 sum_v |(K x)_v|^2 / A_v, K x = L x + the free edges' flux: L the cotangent Laplacian of the rest
+  mesh, A_v the Voronoi area, and at a free edge e of triangle T the term (|e| / 2) F_T nu0 for each of its
+  vertices (nu0 the rest outward conormal, F_T the triangle's deformation gradient, linear in x), so that
+  (K x)_v / A_v is the mean-curvature normal 2 H n on boundary vertices too. Linear in x: rotation
+  invariant (K X = 0 for the flat rest, K R x = R K x), constant Hessian D K^T A^-1 K.
 - curved rest mesh: discrete-shell hinges (Grinspun, Hirani, Desbrun and Schroeder 2003)
   W = sum_e k_e (theta - theta0)^2, k_e = D |e0|^2 / (A1 + A2), rest dihedral angles theta0 (exact plate
   energy on equilateral meshes; on right-triangle meshes 2 to 3 times stiffer depending on direction,
@@ -227,7 +228,7 @@ class ShellModel:
 
 
 def quadratic_bending(X: np.ndarray, tris: np.ndarray, D: np.ndarray):
-    """D L^T A^-1 L over interior vertices (module docstring): scipy CSR (n, n)."""
+    """D K^T A^-1 K (module docstring): scipy CSR (n, n)."""
     import scipy.sparse as sp
 
     n = len(X)
@@ -252,12 +253,33 @@ def quadratic_bending(X: np.ndarray, tris: np.ndarray, D: np.ndarray):
         np.add.at(area, i, va)
         np.add.at(Dv, i, D * va)
         np.add.at(wsum, i, va)
-    L = sp.coo_matrix(
+    # free edges: the flux (|e| / 2) dx/dnu of each boundary edge into its two vertices, with the outward
+    # conormal's image F nu0 = sum_a x_a (grad phi_a . nu0) in the edge's triangle (linear in x)
+    he = np.concatenate([tris[:, [0, 1, 2]], tris[:, [1, 2, 0]], tris[:, [2, 0, 1]]])
+    tri_of = np.tile(np.arange(len(tris)), 3)
+    key = np.sort(he[:, :2], axis=1)
+    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    bnd = cnt[inv.ravel()] == 1
+    for (a, b, c), t in zip(he[bnd], tri_of[bnd]):
+        xa, xb, xc = X[a], X[b], X[c]
+        ed = xb - xa
+        le = float(np.linalg.norm(ed))
+        w_ = xc - xa
+        perp = w_ - (w_ @ ed) / (le * le) * ed
+        nu0 = -perp / np.linalg.norm(perp)  # outward, in the rest plane
+        coef = {}
+        for v, (p_, q_) in ((a, (b, c)), (b, (c, a)), (c, (a, b))):  # grad phi_v: from edge (p, q) to v
+            e2 = X[q_] - X[p_]
+            w2 = X[v] - X[p_]
+            pp = w2 - (w2 @ e2) / (e2 @ e2) * e2
+            coef[v] = float((pp / (pp @ pp)) @ nu0)
+        for r_ in (a, b):
+            for v in (a, b, c):
+                rows.append(np.array([r_]))
+                cols.append(np.array([v]))
+                vals.append(np.array([0.5 * le * coef[v]]))
+    K = sp.coo_matrix(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
     ).tocsr()
-    e = np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
-    u, cnt = np.unique(e, axis=0, return_counts=True)
-    interior = np.ones(n, bool)
-    interior[u[cnt == 1].ravel()] = False
-    w = np.where(interior & (area > 0), Dv / np.maximum(wsum, 1e-300) / np.maximum(area, 1e-300), 0.0)
-    return (L.T @ sp.diags(w) @ L).tocsr()
+    w = np.where(area > 0, Dv / np.maximum(wsum, 1e-300) / np.maximum(area, 1e-300), 0.0)
+    return (K.T @ sp.diags(w) @ K).tocsr()

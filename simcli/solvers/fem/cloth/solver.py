@@ -169,6 +169,7 @@ def _sdf(c, x):
 
 class ClothSolver(Solver):
     family = "fem_cloth"
+    cell_fields = ("strain", "stress")  # per triangle
 
     def __init__(self, scene: Any, bodies: list[Body], scene_dir=None) -> None:
         super().__init__(scene, bodies)
@@ -217,6 +218,7 @@ class ClothSolver(Solver):
             fixed.append(points_in_regions(e.fixed_regions, x) if e.fixed_regions else np.zeros(len(x), bool))
             offs.append(offs[-1] + len(x))
         self.offsets = offs
+        self.tri_offsets = np.concatenate([[0], np.cumsum([len(t) for t in ts])]).tolist()
         self.index = {e.name: k for k, e in enumerate(self.entities)}
         X = np.concatenate(xs)
         T = np.concatenate(ts)
@@ -480,7 +482,13 @@ class ClothSolver(Solver):
         return ["position", "velocity", "displacement"]
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
-        return {"position": (3, "m"), "velocity": (3, "m/s"), "displacement": (3, "m")}
+        return {
+            "position": (3, "m"),
+            "velocity": (3, "m/s"),
+            "displacement": (3, "m"),
+            "strain": (1, "-"),  # largest principal Green membrane strain, per triangle
+            "stress": (1, "Pa"),  # von Mises of the membrane's second Piola-Kirchhoff stress, per triangle
+        }
 
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
         k = self.index[name]
@@ -493,6 +501,15 @@ class ClothSolver(Solver):
                 a = self.v
             elif f == "displacement":
                 a = self.x - self.X
+            elif f in self.cell_fields:
+                t0, t1 = self.tri_offsets[k], self.tri_offsets[k + 1]
+                if f == "strain":
+                    out[f] = np.linalg.eigvalsh(self.model.green_strain(self.x)[t0:t1])[:, -1]
+                else:
+                    S = self.model.stress(self.x)[t0:t1]
+                    sxx, syy, sxy = S[:, 0, 0], S[:, 1, 1], S[:, 0, 1]
+                    out[f] = np.sqrt(sxx**2 - sxx * syy + syy**2 + 3 * sxy**2)
+                continue
             else:
                 raise KeyError(
                     f"unknown FEM.Cloth output field {f!r}; known: position, velocity, displacement"
