@@ -8,15 +8,21 @@ from simcli.verify.registry import entity_group, measurement
 
 
 @measurement("cloth_intersections")
-def cloth_intersections(f, entity, spheres=(), boxes=(), floor=None, **_):
+def cloth_intersections(f, entity, others=(), spheres=(), boxes=(), floor=None, **_):
     """Per frame: the number of the sheet's edges crossing one of its non-adjacent triangles (an independent
-    segment-triangle test, simcli.solvers.fem.cloth.geometry) plus the vertices inside any of ``spheres``
-    ([[cx, cy, cz, r], ...]) or ``boxes`` ([[lower, upper], ...]) or below ``floor`` (z) [-]."""
+    segment-triangle test, simcli.solvers.fem.cloth.geometry; with ``others``, the sheets of those entities
+    too, as one mesh) plus the vertices inside any of ``spheres`` ([[cx, cy, cz, r], ...]) or ``boxes``
+    ([[lower, upper], ...]) or below ``floor`` (z) [-]."""
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
 
-    _, g = entity_group(f, entity)
-    x = np.asarray(g["position"][...], dtype=np.float64)
-    tris = np.asarray(g["cells"][...], dtype=np.int64)
+    xs, ts, n0 = [], [], 0
+    for name in [entity, *others]:
+        _, g = entity_group(f, name)
+        xs.append(np.asarray(g["position"][...], dtype=np.float64))
+        ts.append(np.asarray(g["cells"][...], dtype=np.int64) + n0)
+        n0 += xs[-1].shape[1]
+    x = np.concatenate(xs, axis=1)
+    tris = np.concatenate(ts)
     out = []
     for k in range(len(x)):
         n = len(edge_triangle_intersections(x[k], tris))
