@@ -186,3 +186,29 @@ def test_bad_input_exits_65_with_location(tmp_path):
     p = _scene(tmp_path, BASE % dict(dur=0.1, col=col, dhat=1e-3, h=1e-3, z=0.5))
     r = _validate(p)
     assert r.returncode == 65 and "colliders.0" in r.stderr and "start inside" in r.stderr, r.stderr
+
+
+def test_two_sheets_fall_onto_each_other_without_intersecting(tmp_path):
+    """Self-contact between entities (ipctk barrier, CCD) with self friction, on the floor."""
+    body = """\
+    version: 1
+    sim: {dim: 3, dt: 1.0e-2, substeps: 1, duration: 0.2}
+    domain: {lower: [-0.5, -0.5, 0], upper: [0.5, 0.5, 0.5]}
+    solvers:
+      fem: {contact_distance: 2.0e-3}
+    entities:
+      - name: a
+        material: {type: FEM.Cloth, E: 1.0e5, rho: 200, thickness: 1.0e-3, friction: 0.3}
+        morph: {type: Rectangle, center: [0, 0, 0.01], size: [0.2, 0.2], resolution: 5}
+      - name: b
+        material: {type: FEM.Cloth, E: 1.0e5, rho: 200, thickness: 1.0e-3, friction: 0.3}
+        morph: {type: Rectangle, center: [0.03, 0.01, 0.03], size: [0.2, 0.2], resolution: 5}
+    """
+    s = _solver(_scene(tmp_path, body))
+    for _ in range(9):
+        s.substep(0.01)
+        assert edge_triangle_intersections(s.x, s.tris) == [] and s.x[:, 2].min() > 0
+    lo, up = s.x[: s.offsets[1]], s.x[s.offsets[1] :]
+    inner = lambda p: np.all(np.abs(p[:, :2]) < 0.06, axis=1)  # noqa: E731  (inside both footprints)
+    assert up[inner(up), 2].min() > lo[inner(lo), 2].max()  # lying on the lower sheet, not through it
+    assert up[:, 2].max() < 0.02  # it has landed

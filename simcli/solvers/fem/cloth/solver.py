@@ -190,6 +190,7 @@ class ClothSolver(Solver):
         )
         self.warnings: list[str] = []
         self._built = False
+        self._tc = None
 
     # ----------------------------------------------------------------- build
     def build(self) -> None:
@@ -315,6 +316,13 @@ class ClothSolver(Solver):
             g = g + self.kappa * self.B.gradient(col, self.cm, x).reshape(-1, 3)
             if order >= 2:
                 Hs = self.kappa * self.B.hessian(col, self.cm, x, ipctk.PSDProjectionMethod.CLAMP)
+        Hf = None
+        if self._tc is not None:  # lagged self-contact friction: dt D((x - x_n) / dt) (ipctk)
+            V = (x - self.xn) / dt
+            e += dt * self.FP(self._tc, self.cm, V)
+            g = g + self.FP.gradient(self._tc, self.cm, V).reshape(-1, 3)
+            if order >= 2:
+                Hf = self.FP.hessian(self._tc, self.cm, V, ipctk.PSDProjectionMethod.CLAMP) / dt
         if order < 2:
             return e, g, None, n_self + n_obst
         t0 = time.perf_counter()
@@ -333,6 +341,8 @@ class ClothSolver(Solver):
         ).tocsr()
         if Hs is not None:
             H = H + Hs
+        if Hf is not None:
+            H = H + Hf
         self.stats["assemble_s"] += time.perf_counter() - t0
         return e, g, H, n_self + n_obst
 
@@ -381,6 +391,16 @@ class ClothSolver(Solver):
             self.kappa_max = 1e8 * self.kappa
         self._fric = None
         self._fric = self._lagged_friction(self.xn)
+        self._tc = None
+        if self.mu_self > 0:  # self-contact friction, normal forces and bases lagged at x_n
+            col = ipctk.NormalCollisions()
+            col.build(self.cm, self.xn, self.dhat)
+            if len(col):
+                self._tc = ipctk.TangentialCollisions()
+                self._tc.build(
+                    self.cm, self.xn, col, ipctk.BarrierPotential(self.dhat, self.kappa), self.mu_self
+                )
+                self.FP = ipctk.FrictionPotential(EPS_V)
         x = self.xn.copy()
         fd = self.free_dofs
         res0 = None
