@@ -15,7 +15,7 @@ pytest.importorskip("scipy")
 
 from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections  # noqa: E402
 from simcli.solvers.fem.cloth.model import ShellModel, mesh_problems  # noqa: E402
-from simcli.solvers.pbd.topology import rectangle_mesh  # noqa: E402
+from simcli.solvers.fem.cloth.topology import rectangle_mesh  # noqa: E402
 
 
 def _sheet(n=6, size=(1.0, 0.8)):

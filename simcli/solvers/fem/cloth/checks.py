@@ -29,7 +29,8 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
             )
         ]
     from simcli.solvers.fem.cloth.model import mesh_problems
-    from simcli.solvers.fem.cloth.solver import Obstacles, cloth_mesh
+    from simcli.solvers.fem.cloth.obstacles import Obstacles
+    from simcli.solvers.fem.cloth.topology import cloth_mesh
 
     try:
         x, t = cloth_mesh(e, scene_dir)

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simcli.solvers.pbd.topology import bending_quads, dihedral_angles
+from simcli.solvers.fem.cloth.topology import bending_quads, dihedral_angles
 
 
 def triangle_areas(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -60,7 +60,7 @@ def mesh_problems(x: np.ndarray, tris: np.ndarray) -> list[str]:
 
 
 def dihedral_gradients(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
-    """(k, 4, 3) gradients of the signed dihedral angles (simcli.solvers.pbd.topology's convention)."""
+    """(k, 4, 3) gradients of the signed dihedral angles (Bridson et al. 2003, sec. 4; as simcli.solvers.pbd.topology)."""
     x1, x2, x3, x4 = (x[quads[:, k]] for k in range(4))
     E = x4 - x3
     le = np.linalg.norm(E, axis=1)

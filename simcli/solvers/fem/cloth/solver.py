@@ -25,20 +25,11 @@ import numpy as np
 
 from simcli.solvers.base import Body, FrameStats, Solver, upload_state_array
 from simcli.solvers.fem.cloth.model import ShellModel
+from simcli.solvers.fem.cloth.obstacles import Obstacles
+from simcli.solvers.fem.cloth.topology import cloth_mesh
 
 EPS_V = 1.0e-3  # friction smoothing velocity [m/s]
 _DEBUG = bool(__import__("os").environ.get("SIMCLI_CLOTH_DEBUG"))
-
-
-def cloth_mesh(e, scene_dir) -> tuple[np.ndarray, np.ndarray]:
-    from simcli.solvers.pbd.topology import read_open_surface, rectangle_mesh
-
-    m = e.morph
-    if m.type == "Rectangle":
-        return rectangle_mesh(m)
-    if m.type == "Mesh":
-        return read_open_surface(m, scene_dir)
-    raise ValueError(f"entity '{e.name}': FEM.Cloth takes Rectangle or triangle Mesh morphs, not {m.type}")
 
 
 def _barrier(s, sh):
@@ -49,122 +40,6 @@ def _barrier(s, sh):
     b1 = -2 * (s - sh) * r - (s - sh) ** 2 / s
     b2 = -2 * r - 4 * (s - sh) / s + (s - sh) ** 2 / s**2
     return b, b1, b2
-
-
-class Obstacles:
-    """Colliders (Plane, Box, Sphere, Cylinder; static) and the domain walls as exact signed distances."""
-
-    def __init__(self, scene):
-        from simcli.colliders import collider_specs
-
-        self.specs = collider_specs(scene, 3)
-        lo, hi = scene.domain.bounds(3)
-        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
-        self.wall_mu = []
-        for axis in range(3):
-            for side in ("-", "+"):
-                self.wall_mu.append(float(scene.domain.face("xyz"[axis] + side).friction))
-
-    def first_contact(self, x: np.ndarray, p: np.ndarray, iters: int = 8) -> float:
-        """A step alpha (<= 1) below the first time any vertex x_i + alpha p_i touches an obstacle, times 0.9.
-        Every obstacle's signed distance is convex (convex shapes), so along a ray f(alpha) lies above its
-        tangents: Newton iterations from alpha = 0 increase monotonically towards the first root without
-        passing it (and a ray with f' >= 0 never reaches it)."""
-        alpha = np.zeros(len(x))
-        done = np.zeros(len(x), bool)
-        amin = 1.0
-        d0, n0, _ = self.distances(x)
-        for k in range(d0.shape[0]):
-            a = np.zeros(len(x))
-            f, slope = d0[k], np.einsum("ij,ij->i", n0[k], p)
-            live = slope < 0
-            for _ in range(iters):
-                if not live.any():
-                    break
-                a = np.where(live, a + f / np.where(live, -slope, 1.0), a)
-                beyond = a >= 1.0 / 0.9
-                live &= ~beyond
-                dk, nk = self._one(k, x + a[:, None] * p)
-                f, slope = dk, np.einsum("ij,ij->i", nk, p)
-                live &= slope < 0
-                # f ~ 0: converged on a touching ray; keep a (left of the root)
-                live &= f > 1e-12
-            hit = (a < 1.0 / 0.9) & (np.einsum("ij,ij->i", n0[k], p) < 0)
-            # rays still decreasing after the iterations: a is a lower bound of their root (safe)
-            if hit.any():
-                amin = min(amin, 0.9 * float(a[hit].min()))
-        del alpha, done
-        return amin
-
-    def _one(self, k: int, x: np.ndarray):
-        if k < 6:
-            axis, side = divmod(k, 2)
-            n = np.zeros((len(x), 3))
-            n[:, axis] = 1.0 if side == 0 else -1.0
-            d = (x[:, axis] - self.lo[axis]) if side == 0 else (self.hi[axis] - x[:, axis])
-            return d, n
-        return _sdf(self.specs[k - 6], x)
-
-    def distances(self, x: np.ndarray):
-        """(k, n) signed distances, (k, n, 3) outward unit normals and (k,) friction of every obstacle."""
-        ds, ns, mus = [], [], []
-        for axis in range(3):
-            for side in (-1, 1):
-                n = np.zeros((len(x), 3))
-                n[:, axis] = -side
-                d = (x[:, axis] - self.lo[axis]) if side < 0 else (self.hi[axis] - x[:, axis])
-                ds.append(d)
-                ns.append(n)
-        mus += self.wall_mu
-        for c in self.specs:
-            d, n = _sdf(c, x)
-            ds.append(d)
-            ns.append(n)
-            mus.append(float(c.friction))
-        return np.array(ds), np.array(ns), np.array(mus)
-
-
-def _sdf(c, x):
-    a, b = np.asarray(c.a, float), np.asarray(c.b, float)
-    if c.kind == "Plane":
-        return (x - a) @ b, np.broadcast_to(b, x.shape).copy()
-    if c.kind == "Sphere":
-        r = x - a
-        ln = np.linalg.norm(r, axis=1)
-        return ln - c.radius, r / np.maximum(ln, 1e-300)[:, None]
-    if c.kind == "Box":
-        ctr, half = 0.5 * (a + b), 0.5 * (b - a)
-        q = np.abs(x - ctr) - half
-        sgn = np.sign(x - ctr)
-        sgn[sgn == 0] = 1.0
-        outside = np.maximum(q, 0.0)
-        lo = np.linalg.norm(outside, axis=1)
-        inside = np.minimum(q.max(axis=1), 0.0)
-        d = lo + inside
-        n = outside * sgn / np.maximum(lo, 1e-300)[:, None]
-        k = np.argmax(q, axis=1)
-        nin = np.zeros_like(x)
-        nin[np.arange(len(x)), k] = sgn[np.arange(len(x)), k]
-        n = np.where((lo > 0)[:, None], n, nin)
-        return d, n
-    if c.kind == "Cylinder":
-        ax = c.axis
-        r = x - a
-        rad = r.copy()
-        rad[:, ax] = 0
-        lr = np.linalg.norm(rad, axis=1)
-        dr = lr - c.radius
-        dz = np.abs(r[:, ax]) - c.half_height
-        nr = rad / np.maximum(lr, 1e-300)[:, None]
-        nz = np.zeros_like(x)
-        nz[:, ax] = np.sign(r[:, ax])
-        out = np.stack([np.maximum(dr, 0), np.maximum(dz, 0)], 1)
-        lo = np.linalg.norm(out, axis=1)
-        d = lo + np.minimum(np.maximum(dr, dz), 0.0)
-        n = (nr * out[:, :1] + nz * out[:, 1:]) / np.maximum(lo, 1e-300)[:, None]
-        n = np.where((lo > 0)[:, None], n, np.where((dr > dz)[:, None], nr, nz))
-        return d, n
-    raise ValueError(f"FEM.Cloth: unknown collider {c.kind}")
 
 
 class ClothSolver(Solver):
