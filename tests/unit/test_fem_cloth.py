@@ -212,3 +212,29 @@ def test_two_sheets_fall_onto_each_other_without_intersecting(tmp_path):
     inner = lambda p: np.all(np.abs(p[:, :2]) < 0.06, axis=1)  # noqa: E731  (inside both footprints)
     assert up[inner(up), 2].min() > lo[inner(lo), 2].max()  # lying on the lower sheet, not through it
     assert up[:, 2].max() < 0.02  # it has landed
+
+
+def test_backward_euler_only_dissipates(tmp_path):
+    """No gravity, no damping, one edge pinned, the rest thrown sideways: kinetic + elastic energy never
+    grows from one substep to the next (backward Euler's numerical damping is the only loss)."""
+    body = """\
+    version: 1
+    sim: {dim: 3, dt: 1.0e-2, substeps: 1, duration: 0.1, gravity: [0, 0, 0]}
+    domain: {lower: [-1, -1, 0], upper: [1, 1, 1]}
+    solvers:
+      fem: {contact_distance: 1.0e-3, newton_atol: 1.0e-6}
+    entities:
+      - name: c
+        material: {type: FEM.Cloth, E: 1.0e5, nu: 0.3, rho: 200, thickness: 1.0e-3}
+        morph: {type: Rectangle, center: [0, 0, 0.5], size: [0.3, 0.3], resolution: 5}
+        velocity: [0, 0, 1.0]
+        fixed: {type: Box, lower: [-0.16, -0.2, 0.4], upper: [-0.14, 0.2, 0.6]}
+    """
+    s = _solver(_scene(tmp_path, body))
+    energy = []
+    for _ in range(10):
+        s.substep(0.01)
+        w = s.model.energy_grad_hess(s.x, 1)[0]
+        energy.append(0.5 * float(np.sum(s.mass[:, None] * s.v**2)) + w)
+    assert energy[0] > 0 and all(b <= a * (1 + 1e-9) for a, b in zip(energy, energy[1:]))
+    assert energy[-1] < energy[0]
