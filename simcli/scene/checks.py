@@ -88,6 +88,12 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
         mpath = base + ("morph",)
         if m is None:  # only SF entities may omit it (models.py)
             continue
+        if e.family == "FEMCloth":  # thin shells check their own morphs (simcli.solvers.fem.cloth.checks)
+            from simcli.solvers.fem.checks import check_cloth_entity as cloth_check
+
+            for p, msg in cloth_check(e, dim, loaded.scene_dir, s):
+                err(base + p, msg)
+            continue
         if m.type in ("Rectangle", "Line") and e.family != "PBD":
             err(
                 mpath + ("type",),

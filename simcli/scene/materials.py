@@ -27,7 +27,7 @@ else:
     Material = MATERIAL_TYPES[0]  # type: ignore[misc]
 
 # Types of the contract that are not implemented yet: named in a clear error.
-PLANNED_TYPES = ("FEM.Cloth",)
+PLANNED_TYPES: tuple[str, ...] = ()
 
 
 def material_type_names() -> list[str]:

@@ -317,6 +317,8 @@ class Entity(Strict):
 
     @property
     def family(self) -> str:
+        if self.material.type == "FEM.Cloth":  # thin shells: a solver of their own (simcli.solvers.fem.cloth)
+            return "FEMCloth"
         return self.material.type.split(".")[0]
 
     @property

@@ -16,6 +16,7 @@ FAMILIES: dict[str, str] = {
     "SF": "simcli.solvers.sf.solver:SFSolver",
     "FEM": "simcli.solvers.fem.solver:FEMSolver",
     "PBD": "simcli.solvers.pbd.solver:PBDSolver",
+    "FEMCloth": "simcli.solvers.fem.cloth.solver:ClothSolver",  # FEM.Cloth entities
 }
 
 

@@ -48,3 +48,10 @@ def check_entity(entity, dim: int, scene_dir=None) -> list[tuple[tuple, str]]:
                 )
             ]
     return []
+
+
+def check_cloth_entity(entity, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
+    """Scene-check findings for a FEM.Cloth entity (simcli.solvers.fem.cloth.checks)."""
+    from simcli.solvers.fem.cloth.checks import check_entity
+
+    return check_entity(entity, dim, scene_dir, scene)

@@ -121,6 +121,13 @@ class FEMOptions(_Options):
         description="Implicit: floor, wall and collider contact is a penalty in the incremental potential of "
         "stiffness contact_stiffness x vertex mass / substep^2 [-] (penetration about g substep^2 / this).",
     )
+    contact_distance: float = Field(
+        1.0e-3,
+        gt=0,
+        description="FEM.Cloth: IPC barrier activation distance dhat [m]: cloth vertices, edges and "
+        "triangles closer than this to each other, a collider or a domain wall repel (log barrier); every "
+        "step is limited by continuous collision detection, so the cloth never intersects.",
+    )
     cfl: float = Field(
         0.4,
         gt=0,
@@ -222,5 +229,7 @@ class FEMMuscle(MuscleGroups, _FEMSolid):
         return self
 
 
+from simcli.solvers.fem.cloth.config import FEMCloth  # noqa: E402  (thin shells, IPC contact)
+
 # Every FEM material type; the scene's material union is built from these.
-MATERIALS = (FEMElastic, FEMMuscle)
+MATERIALS = (FEMElastic, FEMMuscle, FEMCloth)

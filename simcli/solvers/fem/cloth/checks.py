@@ -1,0 +1,108 @@
+"""Validate-time checks of FEM.Cloth entities (numpy, no Taichi): morph type, mesh quality, thickness vs
+contact distance, initial intersections (with itself, colliders, walls)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simcli.solvers.fem.cloth.config import MORPHS
+
+
+def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
+    """(path below the entity, message) per problem."""
+    if dim != 3:
+        return [(("material", "type"), "FEM.Cloth entities need a 3D scene (sim.dim: 3)")]
+    m = e.morph
+    if m.type not in MORPHS:
+        return [
+            (("morph", "type"), f"FEM.Cloth takes Rectangle or triangle Mesh morphs (a sheet); got {m.type}")
+        ]
+    if m.type == "Rectangle" and len(m.center) != 3:
+        return [(("morph", "center"), f"expected 3 components for dim 3 (got {len(m.center)})")]
+    moving = [i for i, c in enumerate(scene.colliders) if getattr(c, "motion", None) is not None]
+    if moving:
+        return [
+            (
+                ("material", "type"),
+                f"FEM.Cloth meets static colliders only; colliders.{moving[0]} moves (motion): remove its "
+                "motion or use PBD.Cloth",
+            )
+        ]
+    from simcli.solvers.fem.cloth.model import mesh_problems
+    from simcli.solvers.fem.cloth.obstacles import Obstacles
+    from simcli.solvers.fem.cloth.topology import cloth_mesh
+
+    try:
+        x, t = cloth_mesh(e, scene_dir)
+    except Exception as ex:
+        return [(("morph", "file") if m.type == "Mesh" else ("morph",), str(ex))]
+    out = [(("morph",), f"{p}; repair the mesh (simcli repair) or give another") for p in mesh_problems(x, t)]
+    if out:
+        return out
+    dhat = float(scene.solvers.fem.contact_distance)
+    edge = np.linalg.norm(x[t[:, 1]] - x[t[:, 0]], axis=1)
+    if dhat >= 0.5 * float(edge.min()):
+        out.append(
+            (
+                ("morph",),
+                f"solvers.fem.contact_distance {dhat:g} m is not below half the shortest edge "
+                f"({float(edge.min()):g} m): neighbouring vertices would repel at rest; lower "
+                "contact_distance or coarsen the mesh",
+            )
+        )
+    if e.material.thickness > dhat:
+        out.append(
+            (
+                ("material", "thickness"),
+                f"thickness {e.material.thickness:g} m is larger than solvers.fem.contact_distance "
+                f"({dhat:g} m): contact keeps layers up to contact_distance apart, so they would come closer "
+                f"than the shell is thick; raise contact_distance to at least {e.material.thickness:g} m or "
+                "thin the shell",
+            )
+        )
+    d, _, _ = Obstacles(scene).distances(x)
+    bad = d <= 0
+    if bad.any():
+        k, i = np.argwhere(bad)[0]
+        what = ("domain wall " + ["x-", "x+", "y-", "y+", "z-", "z+"][k]) if k < 6 else f"colliders.{k - 6}"
+        out.append(
+            (
+                ("morph",),
+                f"{int(bad.any(axis=0).sum())} vertex(es) start inside or on {what} (first at "
+                f"{np.round(x[i], 6).tolist()}); the cloth must start outside every obstacle: move it",
+            )
+        )
+    else:
+        close = d < dhat
+        if close.any():
+            k, i = np.argwhere(close)[0]
+            out.append(
+                (
+                    ("morph",),
+                    f"vertex at {np.round(x[i], 6).tolist()} starts closer than solvers.fem.contact_distance "
+                    f"({dhat:g} m) to an obstacle (distance {float(d[k, i]):.3g} m): move the cloth away",
+                )
+            )
+    if not out:
+        import ipctk
+
+        cm = ipctk.CollisionMesh(x, ipctk.edges(t), t)
+        if ipctk.has_intersections(cm, x):
+            # locate one: an edge crossing a triangle
+            loc = _first_intersection(x, t)
+            out.append(
+                (
+                    ("morph",),
+                    f"the cloth intersects itself at the start{loc}: untangle the mesh",
+                )
+            )
+    return out
+
+
+def _first_intersection(x, t) -> str:
+    from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
+
+    hits = edge_triangle_intersections(x, t, first_only=True)
+    if not hits:
+        return ""
+    return f" (near {np.round(hits[0][2], 6).tolist()})"

@@ -1,0 +1,52 @@
+"""The FEM.Cloth material (pydantic, no Taichi)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from simcli.scene.material_base import _Solid
+
+MORPHS = ("Rectangle", "Mesh")
+
+
+class FEMCloth(_Solid):
+    """Thin shell on a triangle mesh: StVK membrane in plane stress and discrete-shell bending (Grinspun
+    et al. 2003) with the rest mesh's dihedral angles; backward Euler, IPC contact."""
+
+    type: Literal["FEM.Cloth"]
+    E: float = Field(1.0e6, gt=0, description="Young's modulus [Pa] of the membrane.")
+    nu: float = Field(0.3, ge=0.0, lt=0.5, description="Poisson's ratio [-], in [0, 0.5).")
+    rho: float = Field(
+        200.0,
+        gt=0,
+        description="Density [kg/m^3]; area density rho x thickness [kg/m^2], lumped to vertices.",
+    )
+    thickness: float = Field(1.0e-3, gt=0, description="Shell thickness [m].")
+    bending_stiffness: float | None = Field(
+        None,
+        ge=0,
+        description="Bending stiffness D [N m] (default the plate value E thickness^3 / (12 (1 - nu^2))); "
+        "0: no bending.",
+    )
+    friction: float = Field(
+        0.0,
+        ge=0,
+        description="Coulomb coefficient [-] of self-contact (lagged IPC friction); against colliders and "
+        "walls their own friction applies.",
+    )
+    damping: float = Field(
+        0.0,
+        ge=0,
+        description="Mass-proportional damping [1/s]: force -damping m v on every vertex (implicit).",
+    )
+
+    @property
+    def D(self) -> float:
+        if self.bending_stiffness is not None:
+            return float(self.bending_stiffness)
+        return self.E * self.thickness**3 / (12.0 * (1.0 - self.nu**2))
+
+
+MATERIALS = (FEMCloth,)

@@ -1,0 +1,155 @@
+"""Colliders (static Plane, Box, Sphere, Cylinder) and the domain walls as exact signed distances, in numpy
+(no Taichi: the scene checks use it too). Each obstacle is convex, so its signed distance is a convex
+function of position: ``first_contact`` relies on it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Spec:
+    kind: str  # Plane | Box | Sphere | Cylinder
+    a: tuple  # Plane: point, Box: lower, Sphere/Cylinder: center
+    b: tuple  # Plane: unit normal, Box: upper, others: zeros
+    radius: float = 0.0
+    half_height: float = 0.0
+    axis: int = 2
+    friction: float = 0.0
+
+
+def _spec(c) -> Spec:
+    if c.type == "Plane":
+        n = np.asarray(c.normal, float)
+        return Spec("Plane", tuple(c.point), tuple(n / np.linalg.norm(n)), friction=c.friction)
+    if c.type == "Box":
+        return Spec("Box", tuple(c.lower), tuple(c.upper), friction=c.friction)
+    if c.type == "Sphere":
+        return Spec("Sphere", tuple(c.center), (0.0,) * 3, radius=c.radius, friction=c.friction)
+    if c.type == "Cylinder":
+        return Spec(
+            "Cylinder",
+            tuple(c.center),
+            (0.0,) * 3,
+            radius=c.radius,
+            half_height=0.5 * c.height,
+            axis="xyz".index(c.axis),
+            friction=c.friction,
+        )
+    raise ValueError(f"FEM.Cloth: collider type {c.type} is not supported")
+
+
+class Obstacles:
+    """Colliders (Plane, Box, Sphere, Cylinder; static) and the domain walls as exact signed distances."""
+
+    def __init__(self, scene):
+        self.specs = [_spec(c) for c in scene.colliders]
+        lo, hi = scene.domain.bounds(3)
+        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
+        self.wall_mu = []
+        for axis in range(3):
+            for side in ("-", "+"):
+                self.wall_mu.append(float(scene.domain.face("xyz"[axis] + side).friction))
+
+    def first_contact(self, x: np.ndarray, p: np.ndarray, iters: int = 8) -> float:
+        """A step alpha (<= 1) below the first time any vertex x_i + alpha p_i touches an obstacle, times 0.9.
+        Every obstacle's signed distance is convex (convex shapes), so along a ray f(alpha) lies above its
+        tangents: Newton iterations from alpha = 0 increase monotonically towards the first root without
+        passing it (and a ray with f' >= 0 never reaches it)."""
+        alpha = np.zeros(len(x))
+        done = np.zeros(len(x), bool)
+        amin = 1.0
+        d0, n0, _ = self.distances(x)
+        for k in range(d0.shape[0]):
+            a = np.zeros(len(x))
+            f, slope = d0[k], np.einsum("ij,ij->i", n0[k], p)
+            live = slope < 0
+            for _ in range(iters):
+                if not live.any():
+                    break
+                a = np.where(live, a + f / np.where(live, -slope, 1.0), a)
+                beyond = a >= 1.0 / 0.9
+                live &= ~beyond
+                dk, nk = self._one(k, x + a[:, None] * p)
+                f, slope = dk, np.einsum("ij,ij->i", nk, p)
+                live &= slope < 0
+                # f ~ 0: converged on a touching ray; keep a (left of the root)
+                live &= f > 1e-12
+            hit = (a < 1.0 / 0.9) & (np.einsum("ij,ij->i", n0[k], p) < 0)
+            # rays still decreasing after the iterations: a is a lower bound of their root (safe)
+            if hit.any():
+                amin = min(amin, 0.9 * float(a[hit].min()))
+        del alpha, done
+        return amin
+
+    def _one(self, k: int, x: np.ndarray):
+        if k < 6:
+            axis, side = divmod(k, 2)
+            n = np.zeros((len(x), 3))
+            n[:, axis] = 1.0 if side == 0 else -1.0
+            d = (x[:, axis] - self.lo[axis]) if side == 0 else (self.hi[axis] - x[:, axis])
+            return d, n
+        return _sdf(self.specs[k - 6], x)
+
+    def distances(self, x: np.ndarray):
+        """(k, n) signed distances, (k, n, 3) outward unit normals and (k,) friction of every obstacle."""
+        ds, ns, mus = [], [], []
+        for axis in range(3):
+            for side in (-1, 1):
+                n = np.zeros((len(x), 3))
+                n[:, axis] = -side
+                d = (x[:, axis] - self.lo[axis]) if side < 0 else (self.hi[axis] - x[:, axis])
+                ds.append(d)
+                ns.append(n)
+        mus += self.wall_mu
+        for c in self.specs:
+            d, n = _sdf(c, x)
+            ds.append(d)
+            ns.append(n)
+            mus.append(float(c.friction))
+        return np.array(ds), np.array(ns), np.array(mus)
+
+
+def _sdf(c, x):
+    a, b = np.asarray(c.a, float), np.asarray(c.b, float)
+    if c.kind == "Plane":
+        return (x - a) @ b, np.broadcast_to(b, x.shape).copy()
+    if c.kind == "Sphere":
+        r = x - a
+        ln = np.linalg.norm(r, axis=1)
+        return ln - c.radius, r / np.maximum(ln, 1e-300)[:, None]
+    if c.kind == "Box":
+        ctr, half = 0.5 * (a + b), 0.5 * (b - a)
+        q = np.abs(x - ctr) - half
+        sgn = np.sign(x - ctr)
+        sgn[sgn == 0] = 1.0
+        outside = np.maximum(q, 0.0)
+        lo = np.linalg.norm(outside, axis=1)
+        inside = np.minimum(q.max(axis=1), 0.0)
+        d = lo + inside
+        n = outside * sgn / np.maximum(lo, 1e-300)[:, None]
+        k = np.argmax(q, axis=1)
+        nin = np.zeros_like(x)
+        nin[np.arange(len(x)), k] = sgn[np.arange(len(x)), k]
+        n = np.where((lo > 0)[:, None], n, nin)
+        return d, n
+    if c.kind == "Cylinder":
+        ax = c.axis
+        r = x - a
+        rad = r.copy()
+        rad[:, ax] = 0
+        lr = np.linalg.norm(rad, axis=1)
+        dr = lr - c.radius
+        dz = np.abs(r[:, ax]) - c.half_height
+        nr = rad / np.maximum(lr, 1e-300)[:, None]
+        nz = np.zeros_like(x)
+        nz[:, ax] = np.sign(r[:, ax])
+        out = np.stack([np.maximum(dr, 0), np.maximum(dz, 0)], 1)
+        lo = np.linalg.norm(out, axis=1)
+        d = lo + np.minimum(np.maximum(dr, dz), 0.0)
+        n = (nr * out[:, :1] + nz * out[:, 1:]) / np.maximum(lo, 1e-300)[:, None]
+        n = np.where((lo > 0)[:, None], n, np.where((dr > dz)[:, None], nr, nz))
+        return d, n
+    raise ValueError(f"FEM.Cloth: unknown collider {c.kind}")

@@ -1,0 +1,453 @@
+"""FEM.Cloth solver: backward Euler on the incremental potential, Newton with a sparse direct solve, a
+line search whose every trial step is first limited by continuous collision detection (IPC, Li et al. 2020).
+
+Per substep (dt), with x_n, v_n the start state and x^ = x_n + dt v_n + dt^2 g:
+  Phi(x) = 1/2 |x - x^|_M^2 / dt^2 + W_elastic(x) + kappa B(x) + D_friction(x) + damping |x - x_n|_M^2 c/(2 dt)
+  B: the IPC log barrier on squared distances below dhat = solvers.fem.contact_distance, over the cloth's
+     point-triangle and edge-edge pairs (ipctk: broad phase, distances, barrier derivatives, CCD) and over
+     (vertex, collider or domain wall) pairs through the obstacle's exact signed distance.
+  Newton: H p = -grad Phi on the free vertices (projected element Hessians, scipy sparse LU); the step
+     alpha starts at min(1, CCD), CCD: ipctk's additive CCD for the cloth against itself, conservative
+     advancement alpha |p_i| <= 0.9 d_i for vertices against obstacles (their distances are 1-Lipschitz),
+     then halves until Phi decreases. Every accepted state is therefore intersection-free.
+  Lagged friction (Coulomb, IPC's smoothed f0 with eps_v = 1e-3 m/s) against obstacles, normal forces
+     and tangent bases from x_n.
+Host numpy/scipy in float64 whatever sim.precision says (the contact guarantees need it).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from simcli.solvers.base import Body, FrameStats, Solver, upload_state_array
+from simcli.solvers.fem.cloth.model import ShellModel
+from simcli.solvers.fem.cloth.obstacles import Obstacles
+from simcli.solvers.fem.cloth.topology import cloth_mesh
+
+EPS_V = 1.0e-3  # friction smoothing velocity [m/s]
+_DEBUG = bool(__import__("os").environ.get("SIMCLI_CLOTH_DEBUG"))
+
+
+def _barrier(s, sh):
+    """IPC barrier on squared distance s < sh: b, db/ds, d2b/ds2 (0 at and beyond sh)."""
+    s = np.minimum(s, sh)
+    r = np.log(s / sh)
+    b = -((s - sh) ** 2) * r
+    b1 = -2 * (s - sh) * r - (s - sh) ** 2 / s
+    b2 = -2 * r - 4 * (s - sh) / s + (s - sh) ** 2 / s**2
+    return b, b1, b2
+
+
+class ClothSolver(Solver):
+    family = "fem_cloth"
+    cell_fields = ("strain", "stress")  # per triangle
+
+    def __init__(self, scene: Any, bodies: list[Body], scene_dir=None) -> None:
+        super().__init__(scene, bodies)
+        self.scene_dir = scene_dir
+        self.entities = [e for e in scene.entities if e.material.type == "FEM.Cloth"]
+        self.opts = scene.solvers.fem
+        self.dhat = float(self.opts.contact_distance)
+        self.time = 0.0
+        self.stats = {
+            "substeps": 0,
+            "newton_iterations": 0,
+            "max_newton": 0,
+            "contacts": 0,
+            "max_contacts": 0,
+        }
+        self.stats.update(
+            {"line_search_fail": 0, "ccd_s": 0.0, "solve_s": 0.0, "pcg_capped": 0, "assemble_s": 0.0}
+        )
+        self.warnings: list[str] = []
+        self._built = False
+        self._tc = None
+
+    # ----------------------------------------------------------------- build
+    def build(self) -> None:
+        import ipctk
+
+        from simcli.geometry.regions import points_in_regions
+
+        xs, ts, mu, lam, h, D, mass, fixed, offs = [], [], [], [], [], [], [], [], [0]
+        self.cells = {}
+        for e in self.entities:
+            x, t = cloth_mesh(e, self.scene_dir)
+            mat = e.material
+            self.cells[e.name] = t
+            ts.append(t + offs[-1])
+            xs.append(x)
+            m = len(t)
+            mu.append(np.full(m, mat.E / (2 * (1 + mat.nu))))
+            lam.append(np.full(m, mat.E * mat.nu / (1 - mat.nu**2)))
+            h.append(np.full(m, mat.thickness))
+            D.append(np.full(m, mat.D))
+            area = 0.5 * np.linalg.norm(np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]]), axis=1)
+            mv = np.zeros(len(x))
+            for a in range(3):
+                np.add.at(mv, t[:, a], mat.rho * mat.thickness * area / 3.0)
+            mass.append(mv)
+            fixed.append(points_in_regions(e.fixed_regions, x) if e.fixed_regions else np.zeros(len(x), bool))
+            offs.append(offs[-1] + len(x))
+        self.offsets = offs
+        self.tri_offsets = np.concatenate([[0], np.cumsum([len(t) for t in ts])]).tolist()
+        self.index = {e.name: k for k, e in enumerate(self.entities)}
+        X = np.concatenate(xs)
+        T = np.concatenate(ts)
+        self.X = X
+        self.tris = T
+        self.model = ShellModel(
+            X, T, np.concatenate(mu), np.concatenate(lam), np.concatenate(h), np.concatenate(D)
+        )
+        self.mass = np.concatenate(mass)
+        self.fixed = np.concatenate(fixed)
+        self.damp = np.concatenate(
+            [np.full(offs[k + 1] - offs[k], e.material.damping) for k, e in enumerate(self.entities)]
+        )
+        self.mu_self = max((e.material.friction for e in self.entities), default=0.0)
+        self.n = len(X)
+        self.x = X.copy()
+        self.v = np.zeros_like(X)
+        for k, e in enumerate(self.entities):
+            if e.velocity is not None:
+                self.v[offs[k] : offs[k + 1]] = np.asarray(e.velocity, float)
+        self.v[self.fixed] = 0.0
+        self.g = np.asarray(self.scene.sim.gravity_vec, float)
+        self.obst = Obstacles(self.scene)
+        self.cm = ipctk.CollisionMesh(X, ipctk.edges(T), T)
+        self.bbox = float(np.linalg.norm(np.ptp(X, axis=0))) or 1.0
+        self.kappa = None
+        self.free_dofs = np.nonzero(np.repeat(~self.fixed, 3))[0]
+        self._built = True
+
+    # --------------------------------------------------------- the potential
+    def _obstacle_terms(self, x, order, fr):
+        """Barrier (and friction from the lagged data fr) of vertices against obstacles."""
+        sh = self.dhat**2
+        d, nrm, _ = self.obst.distances(x)
+        act = d < self.dhat
+        e = 0.0
+        g = np.zeros_like(x)
+        Hd = np.zeros((self.n, 3, 3)) if order >= 2 else None
+        n_act = int(act.sum())
+        if n_act:
+            k, i = np.nonzero(act)
+            dd = np.maximum(d[k, i], 1e-300)
+            b, b1, b2 = _barrier(dd**2, sh)
+            nn = nrm[k, i]
+            e += self.kappa * float(b.sum())
+            np.add.at(g, i, (self.kappa * b1 * 2 * dd)[:, None] * nn)
+            if order >= 2:
+                c = np.maximum(self.kappa * (4 * dd**2 * b2 + 2 * b1), 0.0)
+                np.add.at(Hd, i, c[:, None, None] * nn[:, :, None] * nn[:, None, :])
+        if fr is not None:
+            i, lam, nn, mu = fr
+            u = x[i] - self.xn[i]
+            uT = u - np.einsum("ij,ij->i", u, nn)[:, None] * nn
+            y = np.linalg.norm(uT, axis=1)
+            eps = EPS_V * self.dt
+            f0 = np.where(y < eps, -(y**3) / (3 * eps**2) + y**2 / eps + eps / 3, y)
+            f1y = np.where(y < eps, 2 / eps - y / eps**2, 1 / np.maximum(y, 1e-300))
+            e += float(np.sum(mu * lam * f0))
+            np.add.at(g, i, (mu * lam * f1y)[:, None] * uT)
+            if order >= 2:  # exact Hessian of mu lam f0(|u_T|) (positive semi-definite: see docs/FEM.md)
+                T = np.eye(3) - nn[:, :, None] * nn[:, None, :]
+                uu = uT[:, :, None] * uT[:, None, :]
+                yy = np.maximum(y, 1e-12 * eps)
+                c2 = np.where(y < eps, -1.0 / (eps**2 * yy), -1.0 / yy**3)
+                np.add.at(
+                    Hd, i, (mu * lam)[:, None, None] * (f1y[:, None, None] * T + c2[:, None, None] * uu)
+                )
+        return e, g, Hd, n_act
+
+    def _potential(self, x, order=2):
+        import ipctk
+        import scipy.sparse as sp
+
+        dt = self.dt
+        M = self.mass[:, None]
+        dx = x - self.xhat
+        e = 0.5 * float(np.sum(M * dx * dx)) / dt**2
+        g = M * dx / dt**2
+        step = x - self.xn
+        e += 0.5 * float(np.sum((self.damp * self.mass)[:, None] * step * step)) / dt
+        g = g + (self.damp * self.mass)[:, None] * step / dt
+        ee, ge, He = self.model.energy_grad_hess(x, order)
+        e += ee
+        g = g + ge
+        eo, go, Hd, n_obst = self._obstacle_terms(x, order, self._fric)
+        e += eo
+        g = g + go
+        col = ipctk.NormalCollisions()
+        col.build(self.cm, x, self.dhat)
+        n_self = len(col)
+        Hs = None
+        if n_self:
+            e += self.kappa * self.B(col, self.cm, x)
+            g = g + self.kappa * self.B.gradient(col, self.cm, x).reshape(-1, 3)
+            if order >= 2:
+                Hs = self.kappa * self.B.hessian(col, self.cm, x, ipctk.PSDProjectionMethod.CLAMP)
+        Hf = None
+        if self._tc is not None:  # lagged self-contact friction: dt D((x - x_n) / dt) (ipctk)
+            V = (x - self.xn) / dt
+            e += dt * self.FP(self._tc, self.cm, V)
+            g = g + self.FP.gradient(self._tc, self.cm, V).reshape(-1, 3)
+            if order >= 2:
+                Hf = self.FP.hessian(self._tc, self.cm, V, ipctk.PSDProjectionMethod.CLAMP) / dt
+        if order < 2:
+            return e, g, None, n_self + n_obst
+        t0 = time.perf_counter()
+        ndof = 3 * self.n
+        rows, cols, vals = He
+        diag = np.repeat(self.mass / dt**2 + self.damp * self.mass / dt, 3)
+        idx = np.arange(ndof)
+        ii = np.repeat(np.arange(self.n), 9) * 3 + np.tile(np.repeat(np.arange(3), 3), self.n)
+        jj = np.repeat(np.arange(self.n), 9) * 3 + np.tile(np.tile(np.arange(3), 3), self.n)
+        H = sp.coo_matrix(
+            (
+                np.concatenate([vals, diag, Hd.ravel()]),
+                (np.concatenate([rows, idx, ii]), np.concatenate([cols, idx, jj])),
+            ),
+            shape=(ndof, ndof),
+        ).tocsr()
+        if Hs is not None:
+            H = H + Hs
+        if Hf is not None:
+            H = H + Hf
+        self.stats["assemble_s"] += time.perf_counter() - t0
+        return e, g, H, n_self + n_obst
+
+    def _lagged_friction(self, x):
+        if self.kappa is None:
+            return None
+        d, nrm, mu = self.obst.distances(x)
+        act = (d < self.dhat) & (mu[:, None] > 0)
+        if not act.any():
+            return None
+        k, i = np.nonzero(act)
+        dd = np.maximum(d[k, i], 1e-300)
+        _, b1, _ = _barrier(dd**2, self.dhat**2)
+        lam = -self.kappa * b1 * 2 * dd  # normal force magnitude [N]
+        return i, lam, nrm[k, i], mu[k]
+
+    def _step_limit(self, x, p):
+        """Largest alpha in (0, 1] free of intersections: CCD against itself and obstacles."""
+        import ipctk
+
+        t0 = time.perf_counter()
+        a = min(1.0, self.obst.first_contact(x, p))
+        if a > 0:
+            a = min(a, float(ipctk.compute_collision_free_stepsize(self.cm, x, x + a * p)) * a)
+        self.stats["ccd_s"] += time.perf_counter() - t0
+        return a
+
+    def substep(self, dt: float) -> None:
+        import ipctk
+        import scipy.sparse.linalg as spl
+
+        self.dt = dt
+        self.xn = self.x.copy()
+        free = ~self.fixed
+        self.xhat = self.xn + dt * self.v + dt * dt * self.g
+        self.xhat[self.fixed] = self.xn[self.fixed]
+        if self.kappa is None:
+            self.B = ipctk.BarrierPotential(self.dhat, 1.0)
+            # barrier stiffness: the barrier's force at half contact_distance holds ten times the heaviest
+            # vertex's weight (at least 1 m/s^2 of acceleration), -kappa b'(d^2) 2 d = 10 m g; doubled later
+            # whenever a gap closes below 1 % of contact_distance (IPC's adaptive update, Li et al. 2020)
+            d = 0.5 * self.dhat
+            _, b1, _ = _barrier(np.array([d * d]), self.dhat**2)
+            load = 10.0 * float(self.mass.max()) * max(float(np.linalg.norm(self.g)), 1.0)
+            self.kappa = load / (-float(b1[0]) * 2 * d)
+            self.kappa_max = 1e8 * self.kappa
+        self._fric = None
+        self._fric = self._lagged_friction(self.xn)
+        self._tc = None
+        if self.mu_self > 0:  # self-contact friction, normal forces and bases lagged at x_n
+            col = ipctk.NormalCollisions()
+            col.build(self.cm, self.xn, self.dhat)
+            if len(col):
+                self._tc = ipctk.TangentialCollisions()
+                self._tc.build(
+                    self.cm, self.xn, col, ipctk.BarrierPotential(self.dhat, self.kappa), self.mu_self
+                )
+                self.FP = ipctk.FrictionPotential(EPS_V)
+        x = self.xn.copy()
+        fd = self.free_dofs
+        res0 = None
+        it = 0
+        ncontact = 0
+        for it in range(1, self.opts.newton_max_iter + 1):
+            e, g, H, ncontact = self._potential(x, 2)
+            r = g[free] / self.mass[free, None]
+            res = float(np.abs(r).max()) if r.size else 0.0
+            if res0 is None:
+                res0 = res
+            if _DEBUG:
+                print("  it", it, "res %.3e" % res, "e %.6e" % e, "nc", ncontact)
+            if res <= self.opts.newton_atol or res <= self.opts.newton_tol * res0:
+                it -= 1
+                break
+            t0 = time.perf_counter()
+            Hf = H[fd][:, fd].tocsr()
+            rhs = -g.ravel()[fd]
+            dg = np.maximum(Hf.diagonal(), 1e-300)
+            pre = spl.LinearOperator(Hf.shape, matvec=lambda r, dg=dg: r / dg)
+            pf, info = spl.cg(Hf, rhs, M=pre, rtol=self.opts.pcg_tol, maxiter=self.opts.pcg_max_iter)
+            if info != 0:
+                self.stats["pcg_capped"] += 1
+            if not np.all(np.isfinite(pf)) or pf @ rhs <= 0:
+                pf = rhs / dg
+            self.stats["solve_s"] += time.perf_counter() - t0
+            p = np.zeros(3 * self.n)
+            p[fd] = pf
+            p = p.reshape(-1, 3)
+            if float(np.abs(pf).max(initial=0.0)) <= self.opts.newton_atol * dt * dt:
+                break  # the Newton step's acceleration |p| / dt^2 is below newton_atol: converged
+            a = a0 = self._step_limit(x, p)
+            ok = False
+            for _ in range(40):
+                xt = x + a * p
+                et = self._potential(xt, 1)[0]
+                if et <= e:
+                    ok = True
+                    break
+                a *= 0.5
+            if not ok:
+                self.stats["line_search_fail"] += 1
+                break
+            x = xt
+            if _DEBUG:
+                print("    alpha %.3e ccd %.3e |p| %.3e" % (a, a0, float(np.abs(p).max())))
+            if float(np.abs(a * p).max()) < 1e-12 * self.bbox:
+                break
+        self.v = (x - self.xn) / dt
+        self.x = x
+        self.time += dt
+        s = self.stats
+        s["substeps"] += 1
+        s["newton_iterations"] += it
+        s["max_newton"] = max(s["max_newton"], it)
+        s["contacts"] += ncontact
+        s["max_contacts"] = max(s["max_contacts"], ncontact)
+        # IPC's barrier stiffness update (Li et al. 2020, supplement): a contact closing below 1 % of dhat
+        # doubles kappa (up to kappa_max), so gaps stay a resolvable fraction of contact_distance
+        if ncontact:
+            dmin = float(self.obst.distances(x)[0].min())
+            col = ipctk.NormalCollisions()
+            col.build(self.cm, x, self.dhat)
+            if len(col):
+                dmin = min(dmin, math.sqrt(max(col.compute_minimum_distance(self.cm, x), 0.0)))
+            s["min_distance"] = min(s.get("min_distance", math.inf), dmin)
+            if dmin < 0.01 * self.dhat and self.kappa < self.kappa_max:
+                self.kappa = min(2.0 * self.kappa, self.kappa_max)
+
+    # ------------------------------------------------------------ interface
+    def sync(self) -> None:
+        return None
+
+    def frame_check(self) -> dict[str, FrameStats]:
+        out = {}
+        for k, e in enumerate(self.entities):
+            lo, hi = self.offsets[k], self.offsets[k + 1]
+            ok = np.isfinite(self.x[lo:hi]).all(axis=1) & np.isfinite(self.v[lo:hi]).all(axis=1)
+            nbad = int((~ok).sum())
+            sp = float(np.linalg.norm(self.v[lo:hi], axis=1).max()) if hi > lo else 0.0
+            out[e.name] = FrameStats(finite=nbad == 0, max_speed=sp if nbad == 0 else math.inf, n_bad=nbad)
+        return out
+
+    def stable_dt(self) -> float:
+        return math.inf
+
+    def length_scale(self) -> float:
+        e = self.tris
+        return float(np.linalg.norm(self.X[e[:, 1]] - self.X[e[:, 0]], axis=1).mean())
+
+    def entity_kind(self, name: str) -> str:
+        return "triangles"
+
+    def entity_cells(self, name: str):
+        return self.cells[name]
+
+    def entity_size(self, name: str) -> int:
+        k = self.index[name]
+        return self.offsets[k + 1] - self.offsets[k]
+
+    def owns(self, name: str) -> bool:
+        return name in getattr(self, "index", {e.name: 0 for e in self.entities})
+
+    def default_fields(self, name: str) -> list[str]:
+        return ["position", "velocity", "displacement"]
+
+    def output_fields(self) -> dict[str, tuple[int, str]]:
+        return {
+            "position": (3, "m"),
+            "velocity": (3, "m/s"),
+            "displacement": (3, "m"),
+            "strain": (1, "-"),  # largest principal Green membrane strain, per triangle
+            "stress": (1, "Pa"),  # von Mises of the membrane's second Piola-Kirchhoff stress, per triangle
+        }
+
+    def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
+        k = self.index[name]
+        lo, hi = self.offsets[k], self.offsets[k + 1]
+        out = {}
+        for f in fields:
+            if f == "position":
+                a = self.x
+            elif f == "velocity":
+                a = self.v
+            elif f == "displacement":
+                a = self.x - self.X
+            elif f in self.cell_fields:
+                t0, t1 = self.tri_offsets[k], self.tri_offsets[k + 1]
+                if f == "strain":
+                    out[f] = np.linalg.eigvalsh(self.model.green_strain(self.x)[t0:t1])[:, -1]
+                else:
+                    S = self.model.stress(self.x)[t0:t1]
+                    sxx, syy, sxy = S[:, 0, 0], S[:, 1, 1], S[:, 0, 1]
+                    out[f] = np.sqrt(sxx**2 - sxx * syy + syy**2 + 3 * sxy**2)
+                continue
+            else:
+                raise KeyError(
+                    f"unknown FEM.Cloth output field {f!r}; known: position, velocity, displacement"
+                )
+            out[f] = np.array(a[lo:hi])
+        return out
+
+    def get_state(self) -> dict[str, np.ndarray]:
+        return {"x": self.x.copy(), "v": self.v.copy(), "time": np.array([self.time])}
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        class _F:
+            def __init__(self, owner, attr):
+                self.o, self.a = owner, attr
+
+            def from_numpy(self, arr):
+                setattr(self.o, self.a, np.array(arr, dtype=np.float64))
+
+        for key in ("x", "v"):
+            upload_state_array(_F(self, key), state, key, (self.n, 3), np.float64, "FEM.Cloth")
+        self.time = float(np.asarray(state.get("time", [0.0])).reshape(-1)[0])
+
+    def counts(self) -> dict[str, int]:
+        return {"vertices": self.n, "triangles": len(self.tris)}
+
+    def info(self) -> dict[str, Any]:
+        s = dict(self.stats)
+        n = max(s["substeps"], 1)
+        s["newton_per_substep"] = s["newton_iterations"] / n
+        s["contacts_per_substep"] = s["contacts"] / n
+        return {
+            "method": "backward Euler, Newton + Jacobi-PCG, IPC barrier (ipctk) + CCD line search",
+            "bending": "quadratic (flat rest)"
+            if self.model.quadratic is not None
+            else "discrete-shell hinges",
+            "contact_distance": self.dhat,
+            "barrier_stiffness": self.kappa,
+            **s,
+        }
