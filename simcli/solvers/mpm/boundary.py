@@ -28,7 +28,9 @@ from simcli.colliders import (
     collider_motions,
     collider_specs,
     contact_velocity,
+    contact_velocity_e,
     project_out,
+    project_out_e,
     sdf_box,
     sdf_cylinder,
     sdf_plane,
@@ -65,7 +67,7 @@ class GridBoundary:
         self.dx = float(dx)
         self.lo_node = tuple(int(i) for i in lo_node)
         self.hi_node = tuple(int(i) for i in hi_node)
-        self.colliders = collider_specs(scene, dim)
+        self.colliders = collider_specs(scene, dim, scene_dir)
         self.walls = wall_specs(scene, dim)
         self.n_colliders = len(self.colliders)
         # moving and named colliders: poses uploaded per substep, loads summed (compiled only if any)
@@ -89,6 +91,10 @@ class GridBoundary:
         self.col_friction = ti.field(f, shape=nc)
         self.upload()
         self.poses.allocate()
+        if any(c.kind == "Mesh" for c in self.colliders):  # signed-distance grids (simcli.collider_mesh)
+            from simcli.collider_mesh_kernels import mesh_fields
+
+            self.mesh_fields = mesh_fields(self.colliders, f)
 
     def upload(self) -> None:
         """Copy the run-time numbers (geometry, friction, wall velocity) into the fields."""
@@ -145,7 +151,33 @@ class GridBoundary:
             phi, n = sdf_cylinder(
                 x, self.col_a[k], self.col_radius[k], self.col_half_height[k], self.colliders[k].axis
             )
+        elif ti.static(self.colliders[k].kind == "Mesh"):
+            phi, n = self.mesh_fields[k].sample(x)
         return phi, n
+
+    @ti.func
+    def _project(self, x, v, phi, n, k: ti.template()):
+        """project_out, with restitution where the collider has some (compile-time)."""
+        xo, vo = x, v
+        if ti.static(self.colliders[k].restitution > 0):
+            xo, vo = project_out_e(
+                x, v, phi, n, self.colliders[k].contact, self.col_friction[k], self.colliders[k].restitution
+            )
+        else:
+            xo, vo = project_out(x, v, phi, n, self.colliders[k].contact, self.col_friction[k])
+        return xo, vo
+
+    @ti.func
+    def _contact(self, v, n, vw, k: ti.template()):
+        """contact_velocity, with restitution where the collider has some (compile-time)."""
+        vo = v
+        if ti.static(self.colliders[k].restitution > 0):
+            vo = contact_velocity_e(
+                v, n, vw, self.colliders[k].contact, self.col_friction[k], self.colliders[k].restitution
+            )
+        else:
+            vo = contact_velocity(v, n, vw, self.colliders[k].contact, self.col_friction[k])
+        return vo
 
     @ti.func
     def project_particle(self, x, v, mp):
@@ -155,14 +187,14 @@ class GridBoundary:
         for k in ti.static(range(self.n_colliders)):
             if ti.static(self.colliders[k].moving or self.named[k]):
                 phi, n, vw = self.sdf_at(k, x, 1)
-                x_new, vr = project_out(x, v - vw, phi, n, self.colliders[k].contact, self.col_friction[k])
+                x_new, vr = self._project(x, v - vw, phi, n, k)
                 if ti.static(self.named[k]):
                     if phi < 0:
                         self.poses.add_load(k, x_new, mp * (v - (vr + vw)), 1)
                 x, v = x_new, vr + vw
             else:
                 phi, n = self.sdf(k, x)
-                x, v = project_out(x, v, phi, n, self.colliders[k].contact, self.col_friction[k])
+                x, v = self._project(x, v, phi, n, k)
         return x, v
 
     @ti.func
@@ -175,11 +207,11 @@ class GridBoundary:
                 if ti.static(not self.colliders[k].moving and not self.named[k]):
                     phi, n = self.sdf(k, xI)
                     if phi < 0:
-                        v = contact_velocity(v, n, v * 0.0, self.colliders[k].contact, self.col_friction[k])
+                        v = self._contact(v, n, v * 0.0, k)
                 else:
                     phi, n, vw = self.sdf_at(k, xI, 0)
                     if phi < 0:
-                        v_new = contact_velocity(v, n, vw, self.colliders[k].contact, self.col_friction[k])
+                        v_new = self._contact(v, n, vw, k)
                         if ti.static(self.named[k]):  # the impulse the node gives the collider [N s]
                             self.poses.add_load(k, xI, m * (v - v_new), 0)
                         v = v_new
