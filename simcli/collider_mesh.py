@@ -249,6 +249,18 @@ def build_sdf(c: Any, scene: Any = None, scene_dir: Any = None) -> MeshSDF:
         V, _T = read_surface(path)
         x = transform_points(V, scale, c.rotate, c.translate)
         h = float(np.max(x.max(axis=0) - x.min(axis=0))) / 64.0
+    try:
+        return _build(path, st, scale, c, h)
+    except MeshError:
+        raise
+    except (ValueError, IndexError) as ex:  # e.g. nothing left once opposite duplicate faces cancel
+        raise MeshError(
+            f"mesh '{c.file}' is degenerate: no triangle of it bounds a volume (it is flat, or every face "
+            f"comes twice with opposite orientations; {ex}); give a closed surface around a volume"
+        ) from None
+
+
+def _build(path: Path, st: Any, scale: Any, c: Any, h: float) -> MeshSDF:
     return _build_cached(
         str(path.resolve()),
         st.st_mtime_ns,
@@ -343,6 +355,8 @@ def check_collider(c: Any, scene: Any, scene_dir: Any) -> list[tuple[tuple, str]
             msg = msg.replace(
                 "Filling a mesh with particles needs", "A Mesh collider's signed distance needs"
             ).replace(" or use a tetrahedral mesh", "")
+        if "encloses no volume" in msg:
+            msg += ": it is flat or degenerate; give a closed surface around a volume"
         return [(("file",), msg)]
     lo, hi = sdf.bounds
     if np.min(hi - lo) < 2 * sdf.h:
