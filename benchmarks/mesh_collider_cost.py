@@ -15,8 +15,6 @@ import statistics
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 
 W = 4 * math.pi
@@ -115,7 +113,6 @@ def main() -> None:
             f"| {name} | {1e3 * med:.3f} (runs {', '.join(f'{1e3 * t:.3f}' for t in ts)}) | "
             f"{100 * (med / base - 1):+.1f}% |"
         )
-    del np
 
 
 if __name__ == "__main__":
