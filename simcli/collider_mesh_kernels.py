@@ -14,9 +14,12 @@ with stdout_to_stderr():
 _CORNERS = tuple((a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1))
 
 
-def mesh_fields(specs: list, dtype: Any) -> list:
+def mesh_fields(specs: list, dtype: Any, normal_below: float | None = None) -> list:
     """A MeshSDFField for every Mesh spec (None for the others), allocated now (after ti.init)."""
-    return [MeshSDFField(s.mesh, dtype) if getattr(s, "mesh", None) is not None else None for s in specs]
+    return [
+        MeshSDFField(s.mesh, dtype, normal_below) if getattr(s, "mesh", None) is not None else None
+        for s in specs
+    ]
 
 
 @ti.data_oriented
@@ -24,8 +27,12 @@ class MeshSDFField:
     """The grid of a MeshSDF in a Taichi field; :meth:`sample` gives (phi, unit outward normal) at a
     body-frame point by trilinear interpolation (the normal is the interpolant's gradient)."""
 
-    def __init__(self, sdf: MeshSDF, dtype: Any) -> None:
+    def __init__(self, sdf: MeshSDF, dtype: Any, normal_below: float | None = None) -> None:
+        """``normal_below``: the normal is computed only where phi is below it [m] (None: everywhere);
+        callers that use it only inside (phi < 0) skip the gradient elsewhere."""
         self.dtype = dtype
+        self.normal_below = normal_below
+        self.normal_everywhere = normal_below is None
         self.shape = sdf.shape
         self.origin = tuple(float(v) for v in sdf.origin)
         self.inv_h = 1.0 / sdf.h
@@ -48,19 +55,36 @@ class MeshSDFField:
             for d in ti.static(range(3)):
                 base[d] = ti.min(ti.cast(ti.floor(g[d]), ti.i32), self.shape[d] - 2)
                 f[d] = g[d] - base[d]
-            phi = 0.0
-            grad = g * 0.0
-            for a, b, c in ti.static(_CORNERS):
-                v = self.phi[base[0] + a, base[1] + b, base[2] + c]
-                wx = a * f[0] + (1 - a) * (1.0 - f[0])
-                wy = b * f[1] + (1 - b) * (1.0 - f[1])
-                wz = c * f[2] + (1 - c) * (1.0 - f[2])
-                sx, sy, sz = ti.static(2 * a - 1, 2 * b - 1, 2 * c - 1)
-                phi += v * wx * wy * wz
-                grad += v * ti.Vector([sx * wy * wz, sy * wx * wz, sz * wx * wy], dt=self.dtype)
-            gn = grad.norm()
-            if gn > 0:
-                n = grad / gn
+            vals = ti.Vector.zero(self.dtype, 8)
+            for j in ti.static(range(8)):
+                a, b, c = ti.static(_CORNERS[j])
+                vals[j] = self.phi[base[0] + a, base[1] + b, base[2] + c]
+            # trilinear: along x, then y, then z
+            c00 = vals[0] + f[0] * (vals[4] - vals[0])
+            c01 = vals[1] + f[0] * (vals[5] - vals[1])
+            c10 = vals[2] + f[0] * (vals[6] - vals[2])
+            c11 = vals[3] + f[0] * (vals[7] - vals[3])
+            c0 = c00 + f[1] * (c10 - c00)
+            c1 = c01 + f[1] * (c11 - c01)
+            phi = c0 + f[2] * (c1 - c0)
+            need = True
+            if ti.static(not self.normal_everywhere):
+                need = phi < self.normal_below
+            if need:  # the interpolant's gradient
+                grad = ti.Vector([0.0, 0.0, c1 - c0], dt=self.dtype)
+                d0 = c10 - c00
+                d1 = c11 - c01
+                grad[1] = d0 + f[2] * (d1 - d0)
+                e00 = vals[4] - vals[0]
+                e01 = vals[5] - vals[1]
+                e10 = vals[6] - vals[2]
+                e11 = vals[7] - vals[3]
+                e0 = e00 + f[1] * (e10 - e00)
+                e1 = e01 + f[1] * (e11 - e01)
+                grad[0] = e0 + f[2] * (e1 - e0)
+                gn = grad.norm()
+                if gn > 0:
+                    n = grad / gn
         return phi, n
 
 
