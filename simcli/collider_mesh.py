@@ -161,6 +161,44 @@ def _band_distances(V, T, origin, h, shape, band: float) -> np.ndarray:
     return dist.reshape(shape)
 
 
+MAX_BOX_PAIRS = 4_000_000  # (triangle, node) pairs of the box enumeration before the nearest-triangle path
+NEAREST_K = 16  # triangles per node in the nearest-triangle path
+
+
+def _pair_count(V, T, origin, h, shape, band) -> int:
+    A, B, C = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
+    lo = np.minimum(np.minimum(A, B), C) - band
+    hi = np.maximum(np.maximum(A, B), C) + band
+    top = np.asarray(shape) - 1
+    i0 = np.clip(np.ceil((lo - origin) / h).astype(np.int64), 0, top)
+    i1 = np.clip(np.floor((hi - origin) / h).astype(np.int64), 0, top)
+    return int(np.prod(np.maximum(i1 - i0 + 1, 0), axis=1).sum())
+
+
+def _near_distances(V, T, origin, h, edt, band) -> np.ndarray:
+    """Exact distance at the nodes within ``band`` (+ a cell) of the inside/outside boundary (by the
+    distance transform ``edt``) to the nearest of the NEAREST_K triangles whose centroids are closest (a
+    mesh of triangles small against the cell: the nearest triangle is among them); inf elsewhere."""
+    from scipy.spatial import cKDTree
+
+    dist = np.full(edt.shape, np.inf)
+    idx = np.nonzero(edt <= band + 1.5 * h)
+    p = origin + h * np.stack(idx, axis=1).astype(float)
+    A, B, C = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
+    k = min(NEAREST_K, len(T))
+    tree = cKDTree((A + B + C) / 3.0)
+    out = np.empty(len(p))
+    step = max(1, (1 << 21) // k)
+    for s0 in range(0, len(p), step):
+        q = p[s0 : s0 + step]
+        _, nb = tree.query(q, k=k)
+        nb = nb.reshape(len(q), k).ravel()
+        d = point_triangle_distance(np.repeat(q, k, axis=0), A[nb], B[nb], C[nb])
+        out[s0 : s0 + step] = d.reshape(len(q), k).min(axis=1)
+    dist[idx] = out
+    return dist
+
+
 # ------------------------------------------------------------------ building
 
 
@@ -192,11 +230,14 @@ def _build_cached(path: str, mtime_ns: int, size: int, scale, rotate, translate,
         TriMesh(V, T, mesh.volume, mesh.source), origin, h, shape, thin_check_axes=()
     ).inside
     band = BAND_CELLS * h
-    exact = _band_distances(V, T, origin, h, shape, band)
-    # far from the surface: a distance transform of the inside/outside masks (voxel centres), never
-    # below the band (where the exact distance was not taken the true one exceeds it)
     d_in = distance_transform_edt(inside) * h
     d_out = distance_transform_edt(~inside) * h
+    if _pair_count(V, T, origin, h, shape, band) <= MAX_BOX_PAIRS:
+        exact = _band_distances(V, T, origin, h, shape, band)
+    else:  # many small triangles: each node near the surface against its nearest triangles
+        exact = _near_distances(V, T, origin, h, np.where(inside, d_in, d_out), band)
+    # far from the surface: a distance transform of the inside/outside masks (voxel centres), never
+    # below the band (where the exact distance was not taken the true one exceeds it)
     far = np.maximum(np.where(inside, d_in, d_out) - 0.5 * h, band)
     unsigned = np.where(np.isfinite(exact), exact, far)
     phi = np.where(inside, -unsigned, unsigned)
