@@ -7,7 +7,8 @@ Host side (numpy + scipy, no Taichi; :func:`build_sdf`):
 * a grid of cell ``h`` covers the mesh's bounding box plus a margin of ``MARGIN_CELLS`` cells; the sign
   of every node comes from the lattice ray-parity test of simcli.geometry.mesh (robust on edges and
   vertices); nodes within ``BAND_CELLS`` cells of a triangle's bounding box get the exact distance to the
-  nearest triangle (closest point on a triangle, vectorised), the others a Euclidean distance transform of
+  nearest triangle (closest point on a triangle, vectorised; a mesh of many small triangles: each node near
+  the surface against its ``NEAREST_K`` nearest triangles by centroid), the others a distance transform of
   the inside mask (scipy), bounded below by the band: the field is exact where contact happens and
   monotone (a usable gradient) deep inside;
 * ``h`` is half the finest of the MPM grid cell, the PBD particle_size and the FEM element size 1/resolution
@@ -326,19 +327,6 @@ def mesh_spec_numbers(c: Any, dim: int, scene: Any = None, scene_dir: Any = None
 def inside_mesh_collider(c: Any, x: np.ndarray, scene: Any = None, scene_dir: Any = None) -> np.ndarray:
     """Points (k, 3) strictly inside a Mesh collider at t = 0 (its SDF grid, as the solvers see it)."""
     return build_sdf(c, scene, scene_dir).sample(x) < 0
-
-
-def sdf_report(specs: list) -> list[str]:
-    """One line per Mesh collider: grid size and the seconds its SDF took (run.json / log)."""
-    out = []
-    for k, s in enumerate(specs):
-        if getattr(s, "mesh", None) is not None:
-            m = s.mesh
-            out.append(
-                f"colliders.{k}: {Path(m.source).name}, {len(m.triangles)} triangles, SDF grid "
-                f"{'x'.join(str(v) for v in m.shape)} cell {m.h:.3g} m built in {m.build_seconds:.2f} s"
-            )
-    return out
 
 
 # ------------------------------------------------------------------ checks (validate)
