@@ -215,26 +215,6 @@ def project_out(x, v, phi, n, contact: ti.template(), mu):
 
 
 @ti.func
-def contact_velocity_e(v, n, v_wall, contact: ti.template(), mu, e):
-    """:func:`contact_velocity` with normal restitution ``e``: a node moving into the surface leaves it with
-    e times its normal speed, friction acting on the whole normal impulse (1 + e) |v_n|; a node leaving it
-    is released (slip becomes unilateral, like separate, or the bounce would be taken back). Compiled
-    only for colliders with restitution > 0."""
-    vr = v - v_wall
-    vn = vr.dot(n)
-    if ti.static(contact == "sticky"):
-        vr = vr * 0.0
-    else:
-        if vn < 0:
-            vt = vr - vn * n
-            vtn = vt.norm()
-            if vtn > 0 and mu > 0:
-                vt *= ti.max(0.0, 1.0 + mu * (1.0 + e) * vn / vtn)
-            vr = vt - e * vn * n
-    return vr + v_wall
-
-
-@ti.func
 def project_out_e(x, v, phi, n, contact: ti.template(), mu, e):
     """:func:`project_out` with normal restitution ``e``: a particle moving into the surface leaves it with
     e times its normal speed (slip and separate). Compiled only for colliders with restitution > 0."""

@@ -221,9 +221,9 @@ class _ColliderBase(Strict):
         ge=0,
         le=1,
         description="Normal restitution [-], 0..1: a particle or vertex hitting the collider leaves it with "
-        "restitution x its normal approach speed (relative to the surface). PBD and FEM (explicit) particle "
-        "and vertex contact, MPM particle-level projection and grid nodes (docs/SCENE_FORMAT.md section 5). "
-        "0 (default): perfectly inelastic, as before.",
+        "restitution x its normal approach speed (relative to the surface). PBD particles, FEM (explicit) "
+        "vertices, MPM particles pushed out of the collider (the MPM grid contact stays inelastic; "
+        "docs/SCENE_FORMAT.md section 5). 0 (default): perfectly inelastic, as before.",
     )
 
 

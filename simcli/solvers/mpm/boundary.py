@@ -28,7 +28,6 @@ from simcli.colliders import (
     collider_motions,
     collider_specs,
     contact_velocity,
-    contact_velocity_e,
     project_out,
     project_out_e,
     sdf_box,
@@ -187,18 +186,6 @@ class GridBoundary:
         return xo, vo
 
     @ti.func
-    def _contact(self, v, n, vw, k: ti.template()):
-        """contact_velocity, with restitution where the collider has some (compile-time)."""
-        vo = v
-        if ti.static(self.colliders[k].restitution > 0):
-            vo = contact_velocity_e(
-                v, n, vw, self.colliders[k].contact, self.col_friction[k], self.colliders[k].restitution
-            )
-        else:
-            vo = contact_velocity(v, n, vw, self.colliders[k].contact, self.col_friction[k])
-        return vo
-
-    @ti.func
     def project_particle(self, x, v, mp):
         """Particle-level contact after advection: out of every collider, inward velocity removed
         (see :func:`simcli.colliders.project_out`); a named collider takes the momentum removed from the
@@ -233,11 +220,11 @@ class GridBoundary:
                 if ti.static(not self.colliders[k].moving and not self.named[k]):
                     phi, n = self.sdf(k, xI)
                     if phi < 0:
-                        v = self._contact(v, n, v * 0.0, k)
+                        v = contact_velocity(v, n, v * 0.0, self.colliders[k].contact, self.col_friction[k])
                 else:
                     phi, n, vw = self.sdf_at(k, xI, 0)
                     if phi < 0:
-                        v_new = self._contact(v, n, vw, k)
+                        v_new = contact_velocity(v, n, vw, self.colliders[k].contact, self.col_friction[k])
                         if ti.static(self.named[k]):  # the impulse the node gives the collider [N s]
                             self.poses.add_load(k, xI, m * (v - v_new), 0)
                         v = v_new
