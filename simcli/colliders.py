@@ -46,6 +46,8 @@ class ColliderSpec:
     moving: bool = False  # compile-time: a prescribed motion (simcli.motion) transforms the query point
     name: str | None = None  # named colliders report forces
     centre: tuple = ()  # default pivot (simcli.motion.collider_centre)
+    restitution: float = 0.0  # compile-time: > 0 compiles the restitution paths (0: the code of before)
+    mesh: Any = None  # Mesh: simcli.collider_mesh.MeshSDF (body frame = the pose at t = 0)
 
 
 @dataclass(frozen=True)
@@ -60,14 +62,17 @@ class WallSpec:
     velocity: tuple  # wall velocity [m/s]
 
 
-def collider_specs(scene: Any, dim: int) -> list[ColliderSpec]:
+def collider_specs(scene: Any, dim: int, scene_dir: Any = None) -> list[ColliderSpec]:
+    """``scene_dir``: Mesh colliders' files are relative to it."""
     from dataclasses import replace
 
     from simcli.motion import collider_centre
 
     specs = []
     for c in scene.colliders:
-        specs.append(_collider_spec(c, dim))
+        specs.append(_collider_spec(c, dim, scene, scene_dir))
+        if getattr(c, "restitution", 0.0) > 0:
+            specs[-1] = replace(specs[-1], restitution=float(c.restitution))
         if getattr(c, "motion", None) is not None or getattr(c, "name", None) is not None:
             specs[-1] = replace(
                 specs[-1],
@@ -95,10 +100,15 @@ def collider_motions(scene: Any, dim: int, scene_dir: Any = None) -> list:
     return [collider_motion(c, dim, scene_dir) for c in scene.colliders] + _rigid(scene, "motions")
 
 
-def _collider_spec(c: Any, dim: int) -> ColliderSpec:
+def _collider_spec(c: Any, dim: int, scene: Any = None, scene_dir: Any = None) -> ColliderSpec:
     """The record of one collider model (its geometry in the body frame: its pose at t = 0)."""
     specs = []
     kind = c.type
+    if kind == "Mesh":  # a signed-distance grid (simcli.collider_mesh)
+        from simcli.collider_mesh import mesh_spec_numbers
+
+        sdf, centre, half_diag = mesh_spec_numbers(c, dim, scene, scene_dir)
+        return ColliderSpec(kind, c.boundary, 0, centre, (0.0,) * 3, half_diag, 0.0, c.friction, mesh=sdf)
     zeros = (0.0,) * dim
     if kind == "Plane":
         if len(c.point) != dim or len(c.normal) != dim:
@@ -214,6 +224,27 @@ def project_out(x, v, phi, n, contact: ti.template(), mu):
             vn = v.dot(n)
             if vn < 0:
                 vo = _tangential(v, n, vn, mu)
+    return xo, vo
+
+
+@ti.func
+def project_out_e(x, v, phi, n, contact: ti.template(), mu, e):
+    """:func:`project_out` with normal restitution ``e``: a particle moving into the surface leaves it with
+    e times its normal speed (slip and separate). Compiled only for colliders with restitution > 0."""
+    xo = x
+    vo = v
+    if phi < 0:
+        xo = x - phi * n
+        if ti.static(contact == "sticky"):
+            vo = v * 0.0
+        else:
+            vn = v.dot(n)
+            if vn < 0:
+                vt = v - vn * n
+                vtn = vt.norm()
+                if vtn > 0 and mu > 0:
+                    vt *= ti.max(0.0, 1.0 + mu * (1.0 + e) * vn / vtn)
+                vo = vt - e * vn * n
     return xo, vo
 
 
@@ -537,5 +568,6 @@ def collider_vtk_items(scene: Any, scene_dir: Any = None) -> list[tuple[str, Any
     for k, c in enumerate(scene.colliders):
         if c.name is None and c.motion is None:
             continue
-        out.append((c.name or f"collider{k}", _collider_spec(c, dim), collider_motion(c, dim, scene_dir)))
+        spec = _collider_spec(c, dim, scene, scene_dir)
+        out.append((c.name or f"collider{k}", spec, collider_motion(c, dim, scene_dir)))
     return out + [(s.name, s, m) for s, m in zip(_rigid(scene, "specs"), _rigid(scene, "motions"))]

@@ -331,6 +331,8 @@ def collider_centre(c: Any, dim: int) -> np.ndarray:
         return 0.5 * (np.asarray(c.lower, float) + np.asarray(c.upper, float))
     if c.type == "Plane":
         return np.asarray(c.point, float)
+    if c.type == "Mesh":  # the file's origin after the transform (where scale and rotate act)
+        return np.asarray(c.translate, float)
     return np.asarray(c.center, float)
 
 

@@ -5,7 +5,7 @@ called ``collider<k>`` (its index in ``colliders``).
 
 The surface is built once in the collider's body frame (3D: triangles; 2D: a closed polyline in the z = 0
 plane; a Plane: a square / segment as large as the domain's diagonal) and moved to the frame's pose
-(simcli.motion). Each file carries the surface velocity as point data ``velocity`` [m/s].
+(simcli.motion); a Mesh collider writes its own triangles. Each file carries the surface velocity as point data ``velocity`` [m/s].
 """
 
 from __future__ import annotations
@@ -24,7 +24,10 @@ from .frames import atomic_write_text, ensure_dir, guard
 
 def collider_surface(spec: Any, dim: int, size: float, n: int = 32) -> tuple[np.ndarray, np.ndarray]:
     """(points (m, dim), cells (k, 3) triangles in 3D or (k, 2) segments in 2D) of a collider spec
-    (simcli.colliders.ColliderSpec) in its body frame. ``size``: extent of a Plane's patch [m]."""
+    (simcli.colliders.ColliderSpec) in its body frame. ``size``: extent of a Plane's patch [m]. A Mesh
+    collider is its own triangles (``spec.mesh``, simcli.collider_mesh.MeshSDF)."""
+    if spec.kind == "Mesh":
+        return np.asarray(spec.mesh.vertices, float), np.asarray(spec.mesh.triangles, np.int64)
     a = np.asarray(spec.a, float)
     if dim == 2:
         if spec.kind == "Box":

@@ -85,6 +85,14 @@ def open_run(out: Path | str) -> Run:
     lo = dom.get("lower") or ([-0.5, -0.5, 0.0] if dim == 3 else [0.0, 0.0])
     hi = dom.get("upper") or ([0.5, 0.5, 1.0] if dim == 3 else [1.0, 1.0])
     cols = [c for c in (scene.get("colliders") or []) if isinstance(c, dict)]
+    if any(c.get("type") == "Mesh" for c in cols):  # a Mesh collider's file is relative to the scene
+        try:
+            scene_file = Path(json.loads((out / "run.json").read_text())["scene"])
+            cols = [
+                dict(c, _scene_dir=str(scene_file.parent)) if c.get("type") == "Mesh" else c for c in cols
+            ]
+        except (OSError, ValueError, KeyError, TypeError):
+            pass
     return Run(
         out=out,
         dim=dim,

@@ -117,7 +117,15 @@ def collider_triangles(col: dict, lo, hi) -> np.ndarray:
         if t == "Plane":
             poly = _plane_polygon(col["point"], col["normal"], lo, hi)
             return np.array([[poly[0], poly[i], poly[i + 1]] for i in range(1, len(poly) - 1)])
-    except (KeyError, TypeError, ValueError):
+        if t == "Mesh":  # its triangles at t = 0 (the file relative to the scene's folder, data.open_run)
+            from simcli.geometry.mesh import read_surface, resolve_mesh_path, transform_points
+
+            V, T = read_surface(resolve_mesh_path(col["file"], col.get("_scene_dir")))
+            x = transform_points(
+                V, col.get("scale", 1.0), col.get("rotate", (0, 0, 0)), col.get("translate", (0, 0, 0))
+            )
+            return x[T]
+    except (KeyError, TypeError, ValueError, OSError):
         pass
     return np.zeros((0, 3, 3))
 

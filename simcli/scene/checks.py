@@ -60,6 +60,11 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
                 base + ("upper",),
                 f"lower must be < upper on every axis (got lower {c.lower}, upper {c.upper})",
             )
+        if c.type == "Mesh" or getattr(c, "restitution", 0.0) > 0:
+            from simcli.collider_mesh import check_collider
+
+            for p, msg in check_collider(c, s, loaded.scene_dir):
+                err(base + p, msg)
     _check_collider_motion(loaded, ok_dom, err)
     from simcli.rigid.checks import check_rigid_bodies  # rigid_bodies: names, shapes, overlaps
 

@@ -353,8 +353,12 @@ def _lattice(lo, hi, n: int) -> np.ndarray:
     return np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
 
 
-def _collider_inside(c, x: np.ndarray) -> np.ndarray:
+def _collider_inside(c, x: np.ndarray, s=None, scene_dir=None) -> np.ndarray:
     """Points strictly inside a collider (numpy, the same shapes as simcli.colliders)."""
+    if c.type == "Mesh":  # its signed-distance grid, as the solvers see it
+        from simcli.collider_mesh import inside_mesh_collider
+
+        return inside_mesh_collider(c, x, s, scene_dir)
     if c.type == "Plane":
         n = np.asarray(c.normal, dtype=np.float64)
         n = n / np.linalg.norm(n)
@@ -368,7 +372,7 @@ def _collider_inside(c, x: np.ndarray) -> np.ndarray:
     return (np.abs(d[:, ax]) < c.height / 2) & (np.sum(d**2, axis=1) - d[:, ax] ** 2 < c.radius**2)
 
 
-def _overlaps(s) -> tuple[list, list]:
+def _overlaps(s, scene_dir=None) -> tuple[list, list]:
     """(entity pairs, entity-collider pairs) overlapping at the start: (i, j_or_collider, volume,
     share of i)."""
     from simcli.geometry.regions import points_in_shape, shape_volume
@@ -396,7 +400,7 @@ def _overlaps(s) -> tuple[list, list]:
         if not len(x):
             continue
         for ci, c in enumerate(s.colliders):
-            frac = float(_collider_inside(c, x).mean())
+            frac = float(_collider_inside(c, x, s, scene_dir).mean())
             if frac > 0:
                 inside.append((i, ci, frac * va, frac))
     return pairs, inside
@@ -418,7 +422,7 @@ def check_overlaps(loaded) -> tuple[list[str], list[str]]:
     loc = loaded.located
     errors, warns = [], []
     try:
-        pairs, inside = _overlaps(s)
+        pairs, inside = _overlaps(s, getattr(loaded, "scene_dir", None))
     except (ValueError, FloatingPointError):  # a shape the estimate cannot handle: no verdict
         return errors, warns
     unit = "m^3" if s.sim.dim == 3 else "m^2"

@@ -218,6 +218,15 @@ class _ColliderBase(Strict):
         description="Coulomb friction coefficient [-]. MPM: friction > 0 makes a slip collider unilateral "
         "like separate (Coulomb friction needs a compressive contact).",
     )
+    restitution: float = Field(
+        0.0,
+        ge=0,
+        le=1,
+        description="Normal restitution [-], 0..1: a particle or vertex hitting the collider leaves it with "
+        "restitution x its normal approach speed (relative to the surface). PBD particles, FEM (explicit) "
+        "vertices, MPM particles pushed out of the collider (the MPM grid contact stays inelastic; "
+        "docs/SCENE_FORMAT.md section 5). 0 (default): perfectly inelastic, as before.",
+    )
 
 
 class PlaneCollider(_ColliderBase):
@@ -246,8 +255,32 @@ class CylinderCollider(_ColliderBase):
     axis: Literal["x", "y", "z"] = Field("z", description="Axis direction.")
 
 
+class MeshCollider(_ColliderBase):
+    type: Literal["Mesh"]
+    file: str = Field(
+        description="Closed, consistently oriented triangle surface (any format meshio reads), relative to "
+        "the scene file; 3D only. Turned into a signed-distance grid at build time."
+    )
+    scale: float | Vec = Field(1.0, description="Scale factor [-] (scalar or per axis), applied first.")
+    rotate: Vec = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0],
+        description="Rotation: Euler angles x, y, z [deg] (R = Rz Ry Rx), applied second.",
+    )
+    translate: Vec = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0],
+        description="Translation [m], applied last; also the default pivot of `motion` (the file's origin).",
+    )
+    sdf_cell: float | None = Field(
+        None,
+        gt=0,
+        description="Cell [m] of the signed-distance grid (default: half the finest of the MPM grid cell, "
+        "the PBD particle_size and the FEM element size 1/resolution of the families present).",
+    )
+
+
 Collider = Annotated[
-    PlaneCollider | BoxCollider | SphereCollider | CylinderCollider, Field(discriminator="type")
+    PlaneCollider | BoxCollider | SphereCollider | CylinderCollider | MeshCollider,
+    Field(discriminator="type"),
 ]
 
 

@@ -672,10 +672,12 @@ def _scene_of(f):
 
 
 @measurement("collider_penetration")
-def collider_penetration(f, entity, collider, spacing=None, **_):
+def collider_penetration(f, entity, collider, spacing=None, scene_dir=None, **_):
     """Deepest particle of ``entity`` (``"*"``: every entity) inside the named collider at each frame [m],
     in units of ``spacing`` when given (e.g. the MPM cell size): the collider's exact signed distance at
-    its pose at the frame's time (simcli.motion), 0 when no particle is inside."""
+    its pose at the frame's time (simcli.motion), 0 when no particle is inside. A Mesh collider: the exact
+    distance to its triangles (not its signed-distance grid) of the particles inside it (ray parity);
+    its file is relative to ``scene_dir`` (verify passes the case's folder)."""
     from simcli.colliders import _collider_spec
     from simcli.colliders import sdf_np as sdf_numpy
     from simcli.motion import collider_motion
@@ -685,6 +687,18 @@ def collider_penetration(f, entity, collider, spacing=None, **_):
     c = next((c for c in scene.colliders if c.name == collider), None)
     if c is None:
         raise KeyError(f"no collider named '{collider}' in the run's scene")
+    if c.type == "Mesh":
+        from simcli.collider_mesh import exact_depth
+
+        motion = collider_motion(c, dim)
+        x = _stack(f, entity)
+        t = f["time"][...]
+        out = [
+            exact_depth(c, xi if motion is None else motion.pose(float(ti)).to_body(xi), scene, scene_dir)
+            for ti, xi in zip(t, x)
+        ]
+        out = np.asarray(out)
+        return t, out / spacing if spacing else out
     spec = _collider_spec(c, dim)
     motion = collider_motion(c, dim)
     x = _stack(f, entity)

@@ -165,7 +165,10 @@ def run_case(
         return res
     try:
         m = case.measure
-        tt, vals = run_measurement(out / "sim.h5", m.quantity, m.entity, m.axis, m.params)
+        params = dict(m.params)
+        if m.quantity == "collider_penetration":  # Mesh colliders' files are relative to the scene
+            params.setdefault("scene_dir", str(case.scene_path.parent))
+        tt, vals = run_measurement(out / "sim.h5", m.quantity, m.entity, m.axis, params)
         e = compute_error(case, tt, vals)
     except Exception as ex:  # a broken measurement is a failed case, reported, not a crash
         res.message = f"measurement failed: {type(ex).__name__}: {ex}"

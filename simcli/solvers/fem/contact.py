@@ -15,11 +15,13 @@ with stdout_to_stderr():
 KIND_ID = {"slip": 0, "sticky": 1, "separate": 2}
 
 
-def make_nearest(scene, dim: int = 3, poses=None):
+def make_nearest(scene, dim: int = 3, poses=None, with_restitution: bool = False):
     """A ti.func x -> (phi, n, kind id, friction, obstacle velocity, collider index or -1) over the walls
     and colliders of the scene: the most penetrated one. ``poses`` (simcli.colliders.ColliderPoses): moving
     colliders are evaluated at the substep's end pose (slot 1) in their body frame, with their surface
-    velocity; without it (or for still ones) the velocity is zero."""
+    velocity; without it (or for still ones) the velocity is zero. ``with_restitution``: a seventh value,
+    the collider's normal restitution (0 for walls). Mesh colliders sample their signed-distance grid
+    (simcli.collider_mesh)."""
     lo, hi = scene.domain.bounds(dim)
     obstacles = []  # (kind, a, b, radius, half_height, axis, contact, friction)
     for w in wall_specs(scene, dim):
@@ -29,7 +31,11 @@ def make_nearest(scene, dim: int = 3, poses=None):
         p[w.axis] = lo[w.axis] if w.side < 0 else hi[w.axis]
         obstacles.append(("Plane", tuple(p), tuple(n), 0.0, 0.0, 0, w.contact, w.friction))
     nw = len(obstacles)
-    specs = collider_specs(scene, dim)
+    specs = poses.specs if poses is not None else collider_specs(scene, dim)
+    from simcli.collider_mesh_kernels import mesh_fields
+
+    mesh_f = [None] * nw + mesh_fields(specs, float)
+    rest = [0.0] * nw + [float(c.restitution) for c in specs]
     for c in specs:
         obstacles.append((c.kind, c.a, c.b, c.radius, c.half_height, c.axis, c.contact, c.friction))
     kinds = [o[0] for o in obstacles]
@@ -43,6 +49,7 @@ def make_nearest(scene, dim: int = 3, poses=None):
         kind = 0
         mu = 0.0
         idx = -1
+        e = 0.0
         for k in ti.static(range(len(obstacles))):
             o = ti.static(obstacles[k])
             phi = 0.0
@@ -56,8 +63,10 @@ def make_nearest(scene, dim: int = 3, poses=None):
                 phi, nrm = sdf_sphere(xq, ti.Vector(o[1], float), o[3])
             elif ti.static(kinds[k] == "Box"):
                 phi, nrm = sdf_box(xq, ti.Vector(o[1], float), ti.Vector(o[2], float))
-            else:
+            elif ti.static(kinds[k] == "Cylinder"):
                 phi, nrm = sdf_cylinder(xq, ti.Vector(o[1], float), o[3], o[4], o[5])
+            else:
+                phi, nrm = mesh_f[k].sample(xq)
             if phi < phi_min:
                 phi_min = phi
                 n_min = nrm
@@ -68,7 +77,12 @@ def make_nearest(scene, dim: int = 3, poses=None):
                 kind = KIND_ID[o[6]]  # a plain store: `x = ti.static(...)` only rebinds a Python name
                 mu = float(o[7])
                 idx = k - nw if k >= nw else -1
-        return phi_min, n_min, kind, mu, v_min, idx
+                if ti.static(with_restitution):
+                    e = rest[k]
+        if ti.static(with_restitution):
+            return phi_min, n_min, kind, mu, v_min, idx, e
+        else:
+            return phi_min, n_min, kind, mu, v_min, idx
 
     return nearest
 

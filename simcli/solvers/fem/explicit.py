@@ -9,7 +9,7 @@ Mass-proportional damping (alpha) is applied implicitly to the vertex velocity: 
 """
 
 from simcli.backend import stdout_to_stderr
-from simcli.colliders import project_out
+from simcli.colliders import project_out, project_out_e
 from simcli.solvers.fem.contact import make_add_load, make_nearest
 from simcli.solvers.fem.models import cofactor
 
@@ -25,7 +25,24 @@ class ExplicitIntegrator:
         gravity = s.gravity
         deformation, law_call, scatter, gather = s.deformation, s.law_call, s.scatter_columns, s.gather
         poses = s.poses
-        nearest = make_nearest(s.scene, 3, poses)
+        any_e = any(c.restitution > 0 for c in poses.specs)  # restitution compiled only when some
+        nearest6 = make_nearest(s.scene, 3, poses, with_restitution=any_e)
+
+        @ti.func
+        def nearest(x):
+            if ti.static(any_e):
+                return nearest6(x)
+            else:
+                phi, nrm, kind, mu, vw, idx = nearest6(x)
+                return phi, nrm, kind, mu, vw, idx, 0.0
+
+        @ti.func
+        def slip(x, v, phi, nrm, mu, e):
+            if ti.static(any_e):
+                return project_out_e(x, v, phi, nrm, "slip", mu, e)
+            else:
+                return project_out(x, v, phi, nrm, "slip", mu)
+
         add_load = make_add_load(poses)
         moving, named = poses.any_moving, poses.any_named
         n, m = s.n, s.m
@@ -55,7 +72,7 @@ class ExplicitIntegrator:
                 if ti.static(alpha > 0):
                     vi /= 1.0 + alpha * dt
                 xi = x[i] + dt * vi
-                phi, nrm, kind, mu, vw, idx = nearest(xi)
+                phi, nrm, kind, mu, vw, idx, e_r = nearest(xi)
                 if phi < 0:
                     if ti.static(moving or named):
                         # contact on the velocity relative to the obstacle's surface; named colliders
@@ -65,7 +82,7 @@ class ExplicitIntegrator:
                         if kind == 1:
                             xi, vr = project_out(xi, vr, phi, nrm, "sticky", mu)
                         else:
-                            xi, vr = project_out(xi, vr, phi, nrm, "slip", mu)
+                            xi, vr = slip(xi, vr, phi, nrm, mu, e_r)
                         vi = vr + vw
                         if ti.static(named):
                             add_load(idx, xi, mass[i] * (v_in - vi))
@@ -73,7 +90,7 @@ class ExplicitIntegrator:
                         if kind == 1:
                             xi, vi = project_out(xi, vi, phi, nrm, "sticky", mu)
                         else:
-                            xi, vi = project_out(xi, vi, phi, nrm, "slip", mu)
+                            xi, vi = slip(xi, vi, phi, nrm, mu, e_r)
                 fr = free[i]
                 for c in ti.static(range(3)):
                     if fr[c] == 0:

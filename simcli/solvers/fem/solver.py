@@ -299,7 +299,10 @@ class FEMSolver(Solver):
         from simcli.colliders import ColliderPoses, collider_motions, collider_specs
 
         self.poses = ColliderPoses(
-            collider_specs(self.scene, 3), collider_motions(self.scene, 3, self.scene_dir), 3, self.f
+            collider_specs(self.scene, 3, self.scene_dir),
+            collider_motions(self.scene, 3, self.scene_dir),
+            3,
+            self.f,
         )
         self.poses.allocate()
         if self.implicit:

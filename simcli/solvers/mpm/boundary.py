@@ -29,6 +29,7 @@ from simcli.colliders import (
     collider_specs,
     contact_velocity,
     project_out,
+    project_out_e,
     sdf_box,
     sdf_cylinder,
     sdf_plane,
@@ -65,7 +66,7 @@ class GridBoundary:
         self.dx = float(dx)
         self.lo_node = tuple(int(i) for i in lo_node)
         self.hi_node = tuple(int(i) for i in hi_node)
-        self.colliders = collider_specs(scene, dim)
+        self.colliders = collider_specs(scene, dim, scene_dir)
         self.walls = wall_specs(scene, dim)
         self.n_colliders = len(self.colliders)
         # moving and named colliders: poses uploaded per substep, loads summed (compiled only if any)
@@ -89,6 +90,18 @@ class GridBoundary:
         self.col_friction = ti.field(f, shape=nc)
         self.upload()
         self.poses.allocate()
+        if any(c.kind == "Mesh" for c in self.colliders):  # signed-distance grids (simcli.collider_mesh)
+            from simcli.collider_mesh_kernels import mesh_fields
+
+            self.mesh_fields = mesh_fields(self.colliders, f, normal_below=0.0)  # normals used inside only
+            # squared reach of each Mesh from its pivot (+ a cell): beyond it a point is outside the mesh
+            piv = self.poses.pivot.to_numpy() if self.poses.needed else np.zeros((self.n_colliders, dim))
+            self.mesh_reach2 = tuple(
+                (float(np.linalg.norm(c.mesh.vertices - piv[k], axis=1).max()) + self.dx) ** 2
+                if c.kind == "Mesh"
+                else 0.0
+                for k, c in enumerate(self.colliders)
+            )
 
     def upload(self) -> None:
         """Copy the run-time numbers (geometry, friction, wall velocity) into the fields."""
@@ -122,7 +135,18 @@ class GridBoundary:
         phi = 1.0
         n = x * 0.0
         vw = x * 0.0
-        if ti.static(self.colliders[k].moving):
+        if ti.static(self.colliders[k].moving and self.colliders[k].kind == "Mesh"):
+            # a moving Mesh: points beyond its reach from the moving pivot are outside it (no pose
+            # transform, no grid lookup): most nodes and particles of a scene
+            d2 = 0.0
+            for i in ti.static(range(self.dim)):
+                d2 += (x[i] - self.poses.pose[slot, k, 9 + i]) ** 2
+            if d2 < self.mesh_reach2[k]:
+                phi, nb = self.sdf(k, self.poses.to_body(k, x, slot))
+                if phi < 0:  # (the normal and the surface velocity are used inside only)
+                    n = self.poses.normal_to_world(k, nb, slot)
+                    vw = self.poses.velocity(k, x, slot)
+        elif ti.static(self.colliders[k].moving):
             phi, nb = self.sdf(k, self.poses.to_body(k, x, slot))
             n = self.poses.normal_to_world(k, nb, slot)
             vw = self.poses.velocity(k, x, slot)
@@ -145,7 +169,21 @@ class GridBoundary:
             phi, n = sdf_cylinder(
                 x, self.col_a[k], self.col_radius[k], self.col_half_height[k], self.colliders[k].axis
             )
+        elif ti.static(self.colliders[k].kind == "Mesh"):
+            phi, n = self.mesh_fields[k].sample(x)
         return phi, n
+
+    @ti.func
+    def _project(self, x, v, phi, n, k: ti.template()):
+        """project_out, with restitution where the collider has some (compile-time)."""
+        xo, vo = x, v
+        if ti.static(self.colliders[k].restitution > 0):
+            xo, vo = project_out_e(
+                x, v, phi, n, self.colliders[k].contact, self.col_friction[k], self.colliders[k].restitution
+            )
+        else:
+            xo, vo = project_out(x, v, phi, n, self.colliders[k].contact, self.col_friction[k])
+        return xo, vo
 
     @ti.func
     def project_particle(self, x, v, mp):
@@ -153,16 +191,23 @@ class GridBoundary:
         (see :func:`simcli.colliders.project_out`); a named collider takes the momentum removed from the
         particle (mass ``mp``). Compiled only when colliders exist."""
         for k in ti.static(range(self.n_colliders)):
-            if ti.static(self.colliders[k].moving or self.named[k]):
+            if ti.static(self.colliders[k].kind == "Mesh" and (self.colliders[k].moving or self.named[k])):
                 phi, n, vw = self.sdf_at(k, x, 1)
-                x_new, vr = project_out(x, v - vw, phi, n, self.colliders[k].contact, self.col_friction[k])
+                if phi < 0:  # (only then: a particle away from it keeps its velocity bit for bit)
+                    x_new, vr = self._project(x, v - vw, phi, n, k)
+                    if ti.static(self.named[k]):
+                        self.poses.add_load(k, x_new, mp * (v - (vr + vw)), 1)
+                    x, v = x_new, vr + vw
+            elif ti.static(self.colliders[k].moving or self.named[k]):
+                phi, n, vw = self.sdf_at(k, x, 1)
+                x_new, vr = self._project(x, v - vw, phi, n, k)
                 if ti.static(self.named[k]):
                     if phi < 0:
                         self.poses.add_load(k, x_new, mp * (v - (vr + vw)), 1)
                 x, v = x_new, vr + vw
             else:
                 phi, n = self.sdf(k, x)
-                x, v = project_out(x, v, phi, n, self.colliders[k].contact, self.col_friction[k])
+                x, v = self._project(x, v, phi, n, k)
         return x, v
 
     @ti.func

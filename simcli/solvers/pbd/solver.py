@@ -211,10 +211,16 @@ class PBDSolver(Solver):
             cs.allocate(f, npf)
         # walls and colliders: kinds compile-time, numbers in fields
         self.walls = wall_specs(self.scene, 3)
-        self.cols = collider_specs(self.scene, 3)
+        self.cols = collider_specs(self.scene, 3, self.scene_dir)
         # moving and named colliders: pose per substep, loads (compiled only when a collider needs them)
         self.poses = ColliderPoses(self.cols, collider_motions(self.scene, 3, self.scene_dir), 3, f)
         self.poses.allocate()
+        from simcli.collider_mesh_kernels import PBDRestitution, mesh_fields
+
+        self.mesh_fields = mesh_fields(self.cols, f)  # Mesh colliders' signed-distance grids
+        self.restitution = PBDRestitution(  # compiled only when a collider has restitution
+            self.cols, n, f, self.v, float(np.linalg.norm(self.scene.sim.gravity_vec))
+        )
         nc = max(1, len(self.cols))
         self.col_a, self.col_b = V3(nc), V3(nc)
         self.col_r, self.col_hh, self.col_mu = (ti.field(f, shape=nc) for _ in range(3))
@@ -444,6 +450,7 @@ class PBDSolver(Solver):
         from simcli.colliders import sdf_box, sdf_cylinder, sdf_plane, sdf_sphere
 
         walls, cols, poses = self.walls, self.cols, self.poses
+        mesh_f, rest = self.mesh_fields, self.restitution
         nc = len(cols)
         col_a, col_b, col_r, col_hh, col_mu = self.col_a, self.col_b, self.col_r, self.col_hh, self.col_mu
         dom_lo, dom_hi, wall_mu = self.dom_lo, self.dom_hi, self.wall_mu
@@ -500,8 +507,16 @@ class PBDSolver(Solver):
                             phi, nrm = sdf_box(xq, col_a[k], col_b[k])
                         elif ti.static(cols[k].kind == "Cylinder"):
                             phi, nrm = sdf_cylinder(xq, col_a[k], col_r[k], col_hh[k], cols[k].axis)
+                        elif ti.static(cols[k].kind == "Mesh"):
+                            phi, nrm = mesh_f[k].sample(xq)
                         if ti.static(cols[k].moving):
                             nrm = poses.normal_to_world(k, nrm, 1)
+                        if ti.static(friction and cols[k].restitution > 0):
+                            vw = ti.Vector.zero(float, 3)
+                            if ti.static(cols[k].moving):
+                                vw = poses.velocity(k, xi, 1)
+                            rest.record(i, k, phi - r, nrm, v[i] - vw, vw)
+                        if ti.static(cols[k].moving):
                             # friction on the displacement relative to the surface's own over the substep
                             xref = xpi + poses.velocity(k, xi, 1) * poses.dt[None]
                             xo = push(xi, xref, phi, nrm, r, col_mu[k], cols[k].contact == "sticky", friction)
@@ -589,6 +604,8 @@ class PBDSolver(Solver):
             self.contact.step()
         self._contact(True)
         self._update_velocity(dt)
+        if self.restitution.any:  # colliders with restitution: the bounce (simcli.collider_mesh)
+            self.restitution.apply(dt)
         for liq in self.liquids:
             liq.after_velocity(dt)
         self.time += dt
