@@ -118,7 +118,8 @@ def main() -> None:
                 built[k][2] = t
     base = a.substeps / min(built["exact"][3])
     print(
-        f"| {a.family} | configuration | particle slots | active | substeps/s (best of {a.repeat}) | vs exact |"
+        f"| {a.family} | configuration | particle slots | active | substeps/s (best of {a.repeat}) | vs "
+        "exact |"
     )
     print("|---|---|---|---|---|---|")
     for k in kinds:

@@ -2,7 +2,8 @@
 
     PYTHONPATH=$PWD python benchmarks/granular_study.py [-o out/granular_study] [--write-docs]
 
-Runs the verify cases mpm_sand_collapse_a0p5 / _a1 / _a2 / _a3 / _a4 / _a6 and mpm_sand_heap at refinement levels
+Runs the verify cases mpm_sand_collapse_a0p5 / _a1 / _a2 / _a3 / _a4 / _a6 and mpm_sand_heap at refinement
+levels
 -1, 0, 1 (grid 64, 128, 256 cells per metre, particle spacing halved with the cell, substeps: auto,
 which halves the step with the cell), plus level 0 with 6x the substeps (the time-step check), with
 each transfer of ``--transfers`` (default: apic, the default transfer, and flip with flip_ratio 1),
@@ -80,7 +81,8 @@ def study(out: Path, cases: list[str], transfers: list[str]) -> list[str]:
             tol = f"{case.tolerance:g} deg" if "heap" in name else f"{100 * case.tolerance:.0f}%"
             ref = case.reference.value
             rows.append(
-                f"| {name} | {tr} | {grid} | {sub} | {float(_value(r.message)):.3g}{unit} | {ref:g}{unit} | {err} "
+                f"| {name} | {tr} | {grid} | {sub} | {float(_value(r.message)):.3g}{unit} | {ref:g}{unit} | "
+                f"{err} "
                 f"| {tol} | {r.wall_s:.0f} |"
             )
             print(rows[-1], flush=True)

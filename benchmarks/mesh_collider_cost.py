@@ -4,7 +4,8 @@
 
 One process, f32 on the CPU: the sand bed of configs/validation/mpm_mesh_paddle_sand.yaml (grid 64) with, in
 turn, (a) a still Cylinder collider of the paddle's reach, (b) the star Mesh paddle still, (c) the star Mesh
-paddle turning at 2 rev/s, (d) the star Mesh in motion at zero speed, (e) a Box paddle turning at 2 rev/s. Each variant is built and warmed up (its
+paddle turning at 2 rev/s, (d) the star Mesh in motion at zero speed, (e) a Box paddle turning at 2 rev/s.
+Each variant is built and warmed up (its
 kernels compiled), then timed over --substeps substeps; the variants are timed in turn --repeats times
 (interleaved, so a load change on a shared machine hits them alike); reported: the median CPU time of the
 process per substep (all threads; less disturbed by other processes than wall time), also with the per-substep
@@ -98,7 +99,8 @@ def main() -> None:
         if col["type"] == "Mesh":
             m = s.boundary.colliders[0].mesh
             print(
-                f"{name}: SDF grid {'x'.join(map(str, m.shape))} (cell {m.h:.4g} m, {len(m.triangles)} triangles) "
+                f"{name}: SDF grid {'x'.join(map(str, m.shape))} (cell {m.h:.4g} m, {len(m.triangles)} "
+                "triangles) "
                 f"built in {m.build_seconds:.3f} s; solver build {b:.2f} s"
             )
     cpu: dict[str, list[float]] = {k: [] for k in solvers}

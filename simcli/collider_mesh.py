@@ -14,7 +14,8 @@ Host side (numpy + scipy, no Taichi; :func:`build_sdf`):
 * ``h`` is half the finest of the MPM grid cell, the PBD particle_size and the FEM element size 1/resolution
   of the families present (``sdf_cell`` overrides it), coarsened if the grid would exceed ``MAX_NODES``.
 
-Kernel side (simcli.collider_mesh_kernels.MeshSDFField): the grid in a Taichi field, sampled trilinearly in the collider's body
+Kernel side (simcli.collider_mesh_kernels.MeshSDFField): the grid in a Taichi field, sampled trilinearly in
+the collider's body
 frame (its pose at t = 0), the normal the normalised gradient of the trilinear interpolant; outside the
 grid the collider is far (phi = ``FAR``). Because the field is in the body frame, simcli.colliders'
 ColliderPoses moves and turns it like any primitive.

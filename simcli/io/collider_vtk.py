@@ -5,7 +5,8 @@ called ``collider<k>`` (its index in ``colliders``).
 
 The surface is built once in the collider's body frame (3D: triangles; 2D: a closed polyline in the z = 0
 plane; a Plane: a square / segment as large as the domain's diagonal) and moved to the frame's pose
-(simcli.motion); a Mesh collider writes its own triangles. Each file carries the surface velocity as point data ``velocity`` [m/s].
+(simcli.motion); a Mesh collider writes its own triangles. Each file carries the surface velocity as point
+data ``velocity`` [m/s].
 """
 
 from __future__ import annotations

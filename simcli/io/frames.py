@@ -93,7 +93,8 @@ class FrameSink:
         frame_series: dict[str, str] | None = None,
     ) -> None:
         """``frame_series``: sim.h5 path -> unit of a scalar written with every frame (``values`` of
-        write_frame: emitted and removed mass). ``series``: named time series (probes) written to sim.h5 as ``/probes/<name>/time`` and ``/value``
+        write_frame: emitted and removed mass). ``series``: named time series (probes) written to sim.h5 as
+        ``/probes/<name>/time`` and ``/value``
         by :meth:`write_series`, name -> (components, unit); on a resume their samples after time
         ``series_until`` are dropped. ``colliders``: named collider -> dim, for sim.h5
         /colliders/<name>/force (dim components) and /torque (3 in 3D, 1 in 2D) per frame."""
@@ -151,7 +152,8 @@ class FrameSink:
         colliders: dict[str, dict[str, np.ndarray]] | None = None,
         values: dict[str, float] | None = None,
     ) -> None:
-        """``colliders``: named collider -> {"force", "torque"}; ``values``: the frame_series (see ``open``)."""
+        """``colliders``: named collider -> {"force", "torque"}; ``values``: the frame_series (see
+        ``open``)."""
         if not self._open:
             raise RuntimeError("FrameSink.write_frame before open()")
         if frame != self.next_frame:

@@ -119,7 +119,8 @@ class EntityMeta:
             rows = a.shape[0] if a.ndim else -1
             if not 0 <= rows <= self.n or a.size != rows * comps:
                 raise ValueError(
-                    f"entity {self.name!r} field {fname!r}: expected up to {self.n} rows of {comps}, got {a.shape}"
+                    f"entity {self.name!r} field {fname!r}: expected up to {self.n} rows of {comps}, got "
+                    f"{a.shape}"
                 )
             return np.ascontiguousarray(a.reshape((rows,) + want[1:]), dtype=dtype)
         if a.shape != want:

@@ -114,7 +114,8 @@ class XdmfWriter:
 
     # ------------------------------------------------------------------------------------
     def _slab(self, e: EntityMeta, fname: str, frame: int, rows: int | None = None) -> str:
-        """Frame ``frame`` of /entities/<e>/<fname>, readable by both XDMF readers (module doc); ``rows``: only
+        """Frame ``frame`` of /entities/<e>/<fname>, readable by both XDMF readers (module doc); ``rows``:
+        only
         the first rows (the live particles of an entity whose count varies)."""
         dtype = e.fields[fname][2]
         shape = e.frame_shape(fname)

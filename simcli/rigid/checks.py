@@ -75,7 +75,8 @@ def check_rigid_bodies(loaded: Any, err) -> None:
         if rb.angular_velocity is not None and len(rb.angular_velocity) != na:
             err(
                 base + ("angular_velocity",),
-                f"expected {na} component{'s' if na > 1 else ''} for dim {dim} (got {len(rb.angular_velocity)})",
+                f"expected {na} component{'s' if na > 1 else ''} for dim {dim} (got "
+                f"{len(rb.angular_velocity)})",
             )
         if dim == 2:
             bad = [d for d in rb.fixed_dofs if d in ("z", "rx", "ry")]

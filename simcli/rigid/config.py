@@ -18,8 +18,8 @@ class RigidBody(BaseModel):
 
     name: str = Field(
         min_length=1,
-        description="Unique name (among rigid bodies, colliders and entities): sim.h5 /rigid_bodies/<name>/..., "
-        "vtk/<name>.pvd.",
+        description="Unique name (among rigid bodies, colliders and entities): "
+        "sim.h5 /rigid_bodies/<name>/..., vtk/<name>.pvd.",
     )
     morph: RigidShape = Field(
         description="Shape at t = 0: Box (axis-aligned), Sphere (a disk in 2D) or Cylinder (3D). Mass and "
@@ -33,8 +33,8 @@ class RigidBody(BaseModel):
     friction: float = Field(
         0.0,
         ge=0,
-        description="Coulomb coefficient [-] of its surface against the materials (as a collider's friction), "
-        "the domain walls and other rigid bodies (the geometric mean of the two).",
+        description="Coulomb coefficient [-] of its surface against the materials (as a collider's "
+        "friction), the domain walls and other rigid bodies (the geometric mean of the two).",
     )
     restitution: float = Field(
         0.0, ge=0, le=1, description="Normal restitution [-] against walls and other rigid bodies."

@@ -131,8 +131,10 @@ class RigidWorld:
                 from simcli.errors import NumericalError
 
                 raise NumericalError(
-                    f"numerical failure in rigid body '{b.name}' at t = {self.t:.6g} s: its state is not finite "
-                    "(the materials' load on it blew up). Every earlier frame is kept. To fix: lower sim.dt or "
+                    f"numerical failure in rigid body '{b.name}' at t = {self.t:.6g} s: its state is not "
+                    "finite "
+                    "(the materials' load on it blew up). Every earlier frame is kept. To fix: lower sim.dt "
+                    "or "
                     "use substeps: auto, make the body larger than a few cells or particles, or denser"
                 )
         self.frame_load += J

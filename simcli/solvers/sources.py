@@ -98,7 +98,8 @@ class ActiveSet:
         self.solver = solver
         self.f = f
         for e in self.emitters:
-            # the layers' distance along the normal makes the mass flux rho A speed exactly: n_layer m / (rho A),
+            # the layers' distance along the normal makes the mass flux rho A speed exactly: n_layer m /
+            # (rho A),
             # one spacing where the lattice fills the nozzle (a segment a whole number of spacings long; SPH:
             # times V_rest / spacing^dim, 0.997), a few per cent off it for a coarse circle
             rho = float(e["cfg"].material.rho)

@@ -28,7 +28,8 @@ def emitted_mass(f, entity=None, name=None, **_):
 
 @measurement("removed_mass")
 def removed_mass(f, entity=None, name=None, **_):
-    """Mass [kg] (per metre of depth in 2D) a sink has taken out since the start (/sinks/<name>/removed_mass)."""
+    """Mass [kg] (per metre of depth in 2D) a sink has taken out since the start
+    (/sinks/<name>/removed_mass)."""
     return _series(f, "sinks", name, "removed_mass")
 
 

@@ -198,8 +198,10 @@ def test_body_body_and_wall_contacts_conserve_momentum_and_hold():
             sim: {dim: 3, dt: 1.0e-3, gravity: [0, 0, 0]}
             domain: {lower: [-1, -1, 0], upper: [1, 1, 1]}
             rigid_bodies:
-              - {name: a, morph: {type: Sphere, center: [-0.2, 0, 0.5], radius: 0.05}, rho: 1000, velocity: [1, 0, 0]}
-              - {name: b, morph: {type: Sphere, center: [0.2, 0, 0.5], radius: 0.05}, rho: 3000, velocity: [-1, 0, 0]}
+              - {name: a, morph: {type: Sphere, center: [-0.2, 0, 0.5], radius: 0.05}, rho: 1000,
+                 velocity: [1, 0, 0]}
+              - {name: b, morph: {type: Sphere, center: [0.2, 0, 0.5], radius: 0.05}, rho: 3000,
+                 velocity: [-1, 0, 0]}
               - {name: c, morph: {type: Box, center: [0.5, 0.5, 0.5], size: [0.1, 0.1, 0.1]}, rho: 500,
                  velocity: [0, 0, 1], angular_velocity: [0, 0, 2], fixed_dofs: [rz]}
             """
@@ -240,7 +242,8 @@ def test_a_body_touching_an_entity_is_not_an_overlap(tmp_path):
     scene = tmp_path / "touch.yaml"
     scene.write_text(
         BASE
-        + "rigid_bodies:\n  - {name: b, morph: {type: Box, lower: [0.0, 0.04], upper: [0.04, 0.06]}, rho: 500}\n"
+        + "rigid_bodies:\n"
+        + "  - {name: b, morph: {type: Box, lower: [0.0, 0.04], upper: [0.04, 0.06]}, rho: 500}\n"
     )
     r = _run(["validate", str(scene)])
     assert r.returncode == 0, r.stderr

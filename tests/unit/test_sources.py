@@ -181,7 +181,8 @@ def test_sph_emitter_flux_sink_probes_and_resume(tmp_path):
     assert full["emitted"][-1] == pytest.approx(want[-1], rel=0.02)
     assert np.all(np.abs(full["emitted"] - want) <= 1000.0 * 0.04 * 0.011 + 1e-9)  # within one layer
     assert full["count"][0] == 0 and full["count"].max() > 0
-    # the jet enters at the nozzle with its speed: the lowest particle at the first frame fell as a ballistic one
+    # the jet enters at the nozzle with its speed: the lowest particle at the first frame fell as a
+    # ballistic one
     c = full["count"][1]
     assert c > 0 and not np.isnan(full["pos"][1, :c]).any() and np.isnan(full["pos"][1, c:]).all()
     y = full["pos"][1, :c, 1]

@@ -156,7 +156,8 @@ class MPMSand(_Solid):
     cone: Literal["simple_shear", "plane_strain", "compression"] = Field(
         "simple_shear",
         description="How the Drucker-Prager cone |dev tau| + alpha tr(tau) <= 0 is fitted to friction_angle. "
-        "simple_shear: a flowing layer (steady simple shear, zero dilatancy) carries tan(friction_angle) times "
+        "simple_shear: a flowing layer (steady simple shear, zero dilatancy) carries tan(friction_angle) "
+        "times "
         "its normal stress on its shear planes, so friction_angle is the angle of repose, in 2D and 3D "
         "(sqrt(J2) <= tan(phi) p as in the mu(I) rheology; alpha = sqrt(2) tan(phi) / 3). plane_strain: "
         "Mohr-Coulomb phi under plane strain with sigma_zz the in-plane mean (alpha = sqrt(2) sin(phi) / 3); "

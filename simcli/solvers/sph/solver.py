@@ -493,7 +493,8 @@ class SPHSolver(Solver):
         masses = [self.materials[m].rho * self.V_rest for m in mids]
         for e, m in zip(src.emitters, masses):
             e["mass"] = float(m)
-        # inflow buffer (Federico et al. 2012; Tafuni et al. 2018): the layers within one kernel support of the
+        # inflow buffer (Federico et al. 2012; Tafuni et al. 2018): the layers within one kernel support of
+        # the
         # nozzle keep its prescribed motion, a piston that feeds the jet at its speed and rest spacing (a free
         # nozzle lets the newest layer's pressure push the jet back into it)
         buf = int(math.ceil(self.support / self.ps)) + 1

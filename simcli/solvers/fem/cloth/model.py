@@ -60,7 +60,8 @@ def mesh_problems(x: np.ndarray, tris: np.ndarray) -> list[str]:
 
 
 def dihedral_gradients(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
-    """(k, 4, 3) gradients of the signed dihedral angles (Bridson et al. 2003, sec. 4; as simcli.solvers.pbd.topology)."""
+    """(k, 4, 3) gradients of the signed dihedral angles (Bridson et al. 2003, sec. 4; as
+    simcli.solvers.pbd.topology)."""
     x1, x2, x3, x4 = (x[quads[:, k]] for k in range(4))
     E = x4 - x3
     le = np.linalg.norm(E, axis=1)

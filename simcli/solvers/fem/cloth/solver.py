@@ -2,7 +2,8 @@
 line search whose every trial step is first limited by continuous collision detection (IPC, Li et al. 2020).
 
 Per substep (dt), with x_n, v_n the start state and x^ = x_n + dt v_n + dt^2 g:
-  Phi(x) = 1/2 |x - x^|_M^2 / dt^2 + W_elastic(x) + kappa B(x) + D_friction(x) + damping |x - x_n|_M^2 c/(2 dt)
+  Phi(x) = 1/2 |x - x^|_M^2 / dt^2 + W_elastic(x) + kappa B(x) + D_friction(x) + damping |x - x_n|_M^2 c/(2
+  dt)
   B: the IPC log barrier on squared distances below dhat = solvers.fem.contact_distance, over the cloth's
      point-triangle and edge-edge pairs (ipctk: broad phase, distances, barrier derivatives, CCD) and over
      (vertex, collider or domain wall) pairs through the obstacle's exact signed distance.
