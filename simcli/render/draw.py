@@ -12,6 +12,7 @@ import numpy as np
 
 from .data import EntityFrame, RenderError, Run, open_run, read_frame, resolve_frame
 from .geometry import collider_outline_2d, collider_triangles, shade, tet_surface
+from .moving import collider_poses, pose_outline_2d, pose_points
 
 PALETTE = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
 SPEED_CMAP = "viridis"
@@ -328,16 +329,25 @@ class Painter:
         self._speed_bar(ax, ents)
         self._legend(ax, ents)
 
+    def _collider_poses(self) -> list:
+        """Every collider's pose at this frame's time (None: still), from its prescribed motion."""
+        if not hasattr(self, "_pose_funcs"):
+            self._pose_funcs = collider_poses(self.run)
+        t = float(self.run.times[getattr(self, "_k", 0)])
+        return [f(t) if f is not None else None for f in self._pose_funcs]
+
     def _colliders2d(self, ax, drop):
         from matplotlib.patches import Circle, Polygon, Rectangle
 
         run = self.run
         lo3 = run.lower if run.dim == 3 else np.append(run.lower, 0)
         hi3 = run.upper if run.dim == 3 else np.append(run.upper, 0)
-        for col in run.colliders:
+        poses = self._collider_poses() if drop is None else [None] * len(run.colliders)
+        for col, pose in zip(run.colliders, poses):
             o = collider_outline_2d(
                 col, lo3 if drop is not None else run.lower, hi3 if drop is not None else run.upper, drop
             )
+            o = pose_outline_2d(pose, o)  # a moving collider at the frame's time
             kw = dict(facecolor=COLLIDER_RGBA, edgecolor=(0.3, 0.3, 0.33), lw=0.8, zorder=5)
             if o is None:
                 continue
@@ -390,8 +400,8 @@ class Painter:
         ax.add_collection3d(Line3DCollection([c[[i, j]] for i, j in edges], colors=[(0.5, 0.5, 0.5)], lw=0.5))
         # every surface in one collection, so that faces are depth-sorted against each other
         tris, cols = [], []
-        for col in run.colliders:
-            t = collider_triangles(col, lo, hi)  # planes clipped to the view box
+        for col, pose in zip(run.colliders, self._collider_poses()):
+            t = pose_points(pose, collider_triangles(col, lo, hi))  # planes clipped to the view box
             if len(t):
                 tris.append(t)
                 f = shade(t)[:, None] * np.asarray(COLLIDER_RGBA[:3])
