@@ -793,7 +793,7 @@ class Runner:
                     name=e.name,
                     kind=s.entity_kind(e.name),
                     n=s.entity_size(e.name) - (1 if getattr(e, "is_emitter", False) else 0),
-                    variable=getattr(s, "sources", None) is not None,
+                    variable=s.active_set is not None,
                     dim=self.scene.sim.dim,
                     fields={f: avail[f] for f in fields},
                     cells=s.entity_cells(e.name),

@@ -122,7 +122,7 @@ class ProbeRecorder:
         name = entity.name
         m = self._mass.get(name)
         s = self.owner[name]
-        varying = getattr(s, "sources", None) is not None  # emitters, sinks: the count changes
+        varying = s.active_set is not None  # emitters, sinks: the count changes
         if m is not None and not varying:
             return m
         if varying and s.family == "sph":

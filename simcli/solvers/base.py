@@ -87,6 +87,9 @@ class Solver:
     """Base class of a solver family. Subclasses implement every method below."""
 
     family: ClassVar[str] = ""
+    # emitters and sinks (simcli.solvers.sources.ActiveSet: a changing particle count) of MPM and SPH;
+    # None in every other solver and scene (SF's own `sources` are its jets, a different thing)
+    active_set: Any = None
 
     def __init__(self, scene: Scene, bodies: list[Body]) -> None:
         self.scene = scene

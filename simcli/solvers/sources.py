@@ -398,20 +398,20 @@ class SourceRun:
 
     def __init__(self, scene, solvers) -> None:
         self.scene = scene
-        self.solvers = [s for s in solvers if getattr(s, "sources", None) is not None]
+        self.solvers = [s for s in solvers if s.active_set is not None]
         self._warned = 0
 
     def before_substep(self, t: float) -> None:
         for s in self.solvers:
-            if s.sources.before_substep(t):
+            if s.active_set.before_substep(t):
                 s.active_changed()
 
     def after_step(self) -> list[str]:
         """Sinks; returns new warnings (an emitter that filled up)."""
         for s in self.solvers:
-            if s.sources.after_step():
+            if s.active_set.after_step():
                 s.active_changed()
-        ws = [w for s in self.solvers for w in s.sources.warnings]
+        ws = [w for s in self.solvers for w in s.active_set.warnings]
         new, self._warned = ws[self._warned :], len(ws)
         return new
 
@@ -420,8 +420,8 @@ class SourceRun:
         cap = math.inf
         for s in self.solvers:
             cfl = float(getattr(s, "cfl", None) or getattr(getattr(s, "opts", None), "cfl", 0.5))
-            for e in s.sources.emitters:
-                cap = min(cap, cfl * s.sources.spacing / float(e["cfg"].speed))
+            for e in s.active_set.emitters:
+                cap = min(cap, cfl * s.active_set.spacing / float(e["cfg"].speed))
         return cap
 
     def frame_values(self) -> dict[str, float]:
@@ -429,11 +429,11 @@ class SourceRun:
         (cumulative [kg], per metre of depth in 2D)."""
         out: dict[str, float] = {}
         for s in self.solvers:
-            for name, m in s.sources.emitted_mass().items():
+            for name, m in s.active_set.emitted_mass().items():
                 out[f"emitters/{name}/emitted_mass"] = m
         for sk in self.scene.sinks:
             out[f"sinks/{sk.name}/removed_mass"] = sum(
-                s.sources.removed_mass().get(sk.name, 0.0) for s in self.solvers
+                s.active_set.removed_mass().get(sk.name, 0.0) for s in self.solvers
             )
         return out
 
@@ -441,7 +441,7 @@ class SourceRun:
         vals = self.frame_values()
         d: dict = {"emitters": {}, "sinks": {}}
         for s in self.solvers:
-            d["emitters"].update(s.sources.info())
+            d["emitters"].update(s.active_set.info())
         for name in d["emitters"]:
             d["emitters"][name]["emitted_mass_kg"] = vals[f"emitters/{name}/emitted_mass"]
         for sk in self.scene.sinks:

@@ -162,6 +162,7 @@ class MPMSolver(Solver):
         self.p2g_mode = "auto"
         # emitters and sinks (simcli/solvers/sources.py): an active count; None in scenes without them
         self.sources = ActiveSet(scene, bodies, "MPM") if has_sources(scene, "MPM") else None
+        self.active_set = self.sources
         # coupling between families (simcli/coupling/): set by the coupler before build; then the grid keeps
         # each node's mass (grid_m) for the coupling phase. Off: nothing below changes.
         self.store_node_mass = False

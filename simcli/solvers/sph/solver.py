@@ -123,6 +123,7 @@ class SPHSolver(Solver):
         }
         # emitters and sinks (simcli/solvers/sources.py): an active count; None in scenes without them
         self.sources = ActiveSet(scene, bodies, "SPH") if has_sources(scene, "SPH") else None
+        self.active_set = self.sources
         self._built = False
 
     def _place_inside_colliders(self, scene: Any, bodies: list[Body]) -> list[Body]:
