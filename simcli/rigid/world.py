@@ -1,7 +1,7 @@
 """All the rigid bodies of a scene and their time integration, between the families' substeps.
 
 A rigid body is a moving, named collider (simcli.colliders) whose pose comes from here: every family that
-honours moving named colliders (MPM, PBD, FEM; SPH and SF once their colliders move) reads its pose each
+honours moving named colliders (MPM, PBD, FEM, SPH; not SF) reads its pose each
 substep, lets its material meet it, and adds the impulse the material gave it to the collider's load.
 After the families' substep the runner calls :meth:`RigidWorld.step`: the loads of that substep are read
 (and cleared) from every family, then gravity, the loads, wall and body-body contacts and the held degrees

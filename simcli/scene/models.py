@@ -423,7 +423,7 @@ class Scene(Strict):
     )
     rigid_bodies: list[RigidBody] = Field(
         default_factory=list,
-        description="Free rigid bodies (Box, Sphere, Cylinder), two-way coupled with MPM, PBD and FEM "
+        description="Free rigid bodies (Box, Sphere, Cylinder), two-way coupled with MPM, PBD, FEM and SPH "
         "entities through the moving-collider path; sim.h5 /rigid_bodies/<name>/....",
     )
     solvers: Solvers = Field(default_factory=Solvers, description="Options per solver family.")

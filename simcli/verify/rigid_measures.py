@@ -41,9 +41,12 @@ def rigid_draft(f, entity, body, axis=None, spacing=0.0, margin=0.02, **_):
     """Draft [m] of a floating rigid body: the liquid's free surface away from the body (the mean over
     columns of width ``spacing`` of the highest particle, plus half a spacing, for columns farther than
     ``margin`` [m] from the body's extent) minus the lowest point of the body (its centre of mass less its
-    half extent along the vertical ``axis``, default the last; for an upright body)."""
+    half extent along the vertical ``axis``, default the last; for an upright body). ``spacing: sph``: the
+    scene's SPH particle size (so that a case refined with ``--refine`` measures at its own spacing)."""
     scene, rb = _rb_scene(f, body)
     dim = scene.sim.dim
+    if spacing == "sph":
+        spacing = float(scene.solvers.sph.particle_size)
     ax = dim - 1 if axis is None else axis
     lo, hi = (np.asarray(b, float)[:dim] for b in rb.morph.bounds())
     half = 0.5 * (hi - lo)

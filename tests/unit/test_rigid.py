@@ -104,18 +104,19 @@ def test_bad_rigid_bodies_are_refused_with_their_location(tmp_path):
     assert r.returncode == 65 and "rigid_bodies.0.fixed_dofs.0" in r.stderr
 
 
-def test_rigid_bodies_with_sph_entities_are_refused(tmp_path):
-    scene = tmp_path / "sph.yaml"
+def test_rigid_bodies_with_sf_entities_are_refused(tmp_path):
+    scene = tmp_path / "sf.yaml"
     scene.write_text(
         textwrap.dedent(
             """\
             version: 1
             sim: {dim: 2, dt: 1.0e-3, steps: 2}
             domain: {lower: [0.0, 0.0], upper: [0.2, 0.2]}
+            solvers:
+              sf: {resolution: 16}
             entities:
-              - name: water
-                material: {type: SPH.Liquid, rho: 1000}
-                morph: {type: Box, lower: [0.0, 0.0], upper: [0.05, 0.05]}
+              - name: air
+                material: {type: SF.Smoke}
             rigid_bodies:
               - {name: b, morph: {type: Sphere, center: [0.15, 0.1], radius: 0.02}, rho: 500}
             """
@@ -123,8 +124,8 @@ def test_rigid_bodies_with_sph_entities_are_refused(tmp_path):
     )
     r = _run(["validate", str(scene)])
     assert r.returncode == 65
-    assert "rigid_bodies: rigid bodies are coupled with FEM, MPM, PBD entities only" in r.stderr
-    assert "SPH" in r.stderr
+    assert "rigid_bodies: rigid bodies are coupled with FEM, MPM, PBD, SPH entities only" in r.stderr
+    assert "SF" in r.stderr
 
 
 RUN = BASE + textwrap.dedent(
@@ -247,3 +248,48 @@ def test_a_body_touching_an_entity_is_not_an_overlap(tmp_path):
     )
     r = _run(["validate", str(scene)])
     assert r.returncode == 0, r.stderr
+
+
+FLOAT_SPH = textwrap.dedent(
+    """\
+    version: 1
+    sim: {dim: 2, dt: 2.0e-3, substeps: auto, duration: 0.6}
+    domain: {lower: [0.0, 0.0], upper: [0.12, 0.1]}
+    solvers:
+      sph: {particle_size: 0.005, pressure_solver: DFSPH}
+    entities:
+      - name: water
+        material: {type: SPH.Liquid, rho: 1000, mu: 2.0}
+        morph: {type: Box, lower: [0.0, 0.0], upper: [0.12, 0.05]}
+    rigid_bodies:
+      - name: raft
+        morph: {type: Box, center: [0.06, 0.06], size: [0.04, 0.02]}
+        rho: 500
+    output: {every: 10, formats: [hdf5], fields: [position]}
+    """
+)
+
+
+def test_a_box_floats_on_sph_water_and_reads_its_weight(tmp_path):
+    """Two-way SPH: a rho 500 raft dropped on DFSPH water settles; the liquid's pressure on its boundary
+    particles carries its weight and it floats with a draft near rho_b / rho_l x its height (0.01 m)."""
+    import h5py
+
+    from simcli.verify.rigid_measures import rigid_draft
+
+    scene = tmp_path / "float.yaml"
+    scene.write_text(FLOAT_SPH)
+    out = tmp_path / "out"
+    r = _run(["run", str(scene), "-o", str(out), "-q"])
+    assert r.returncode == 0, r.stderr
+    weight = 500 * 0.04 * 0.02 * 9.81
+    with h5py.File(out / "sim.h5", "r") as f:
+        t = f["time"][()]
+        late = t >= 0.4
+        force = f["rigid_bodies/raft/force"][()]
+        vel = f["rigid_bodies/raft/velocity"][()]
+        assert force[late, 1].mean() == pytest.approx(weight, rel=0.05)
+        assert np.abs(force[late, 0]).mean() < 0.05 * weight
+        assert np.abs(vel[late]).max() < 0.03
+        _, draft = rigid_draft(f, "water", "raft", spacing=0.005, margin=0.01)
+        assert 0.0075 < draft[late].mean() < 0.0125
