@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simcli.collider_spec import ColliderSpec
 from simcli.motion import Pose, quat_from_rotvec, quat_mul, quat_to_matrix
 
 DOF_INDEX = {"x": 0, "y": 1, "z": 2, "rx": 3, "ry": 4, "rz": 5}
@@ -58,25 +59,6 @@ def morph_centre(morph, dim: int) -> np.ndarray:
     return np.asarray(morph.center, float)[:dim]
 
 
-@dataclass(frozen=True)
-class ColliderSpec:
-    """The same fields as simcli.colliders.ColliderSpec (read by attribute by every family; kept here so that
-    simcli.rigid does not import the Taichi side)."""
-
-    kind: str
-    contact: str
-    axis: int
-    a: tuple
-    b: tuple
-    radius: float
-    half_height: float
-    friction: float
-    moving: bool = True
-    name: str | None = None
-    centre: tuple = ()
-    rigid: bool = True  # a free rigid body (families may count its loads more completely than a collider's)
-
-
 def body_spec(rb, dim: int) -> ColliderSpec:
     """The collider record of a rigid body (its shape at t = 0), moving and named."""
     m = rb.morph
@@ -96,6 +78,7 @@ def body_spec(rb, dim: int) -> ColliderSpec:
             True,
             rb.name,
             centre,
+            rigid=True,
         )
     if m.type == "Sphere":
         return ColliderSpec(
@@ -110,6 +93,7 @@ def body_spec(rb, dim: int) -> ColliderSpec:
             True,
             rb.name,
             centre,
+            rigid=True,
         )
     return ColliderSpec(
         "Cylinder",
@@ -123,6 +107,7 @@ def body_spec(rb, dim: int) -> ColliderSpec:
         True,
         rb.name,
         centre,
+        rigid=True,
     )
 
 

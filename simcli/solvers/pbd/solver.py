@@ -520,7 +520,7 @@ class PBDSolver(Solver):
                             # friction on the displacement relative to the surface's own over the substep
                             xref = xpi + poses.velocity(k, xi, 1) * poses.dt[None]
                             xo = push(xi, xref, phi, nrm, r, col_mu[k], cols[k].contact == "sticky", friction)
-                            if ti.static(poses.named[k] and (friction or getattr(cols[k], "rigid", False))):
+                            if ti.static(poses.named[k] and (friction or cols[k].rigid)):
                                 # the momentum the contact gives the particle, -m (xo - xi) / dt,
                                 # goes to the collider (a rigid body's: also the liquids' clamping passes,
                                 # whose pushes are momentum the body gives the liquid too)
