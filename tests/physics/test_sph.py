@@ -563,7 +563,9 @@ def _floor_layer_ratio(s):
     return float(np.median(p[layer] / (1000.0 * G * (0.1 - z[layer]))))
 
 
-@pytest.mark.parametrize("wall", ["akinci", "extrapolated"])
+# the akinci variant (the model before the extrapolated wall pressure) is slow: the default suite keeps
+# the default
+@pytest.mark.parametrize("wall", [pytest.param("akinci", marks=pytest.mark.slow), "extrapolated"])
 def test_extrapolated_wall_pressure_balances_the_wall_layer(ti_f32, wall):
     """DFSPH tank released at rest on the lattice, 0.1 s at 2 ms substeps (what substeps: auto takes here):
     with Akinci's term the floor layer squeezes towards the floor and carries ~1.7x the hydrostatic pressure
@@ -582,7 +584,7 @@ def test_extrapolated_wall_pressure_balances_the_wall_layer(ti_f32, wall):
         assert speed < 0.005, speed
 
 
-@pytest.mark.parametrize("wall", ["akinci", "extrapolated"])
+@pytest.mark.parametrize("wall", [pytest.param("akinci", marks=pytest.mark.slow), "extrapolated"])
 def test_wcsph_extrapolated_wall_pressure_balances_the_wall_layer(ti_f32, wall):
     """WCSPH tank released at rest on the lattice, 0.8 s at 0.1 ms substeps (what substeps: auto takes):
     with Akinci's term the floor layer squeezes and carries ~1.7x the hydrostatic pressure; with the
@@ -634,6 +636,7 @@ def test_extrapolated_wall_pressure_needs_a_free_surface_with_dfsph():
     assert SPHOptions(pressure_solver="WCSPH", clamp_pressure=False).wall_model == "akinci"
 
 
+@pytest.mark.slow  # (default suite time; the restart tests check bit-for-bit runs of the same model)
 def test_extrapolated_wall_pressure_is_reproducible(ti_f32):
     """The walls' k is a gather in a fixed cell order (the list of walls in reach is built with an atomic
     counter, in any order): two runs of the same tank agree bit for bit."""

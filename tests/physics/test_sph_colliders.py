@@ -64,7 +64,7 @@ def test_moving_piston_lets_no_particle_in_and_is_pushed_back(ti_f32, solver):
     assert x[:, 0].min() >= 0.04 + 0.5 * steps * dt - 1e-5
 
 
-@pytest.mark.parametrize("solver", ["DFSPH", "WCSPH"])
+@pytest.mark.parametrize("solver", ["DFSPH", pytest.param("WCSPH", marks=pytest.mark.slow)])
 def test_still_named_collider_load_is_the_impulse_it_gave(ti_f32, solver):
     """No gravity, no viscosity (whose m_j / rho_j pair weights are not symmetric where densities differ),
     f64: a block of water thrown at a named Box at 1 m/s. Over one substep the load on the collider is
