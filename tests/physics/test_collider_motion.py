@@ -144,7 +144,10 @@ FEM = dict(
 )
 
 
-@pytest.mark.parametrize("family", ["pbd", "fem_explicit", "fem_implicit"])
+@pytest.mark.parametrize(
+    "family",
+    ["pbd", "fem_explicit", pytest.param("fem_implicit", marks=pytest.mark.slow)],  # (suite time)
+)
 def test_box_pushed_along_a_frictional_table_by_a_moving_collider(tmp_path, family):
     """A Box collider moving at 0.3 m/s pushes an elastic block (8 kg) along a named table with friction
     0.5: once sliding, the pusher reads the Coulomb force mu m g and the table the same the other way and
