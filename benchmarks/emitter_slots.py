@@ -129,7 +129,7 @@ def main() -> None:
             "reserved": "capacity = 100 x emitted",
             "block": "no emitter",
         }[k]
-        active = src.solvers[0].sources.n_active if src is not None else s.n
+        active = src.solvers[0].active_set.n_active if src is not None else s.n
         sps = a.substeps / min(times)
         print(f"| {a.family} | {k} | {slots} ({s.n:,}) | {active:,} | {sps:.1f} | {sps / base:.3f} |")
 

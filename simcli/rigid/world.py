@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from simcli.motion import quat_from_rotvec, quat_mul
+from simcli.motion import quat_from_rotvec, quat_mul, quat_to_matrix
 
 from .body import RigidBodyModel
 from .contact import bounding_radius, find_contacts, solve_contacts, surface_points, wall_points
@@ -104,8 +104,6 @@ class RigidWorld:
             Iinv = b.world_inertia_inv()
             L = J[k, dim:].copy()
             if dim == 3:  # gyroscopic term of Euler's equations, explicit
-                from simcli.motion import quat_to_matrix
-
                 R3 = quat_to_matrix(s.q)
                 Iw = R3 @ b.inertia @ R3.T
                 L -= np.cross(s.w, Iw @ s.w) * dt
