@@ -59,3 +59,18 @@ def test_config_side_imports_without_taichi():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout.strip() == "False"
+
+
+def test_every_top_level_module_has_a_layer():
+    """A new module or package directly under simcli/ must be placed in the layers contract, else
+    `lint-imports` would say nothing about what it may import."""
+    import tomllib
+
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    contracts = cfg["tool"]["importlinter"]["contracts"]
+    layers = next(c for c in contracts if c["type"] == "layers")["layers"]
+    named = {m.strip() for layer in layers for m in layer.replace("|", ":").split(":")}
+    pkg = ROOT / "simcli"
+    tops = {f"simcli.{p.stem}" for p in pkg.glob("*.py") if p.stem != "__init__"}
+    tops |= {f"simcli.{p.name}" for p in pkg.iterdir() if (p / "__init__.py").is_file()}
+    assert sorted(tops - named) == []
