@@ -128,6 +128,15 @@ class Runner:
         self.t_process = t_process if t_process is not None else time.perf_counter()
         self.warnings: list[str] = []
         self.info: dict = {}
+        # set while the run builds and steps (None/empty until then: the closing summary reads them
+        # whether or not the run got that far)
+        self._solvers: list = []
+        self._rigid = None  # simcli.rigid.run.RigidRun, with rigid_bodies
+        self._sources = None  # simcli.solvers.sources.SourceRun, with emitters or sinks
+        self._resume_from: str | None = None
+        self._dt_range = (math.inf, 0.0)
+        self._step0 = 0
+        self._last_loads: dict = {}
         self.timings = {
             "startup_s": 0.0,
             "setup_s": 0.0,
@@ -218,7 +227,7 @@ class Runner:
                 self.signals.restore()
             if self._lock is not None:
                 self._lock.release()
-            if getattr(self, "_rigid", None) is not None:
+            if self._rigid is not None:
                 self._rigid.close()
 
     def _abort_sink(self) -> None:
@@ -232,7 +241,7 @@ class Runner:
         sig = self.signals.received
         if sig is None:
             return
-        if self.resume and getattr(self, "_resume_from", None):
+        if self.resume and self._resume_from:
             rest = f"the checkpoint it started from ({self._resume_from}) is untouched: --resume again"
         else:
             rest = "nothing to resume yet: run the same command again to start afresh"
@@ -342,7 +351,7 @@ class Runner:
 
             bodies += emitter_bodies(scene)
         for b in bodies:
-            for w in getattr(b, "warnings", []) or []:
+            for w in b.warnings:
                 self.warn(f"{b.name}: {w}")
             if len(b.x) == 0:
                 fam = b.entity.family
@@ -388,10 +397,8 @@ class Runner:
         if coupler is not None:
             coupler.build()
             self.info["coupling"] = coupler.names
-        for (
-            s
-        ) in solvers:  # what a solver changed of the scene as given (e.g. SPH particles inside a collider)
-            for w in getattr(s, "warnings", None) or []:
+        for s in solvers:  # what a solver changed of the scene as given (e.g. SPH particles in a collider)
+            for w in s.warnings:
                 self.warn(w)
         self.timings["build_s"] = time.perf_counter() - t0
         self._startup_point("building the solvers")
@@ -659,32 +666,32 @@ class Runner:
     def _frame_series(self) -> dict[str, str] | None:
         """sim.h5 per-frame scalars: emitted and removed mass, and the live count of each entity whose count
         varies (emitters, sinks)."""
-        if getattr(self, "_sources", None) is None:
+        if self._sources is None:
             return None
         unit = "kg" if self.scene.sim.dim == 3 else "kg/m"
         out = {k: unit for k in self._sources.frame_values()}
         return out
 
     def _frame_vals(self) -> dict:
-        if getattr(self, "_sources", None) is None:
+        if self._sources is None:
             return {}
         return {"values": self._sources.frame_values()}
 
     def _finish_stats(self, step, n_particles, sub_hist, stepping0, substeps_done):
         sim = self.scene.sim
-        if getattr(self, "_sources", None) is not None:
+        if self._sources is not None:
             self.info["sources"] = self._sources.info()
-        for s in getattr(self, "_solvers", []):
+        for s in self._solvers:
             try:
                 self.info.setdefault("solvers", {})[s.family] = s.info()
             except Exception as e:  # reporting must never fail a run
                 self.info.setdefault("solvers", {})[s.family] = {"info_error": str(e)}
-        if getattr(self, "_rigid", None) is not None:
+        if self._rigid is not None:
             self.info["rigid_bodies"] = self._rigid.summary()
         t = self.timings["stepping_s"] - stepping0
         # the first substep carries the kernel compilation: leave it out of throughput
         steady = max(t, 1e-12)
-        dt_lo, dt_hi = getattr(self, "_dt_range", (math.inf, 0.0))
+        dt_lo, dt_hi = self._dt_range
         sps = substeps_done / steady if substeps_done else 0.0
         self.info.update(
             steps_done=step,
@@ -701,13 +708,13 @@ class Runner:
                 "dt_max_s": dt_hi if dt_hi > 0 else None,
             },
             throughput={
-                "steps_per_s": ((step - getattr(self, "_step0", 0)) / steady) if step else 0.0,
+                "steps_per_s": ((step - self._step0) / steady) if step else 0.0,
                 "substeps_per_s": sps,
                 "particle_substeps_per_s": sps * n_particles,
                 "cell_substeps_per_s": sps
-                * sum(int(s.counts().get("cells", 0)) for s in getattr(self, "_solvers", [])),
+                * sum(int(s.counts().get("cells", 0)) for s in self._solvers),
                 "vertex_substeps_per_s": sps
-                * sum(int(s.counts().get("vertices", 0)) for s in getattr(self, "_solvers", [])),
+                * sum(int(s.counts().get("vertices", 0)) for s in self._solvers),
             },
         )
 
@@ -797,7 +804,7 @@ class Runner:
                     dim=self.scene.sim.dim,
                     fields={f: avail[f] for f in fields},
                     cells=s.entity_cells(e.name),
-                    cell_fields=tuple(f for f in fields if f in getattr(s, "cell_fields", ())),
+                    cell_fields=tuple(f for f in fields if f in s.cell_fields),
                     **kw,
                 )
             )
@@ -834,7 +841,7 @@ class Runner:
         dim = self.scene.sim.dim
         tot = {name: np.zeros(dim + 3) for name in meta}
         for s in solvers:
-            for name, a in (s.collider_loads() if hasattr(s, "collider_loads") else {}).items():
+            for name, a in s.collider_loads().items():
                 if name in tot:  # (rigid bodies are named colliders too: simcli.rigid reads theirs)
                     tot[name] += a
         out = {}
@@ -855,7 +862,7 @@ class Runner:
         """run.json colliders: per named collider, the last frame's force and torque and their means over
         the run (time-weighted)."""
         out = {}
-        for name, a in getattr(self, "_last_loads", {}).items():
+        for name, a in self._last_loads.items():
             h = self._load_sums.get(name)
             mean = (h[0] / h[2], h[1] / h[2]) if h and h[2] > 0 else (a["force"] * 0, a["torque"] * 0)
             out[name] = {

@@ -3,7 +3,7 @@ the particle solvers consume (re-exported by ``simcli.solvers.base``). No Taichi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -25,6 +25,7 @@ class Body:
     volume: np.ndarray
     mass: np.ndarray
     fixed: np.ndarray
+    warnings: list[str] = field(default_factory=list)  # what sampling changed or doubts (the runner reports)
 
     def __post_init__(self) -> None:
         self.x = np.ascontiguousarray(self.x, dtype=np.float64)

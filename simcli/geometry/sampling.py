@@ -48,7 +48,6 @@ Warnings
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import os
 from pathlib import Path
@@ -328,11 +327,7 @@ def sample_entity(entity, scene, scene_dir: PathLike | None = None, rng=None) ->
         "mass": np.full(n, rho * per_volume),
         "fixed": fixed,
     }
-    if "warnings" in {f.name for f in dataclasses.fields(Body)}:
-        body = Body(**kwargs, warnings=list(warnings))
-    else:
-        body = Body(**kwargs)
-        body.warnings = list(warnings)
+    body = Body(**kwargs, warnings=list(warnings))
     for w in warnings:
         log.debug("%s: %s", entity.name, w)  # the runner reports body.warnings itself
     return body

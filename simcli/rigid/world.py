@@ -45,10 +45,7 @@ def release(scene: Any) -> None:
 
 def solver_poses(solver: Any):
     """The simcli.colliders.ColliderPoses a family reads its moving colliders from (None: it has none)."""
-    p = getattr(solver, "poses", None)
-    if p is None:
-        p = getattr(getattr(solver, "boundary", None), "poses", None)
-    return p
+    return solver.collider_poses()
 
 
 class RigidWorld:

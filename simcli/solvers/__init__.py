@@ -8,7 +8,6 @@ allocated or compiled.
 from __future__ import annotations
 
 import importlib
-import inspect
 
 FAMILIES: dict[str, str] = {
     "MPM": "simcli.solvers.mpm.solver:MPMSolver",
@@ -34,9 +33,6 @@ def make_solvers(scene, bodies, scene_dir=None) -> list:
         solver_cls = getattr(importlib.import_module(mod), cls)
         # particle families get their sampled bodies; grid families (SF) read the scene itself
         mine = [b for b in bodies if b.entity.family == fam]
-        # families that read files named in the scene (FEM meshes) resolve them against its folder
-        if "scene_dir" in inspect.signature(solver_cls.__init__).parameters:
-            solvers.append(solver_cls(scene, mine, scene_dir=scene_dir))
-        else:
-            solvers.append(solver_cls(scene, mine))
+        # files named in the scene (meshes, motion CSVs) resolve against its folder
+        solvers.append(solver_cls(scene, mine, scene_dir=scene_dir))
     return solvers

@@ -90,10 +90,17 @@ class Solver:
     # emitters and sinks (simcli.solvers.sources.ActiveSet: a changing particle count) of MPM and SPH;
     # None in every other solver and scene (SF's own `sources` are its jets, a different thing)
     active_set: Any = None
+    # per-cell output fields among output_fields() (written per tet/triangle, not per vertex)
+    cell_fields: ClassVar[tuple[str, ...]] = ()
+    # simcli.colliders.ColliderPoses of this family's moving and named colliders (None: it has none);
+    # read through collider_poses()
+    poses: Any = None
 
-    def __init__(self, scene: Scene, bodies: list[Body]) -> None:
+    def __init__(self, scene: Scene, bodies: list[Body], scene_dir: Any = None) -> None:
         self.scene = scene
         self.bodies = list(bodies)
+        self.scene_dir = scene_dir  # files named in the scene (meshes, CSV motions) resolve against it
+        self.warnings: list[str] = []  # what the solver changed of the scene as given (run.json, stderr)
 
     def build(self) -> None:
         """Allocate fields once and upload the initial state."""
@@ -180,6 +187,16 @@ class Solver:
         """Resolution length [m] the runaway guard measures CFL numbers against (grid cell,
         particle spacing)."""
         raise NotImplementedError
+
+    def collider_loads(self) -> dict[str, np.ndarray]:
+        """Impulse on each named collider since the last call, name -> (dim + 3,) [N s, N m s]; a
+        family without named colliders returns {}."""
+        return {}
+
+    def collider_poses(self) -> Any:
+        """The ColliderPoses the family's kernels read its moving colliders from (rigid bodies write
+        their pose there and read their load back), or None."""
+        return self.poses
 
     def info(self) -> dict[str, Any]:
         """Optional extra facts for run.json (design choices, sizes)."""

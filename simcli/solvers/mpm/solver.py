@@ -980,6 +980,9 @@ class MPMSolver(Solver):
         a = self.boundary.take_loads()
         return {c.name: a[k] for k, c in enumerate(self.boundary.colliders) if c.name is not None}
 
+    def collider_poses(self):
+        return self.boundary.poses if self._built else None
+
     def output_fields(self) -> dict[str, tuple[int, str]]:
         d = self.dim
         return {
