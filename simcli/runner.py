@@ -11,6 +11,7 @@ import resource
 import sys
 import time
 import traceback
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +73,20 @@ def _versions(ti_info: dict | None) -> dict:
         t = ti_info.get("taichi")
         v["taichi"] = ".".join(map(str, t)) if isinstance(t, (tuple, list)) else t
     return v
+
+
+@dataclass
+class _Loop:
+    """What the time loop carries from step to step (a checkpoint saves it; a resumed run starts from it)."""
+
+    step: int = 0
+    frame: int = 0
+    substeps_now: int | None = None  # substeps of the current step (None: substeps: auto, not chosen yet)
+    sub_hist: list[int] = field(default_factory=list)  # substeps of every step (the checkpoint keeps 10,000)
+    substeps_done: int = 0  # substeps taken by this process
+    stable: float = math.inf  # the stable substep at the start (frame 0's check, the fixed-substep warning)
+    stepping0: float = 0.0  # timings["stepping_s"] when this process's loop started
+    first: bool = True  # the first substep (its time is the kernels' compile time)
 
 
 class _StartupInterrupted(SimcliError):
@@ -137,6 +152,13 @@ class Runner:
         self._dt_range = (math.inf, 0.0)
         self._step0 = 0
         self._last_loads: dict = {}
+        self._coupler = None  # simcli.coupling.Coupler, when two coupled families meet
+        self._probes = None  # simcli.probes.recorder, with probes
+        self._cvtk = None  # named and moving colliders' surfaces per frame (vtk/<name>.pvd)
+        self._progress = None
+        self._n_particles = 0
+        self._t_loop = 0.0
+        self._load_step = 0
         self.timings = {
             "startup_s": 0.0,
             "setup_s": 0.0,
@@ -277,13 +299,39 @@ class Runner:
             self._owns_out = True
 
     def _run(self, solver_factory) -> tuple[int, dict]:
+        """A run's phases, in order (docs/ARCHITECTURE.md, "A run"): open the output folder (and the
+        checkpoint to resume from), sample the bodies, start Taichi, build the solvers, open the output and
+        write frame 0, step to the end (frames, checkpoints, signals), close with the summary."""
+        opened = self._open_run()
+        if opened is None:  # a refused --resume (said why on stderr)
+            return EXIT_USAGE, None
+        ckpt, scene_text = opened
+        self.write_run_json("starting", None)
+        self._startup_point("loading the scene")
+        bodies = self._sample_bodies()
+        self._startup_point("sampling the bodies")
+        self._start_taichi()
+        self._startup_point("starting Taichi")
+        solvers = self._build_solvers(solver_factory, bodies)
+        self._startup_point("building the solvers")
+        loop = self._open_output(solvers, ckpt, scene_text)
+        self.timings["startup_s"] = time.perf_counter() - self.t_process
+        self._warn_fixed_substep(loop)
+        interrupted = self._step_loop(solvers, loop)
+        if interrupted is not None:
+            return interrupted
+        return self._close_run(loop)
+
+    # ------------------------------------------------------------------ phases of a run
+    def _open_run(self):
+        """The output folder taken (lock, previous-run policy), the checkpoint to resume from read, the disk
+        space checked, scene.yaml written and run.json's fixed facts set. Returns (checkpoint or None,
+        the resolved scene's text), or None when --resume finds nothing to resume."""
         import warnings
 
-        from simcli.io.checkpoint import CheckpointWarning, load_latest_checkpoint, write_checkpoint
-        from simcli.io.frames import FrameSink
+        from simcli.io.checkpoint import CheckpointWarning, load_latest_checkpoint
 
         scene = self.scene
-        sim = scene.sim
         ckpt = None
         if self.resume and not self.out.is_dir():
             print(
@@ -291,7 +339,7 @@ class Runner:
                 "without --resume",
                 file=sys.stderr,
             )
-            return EXIT_USAGE, None
+            return None
         self._prepare_out()
         if self.resume:
             with warnings.catch_warnings(record=True) as caught:
@@ -307,7 +355,7 @@ class Runner:
                     "--resume",
                     file=sys.stderr,
                 )
-                return EXIT_USAGE, None
+                return None
             path, state, meta = found
             meta = dict(meta, path=str(path))
             ckpt = (state, meta)
@@ -338,14 +386,15 @@ class Runner:
             "host": platform.node(),
             "lock": self._lock.info,
         }
-        self.write_run_json("starting", None)
-        self._startup_point("loading the scene")
+        return ckpt, scene_text
 
-        # ---- set-up: sample bodies (no taichi yet)
+    def _sample_bodies(self) -> list:
+        """Every entity's (and emitter's) particles, in numpy: no Taichi yet."""
+        scene = self.scene
         t0 = time.perf_counter()
         from simcli.geometry.sampling import family_spacing, sample_scene
 
-        bodies = sample_scene(scene, self.loaded.scene_dir, sim.seed)
+        bodies = sample_scene(scene, self.loaded.scene_dir, scene.sim.seed)
         if scene.emitters:  # each emitter's reserved slots (simcli/solvers/sources.py)
             from simcli.scene.sources import emitter_bodies
 
@@ -361,14 +410,14 @@ class Runner:
                     f"{fam} particle spacing {opt} = {family_spacing(scene, fam):g} m; lower it"
                 )
         self.timings["setup_s"] = time.perf_counter() - t0
-        self._startup_point("sampling the bodies")
+        return bodies
 
-        # ---- taichi and the solver
+    def _start_taichi(self) -> None:
         from simcli.backend import init_taichi
 
+        sim = self.scene.sim
         ti_info = init_taichi(self.backend, sim.precision, sim.threads, quiet=self.quiet)
         self.signals.install()  # Taichi installs handlers of its own in ti.init: ours must win
-        self._startup_point("starting Taichi")
         self.timings["taichi_init_s"] = ti_info["import_s"] + ti_info["init_s"]
         self.info.update(
             backend=ti_info["arch"],
@@ -378,6 +427,11 @@ class Runner:
             kernel_cache=ti_info["cache"],
             versions=_versions(ti_info),
         )
+
+    def _build_solvers(self, solver_factory, bodies) -> list:
+        """One solver per family, the rigid bodies, the coupling phase, and the emitters and sinks: fields
+        allocated and the initial state uploaded (kernels compile at the first substep)."""
+        scene = self.scene
         t0 = time.perf_counter()
         from simcli.rigid.run import rigid_run  # free rigid bodies (None without rigid_bodies)
 
@@ -401,24 +455,25 @@ class Runner:
             for w in s.warnings:
                 self.warn(w)
         self.timings["build_s"] = time.perf_counter() - t0
-        self._startup_point("building the solvers")
         from simcli.solvers.sources import make_source_run  # emitters and sinks (None without any)
 
-        sources = self._sources = make_source_run(scene, solvers)
+        self._sources = make_source_run(scene, solvers)
         self.info["counts"] = {s.family: s.counts() for s in solvers}
-        n_particles = sum(int(s.counts().get("particles", 0)) for s in solvers)
-        self.info["particles"] = n_particles
+        self._n_particles = sum(int(s.counts().get("particles", 0)) for s in solvers)
+        self.info["particles"] = self._n_particles
         self.info["families"] = [s.family for s in solvers]
+        return solvers
 
-        # ---- output
-        every = scene.output.every
-        n_steps = sim.n_steps
+    def _open_output(self, solvers, ckpt, scene_text) -> _Loop:
+        """The frame sink opened (sim.h5, XDMF, VTK; a resumed run appends after its checkpoint's frame), the
+        solvers' state set from the checkpoint, the probes opened, and frame 0 checked and written (a fresh
+        run). Returns the time loop's state."""
+        from simcli.io.frames import FrameSink
+
+        scene, sim = self.scene, self.scene.sim
         entity_meta = self._entity_meta(solvers)
         sink = self._sink = FrameSink(self.out, list(scene.output.formats))
-        step = 0
-        frame = 0
-        substeps_now = sim.substeps if sim.substeps != "auto" else None
-        sub_hist: list[int] = []
+        loop = _Loop(substeps_now=sim.substeps if sim.substeps != "auto" else None)
         if ckpt is not None:
             state, meta = ckpt
             self._check_resume_meta(meta)
@@ -437,41 +492,44 @@ class Runner:
                     raise SceneError([msg]) from None
             if self._rigid is not None:
                 self._rigid.set_state(state)
-            step = int(meta["step"])
-            frame = int(meta["frame"])
-            substeps_now = meta.get("substeps_now", substeps_now)
-            sub_hist = list(meta.get("substeps_hist", []))
+            loop.step = int(meta["step"])
+            loop.frame = int(meta["frame"])
+            loop.substeps_now = meta.get("substeps_now", loop.substeps_now)
+            loop.sub_hist = list(meta.get("substeps_hist", []))
             self.timings.update(
                 {k: float(v) for k, v in meta.get("timings", {}).items() if k == "stepping_s"}
             )
             self.log(
-                f"resuming from {meta['path'] if 'path' in meta else 'checkpoint'} at step {step} "
-                f"(t = {step * sim.dt:.6g} s)"
+                f"resuming from {meta['path'] if 'path' in meta else 'checkpoint'} at step {loop.step} "
+                f"(t = {loop.step * sim.dt:.6g} s)"
             )
         t0 = time.perf_counter()
         attrs = {"name": self.name, "dt": sim.dt, "dim": sim.dim}
         from simcli.probes.recorder import make_recorder  # probes: (None without any)
 
-        probes = make_recorder(scene, solvers, self.out, self.timings)
+        probes = self._probes = make_recorder(scene, solvers, self.out, self.timings)
+        resume_frame = (loop.frame + 1) if ckpt is not None else None
         sink.open(
             entity_meta,
             scene_text,
             attrs,
-            resume_frame=(frame + 1) if ckpt is not None else None,
-            **(probes.open(step if ckpt is not None else None) if probes else {}),
+            resume_frame=resume_frame,
+            **(probes.open(loop.step if ckpt is not None else None) if probes else {}),
             colliders=self._collider_meta(),
             frame_series=self._frame_series(),
         )
-        self._cvtk = self._collider_vtk((frame + 1) if ckpt is not None else None)
+        self._cvtk = self._collider_vtk(resume_frame)
         if self._rigid is not None:
-            self._rigid.open(sink, (frame + 1) if ckpt is not None else None)
+            self._rigid.open(sink, resume_frame)
         # the stable substep for the frame-0 check and the fixed-substep warning (not asked again on a resumed
         # auto run, whose check counts then match an uninterrupted run's)
-        stable = self._stable_dt(solvers, sim.dt) if ckpt is None or sim.substeps != "auto" else sim.dt
+        loop.stable = self._stable_dt(solvers, sim.dt) if ckpt is None or sim.substeps != "auto" else sim.dt
         if ckpt is None:
             # the first substep: the fixed one, or with substeps: auto the stable one (not sim.dt: a long step
             # with auto_check: substep would make any initial speed look like a runaway)
-            self._check_frame(solvers, 0, sim.dt / substeps_now if substeps_now else min(sim.dt, stable))
+            self._check_frame(
+                solvers, 0, sim.dt / loop.substeps_now if loop.substeps_now else min(sim.dt, loop.stable)
+            )
             if self._rigid is not None:
                 self._rigid.write_frame(0)
             sink.write_frame(
@@ -487,134 +545,60 @@ class Runner:
             if probes:
                 probes.sample(0, sink)
         self.timings["output_s"] += time.perf_counter() - t0
-        self.timings["startup_s"] = time.perf_counter() - self.t_process
-
-        # ---- stability warnings for a fixed substep
-        if sim.substeps != "auto" and sim.dt / substeps_now > stable:
-            need = int(math.ceil(sim.dt / stable))
-            self.warn(
-                f"substep {sim.dt / substeps_now:.3g} s exceeds the stability limit {stable:.3g} s "
-                f"(CFL / elastic wave speed); suggest sim.substeps >= {need} or sim.substeps: auto"
-            )
-
-        progress = Progress(
-            total_steps=n_steps, start_step=step, dt=sim.dt, quiet=self.quiet, warmup_steps=every
-        )
-        self.write_run_json("running", None)
-        ckpt_every = scene.checkpoint.every
-        first = True
-        last_json = time.perf_counter()
-        t_loop = time.perf_counter()
-        stepping0 = self.timings["stepping_s"]
-        self._step0 = step  # steps of this process are counted from here (a resumed run: its checkpoint)
-        self._load_step = step  # collider loads are summed from here to the next frame
-        substeps_done = 0
         # smallest and largest substep taken [s] (over the whole run: a resumed run continues the
         # checkpoint's)
         saved = ckpt[1].get("dt_range") if ckpt is not None else None
-        dt_range = self._dt_range = [float(x) for x in saved] if saved else [math.inf, 0.0]
-        adaptive = sim.substeps == "auto" and sim.auto_check == "substep"
-        while step < n_steps:
-            if sim.substeps == "auto" and not adaptive and (step % every == 0 or substeps_now is None):
-                stable = max(
-                    self._stable_dt(solvers, sim.dt / (substeps_now or 1)), sim.dt / AUTO_MAX_SUBSTEPS
-                )
-                substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))
-            ts = time.perf_counter()
-            k, done_t, sub_dt = 0, 0.0, sim.dt
-            while True:
-                if adaptive:
-                    # each substep as large as the limits allow now; the remaining ones of the step made equal
-                    # (rem / ceil(rem / stable)) so that the step ends on its boundary without a sliver
-                    rem = sim.dt - done_t
-                    stable = max(self._stable_dt(solvers, sub_dt), sim.dt / AUTO_MAX_SUBSTEPS)
-                    n_left = max(1, int(math.ceil(rem / stable * (1.0 - 1e-9))))
-                    sub_dt = rem / n_left
-                else:
-                    n_left, sub_dt = substeps_now - k, sim.dt / substeps_now
-                if sources:  # the layers due by this substep's start enter (no host sync)
-                    sources.before_substep(step * sim.dt + done_t)
-                if coupler is None:
-                    for s in solvers:
-                        s.substep(sub_dt)
-                else:  # pre_couple -> coupling phase -> post_couple
-                    coupler.substep(sub_dt)
-                if self._rigid is not None:  # the bodies take the substep's loads and move
-                    self._rigid.step(solvers, sub_dt)
-                k += 1
-                done_t += sub_dt
-                dt_range[0], dt_range[1] = min(dt_range[0], sub_dt), max(dt_range[1], sub_dt)
-                if first:
-                    for s in solvers:
-                        s.sync()
-                    self.timings["compile_s"] = time.perf_counter() - ts
-                    first = False
-                    ts = time.perf_counter()
-                if n_left == 1:
-                    break
-            substeps_now = k
-            for s in solvers:
-                s.sync()
-            if sources:  # sinks remove what entered them (one small read)
-                for w in sources.after_step():
-                    self.warn(w)
-            self.timings["stepping_s"] += time.perf_counter() - ts
-            substeps_done += substeps_now
-            sub_hist.append(substeps_now)
-            step += 1
+        self._dt_range = [float(x) for x in saved] if saved else [math.inf, 0.0]
+        return loop
+
+    def _warn_fixed_substep(self, loop: _Loop) -> None:
+        sim = self.scene.sim
+        if sim.substeps != "auto" and sim.dt / loop.substeps_now > loop.stable:
+            need = int(math.ceil(sim.dt / loop.stable))
+            self.warn(
+                f"substep {sim.dt / loop.substeps_now:.3g} s exceeds the stability limit {loop.stable:.3g} s "
+                f"(CFL / elastic wave speed); suggest sim.substeps >= {need} or sim.substeps: auto"
+            )
+
+    def _step_loop(self, solvers, loop: _Loop):
+        """Steps to sim.n_steps (or a solver's steady state): each step's substeps, then the frame, the
+        checkpoint and the progress line when due. Returns (exit code, run.json) when a signal stopped the
+        run after its checkpoint, None at the end."""
+        scene, sim = self.scene, self.scene.sim
+        every, n_steps = scene.output.every, sim.n_steps
+        sink, probes = self._sink, self._probes
+        progress = self._progress = Progress(
+            total_steps=n_steps, start_step=loop.step, dt=sim.dt, quiet=self.quiet, warmup_steps=every
+        )
+        self.write_run_json("running", None)
+        ckpt_every = scene.checkpoint.every
+        last_json = time.perf_counter()
+        self._t_loop = time.perf_counter()
+        loop.stepping0 = self.timings["stepping_s"]
+        self._step0 = loop.step  # steps of this process are counted from here (a resumed run: its checkpoint)
+        self._load_step = loop.step  # collider loads are summed from here to the next frame
+        while loop.step < n_steps:
+            sub_dt = self._advance_step(solvers, loop)
+            loop.step += 1
+            step = loop.step
             if "time_to_first_step_s" not in self.timings:
                 self.timings["time_to_first_step_s"] = time.perf_counter() - self.t_process
             if probes:
                 probes.sample(step, sink)
             if step % every == 0 or step == n_steps:
-                t0 = time.perf_counter()
-                self._check_frame(solvers, frame + 1, sub_dt, step=step)
-                if step % every == 0:
-                    frame += 1
-                    loads = self._collider_loads(solvers, (step - self._load_step) * sim.dt)
-                    self._load_step = step
-                    if self._rigid is not None:
-                        self._rigid.write_frame(frame)
-                    sink.write_frame(
-                        frame, step, step * sim.dt, self._frame_data(), colliders=loads, **self._frame_vals()
-                    )
-                    if self._cvtk is not None:
-                        self._cvtk.write_frame(frame, step * sim.dt)
-                    stop = next((r for r in (s.steady() for s in solvers) if r), None)
-                    if stop:  # a solver's steady-state criterion met (e.g. solvers.sf.steady_tolerance)
-                        self.info["stopped_steady"] = {"step": step, "time": step * sim.dt, **stop}
-                        self.timings["output_s"] += time.perf_counter() - t0
-                        break
-                self.timings["output_s"] += time.perf_counter() - t0
+                if self._write_frame(solvers, loop, sub_dt):
+                    break  # a solver's steady-state criterion met
             interrupted = self.signals.received is not None
             if interrupted or (ckpt_every and step % ckpt_every == 0 and step < n_steps):
-                t0 = time.perf_counter()
-                meta = {
-                    "step": step,
-                    "frame": frame,
-                    "time": step * sim.dt,
-                    "substeps_now": substeps_now,
-                    "dt_range": list(dt_range),
-                    "substeps_hist": sub_hist[-10000:],
-                    "scene_name": self.name,
-                    "timings": {"stepping_s": self.timings["stepping_s"]},
-                    "particles": n_particles,
-                    "scene": self.resolved,  # what --resume compares the scene with (simcli.resume_check)
-                }
-                state = {}
-                for s in solvers:
-                    state.update({f"{s.family}/{k}": v for k, v in s.get_state().items()})
-                if self._rigid is not None:
-                    state.update(self._rigid.get_state())
-                p = write_checkpoint(self.out / "checkpoints", step, state, meta, scene.checkpoint.keep)
-                self.info["checkpoint"] = str(p)
-                self.timings["checkpoint_s"] += time.perf_counter() - t0
+                p = self._write_checkpoint(solvers, loop)
                 if interrupted:
                     if probes:
                         probes.flush(sink)  # the samples since the last frame, up to the checkpoint's step
                     self._sink = None
                     sink.close()
-                    self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
+                    self._finish_stats(
+                        step, self._n_particles, loop.sub_hist, loop.stepping0, loop.substeps_done
+                    )
                     print(
                         f"simcli: {self.signals.received} received: checkpoint written at step {step} "
                         f"({p}); resume with --resume",
@@ -622,16 +606,132 @@ class Runner:
                         flush=True,
                     )
                     return EXIT_INTERRUPTED, self.write_run_json("interrupted", EXIT_INTERRUPTED)
-            progress.update(step, self.timings["stepping_s"] - stepping0)
+            progress.update(step, self.timings["stepping_s"] - loop.stepping0)
             if time.perf_counter() - last_json > 10.0:
-                self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
+                self._finish_stats(step, self._n_particles, loop.sub_hist, loop.stepping0, loop.substeps_done)
                 self.write_run_json("running", None)
                 last_json = time.perf_counter()
-        self._sink = None
+        return None
+
+    def _advance_step(self, solvers, loop: _Loop) -> float:
+        """One step of sim.dt in substeps (the substep policy: fixed, auto per frame, or auto per substep),
+        each: the emitters' entries, every solver's substep (or the coupling phase), the rigid bodies. Returns
+        the last substep [s]."""
+        sim, every = self.scene.sim, self.scene.output.every
+        sources, coupler, dt_range = self._sources, self._coupler, self._dt_range
+        step = loop.step
+        adaptive = sim.substeps == "auto" and sim.auto_check == "substep"
+        if sim.substeps == "auto" and not adaptive and (step % every == 0 or loop.substeps_now is None):
+            stable = max(
+                self._stable_dt(solvers, sim.dt / (loop.substeps_now or 1)), sim.dt / AUTO_MAX_SUBSTEPS
+            )
+            loop.substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))
+        ts = time.perf_counter()
+        k, done_t, sub_dt = 0, 0.0, sim.dt
+        while True:
+            if adaptive:
+                # each substep as large as the limits allow now; the remaining ones of the step made equal
+                # (rem / ceil(rem / stable)) so that the step ends on its boundary without a sliver
+                rem = sim.dt - done_t
+                stable = max(self._stable_dt(solvers, sub_dt), sim.dt / AUTO_MAX_SUBSTEPS)
+                n_left = max(1, int(math.ceil(rem / stable * (1.0 - 1e-9))))
+                sub_dt = rem / n_left
+            else:
+                n_left, sub_dt = loop.substeps_now - k, sim.dt / loop.substeps_now
+            if sources:  # the layers due by this substep's start enter (no host sync)
+                sources.before_substep(step * sim.dt + done_t)
+            if coupler is None:
+                for s in solvers:
+                    s.substep(sub_dt)
+            else:  # pre_couple -> coupling phase -> post_couple
+                coupler.substep(sub_dt)
+            if self._rigid is not None:  # the bodies take the substep's loads and move
+                self._rigid.step(solvers, sub_dt)
+            k += 1
+            done_t += sub_dt
+            dt_range[0], dt_range[1] = min(dt_range[0], sub_dt), max(dt_range[1], sub_dt)
+            if loop.first:
+                for s in solvers:
+                    s.sync()
+                self.timings["compile_s"] = time.perf_counter() - ts
+                loop.first = False
+                ts = time.perf_counter()
+            if n_left == 1:
+                break
+        loop.substeps_now = k
+        for s in solvers:
+            s.sync()
+        if sources:  # sinks remove what entered them (one small read)
+            for w in sources.after_step():
+                self.warn(w)
+        self.timings["stepping_s"] += time.perf_counter() - ts
+        loop.substeps_done += loop.substeps_now
+        loop.sub_hist.append(loop.substeps_now)
+        return sub_dt
+
+    def _write_frame(self, solvers, loop: _Loop, sub_dt: float) -> bool:
+        """The frame check at a frame's step (and at the last step), and the frame itself when due: sim.h5,
+        VTK, collider loads, rigid bodies. True when a solver says the state has stopped changing."""
+        sim = self.scene.sim
+        step, sink = loop.step, self._sink
+        t0 = time.perf_counter()
+        self._check_frame(solvers, loop.frame + 1, sub_dt, step=step)
+        if step % self.scene.output.every == 0:
+            loop.frame += 1
+            frame = loop.frame
+            loads = self._collider_loads(solvers, (step - self._load_step) * sim.dt)
+            self._load_step = step
+            if self._rigid is not None:
+                self._rigid.write_frame(frame)
+            sink.write_frame(
+                frame, step, step * sim.dt, self._frame_data(), colliders=loads, **self._frame_vals()
+            )
+            if self._cvtk is not None:
+                self._cvtk.write_frame(frame, step * sim.dt)
+            stop = next((r for r in (s.steady() for s in solvers) if r), None)
+            if stop:  # a solver's steady-state criterion met (e.g. solvers.sf.steady_tolerance)
+                self.info["stopped_steady"] = {"step": step, "time": step * sim.dt, **stop}
+                self.timings["output_s"] += time.perf_counter() - t0
+                return True
+        self.timings["output_s"] += time.perf_counter() - t0
+        return False
+
+    def _write_checkpoint(self, solvers, loop: _Loop):
+        """Every solver's and rigid body's state, with what the loop needs to go on bit for bit."""
+        from simcli.io.checkpoint import write_checkpoint
+
+        sim, step = self.scene.sim, loop.step
+        t0 = time.perf_counter()
+        meta = {
+            "step": step,
+            "frame": loop.frame,
+            "time": step * sim.dt,
+            "substeps_now": loop.substeps_now,
+            "dt_range": list(self._dt_range),
+            "substeps_hist": loop.sub_hist[-10000:],
+            "scene_name": self.name,
+            "timings": {"stepping_s": self.timings["stepping_s"]},
+            "particles": self._n_particles,
+            "scene": self.resolved,  # what --resume compares the scene with (simcli.resume_check)
+        }
+        state = {}
+        for s in solvers:
+            state.update({f"{s.family}/{k}": v for k, v in s.get_state().items()})
+        if self._rigid is not None:
+            state.update(self._rigid.get_state())
+        p = write_checkpoint(self.out / "checkpoints", step, state, meta, self.scene.checkpoint.keep)
+        self.info["checkpoint"] = str(p)
+        self.timings["checkpoint_s"] += time.perf_counter() - t0
+        return p
+
+    def _close_run(self, loop: _Loop) -> tuple[int, dict]:
+        """sim.h5 closed, run.json written as done, and the closing lines (throughput, bodies, loads)."""
+        sink, self._sink = self._sink, None
         sink.close()
-        progress.close()
-        self._finish_stats(step, n_particles, sub_hist, stepping0, substeps_done)
-        self.info["loop_wall_s"] = round(time.perf_counter() - t_loop, 4)
+        self._progress.close()
+        step, frame = loop.step, loop.frame
+        self._finish_stats(step, self._n_particles, loop.sub_hist, loop.stepping0, loop.substeps_done)
+        self.info["loop_wall_s"] = round(time.perf_counter() - self._t_loop, 4)
         info = self.write_run_json("done", EXIT_OK)
         tp = info["throughput"]
         rates = [
@@ -711,10 +811,8 @@ class Runner:
                 "steps_per_s": ((step - self._step0) / steady) if step else 0.0,
                 "substeps_per_s": sps,
                 "particle_substeps_per_s": sps * n_particles,
-                "cell_substeps_per_s": sps
-                * sum(int(s.counts().get("cells", 0)) for s in self._solvers),
-                "vertex_substeps_per_s": sps
-                * sum(int(s.counts().get("vertices", 0)) for s in self._solvers),
+                "cell_substeps_per_s": sps * sum(int(s.counts().get("cells", 0)) for s in self._solvers),
+                "vertex_substeps_per_s": sps * sum(int(s.counts().get("vertices", 0)) for s in self._solvers),
             },
         )
 
