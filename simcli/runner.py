@@ -34,7 +34,6 @@ from simcli.progress import Progress, plural
 from simcli.runsignals import RunSignals
 from simcli.scene.loader import LoadedScene
 from simcli.scene.models import resolved_scene_dict
-from simcli.solvers.base import RUNAWAY_CFL  # the runaway guard's limit; the families read it there
 
 AUTO_MAX_SUBSTEPS = 100_000
 
@@ -982,7 +981,7 @@ class Runner:
             dx = s.length_scale()
             for name, st in stats.items():
                 cfl = st.max_speed * sub_dt / dx if math.isfinite(st.max_speed) else math.inf
-                if st.finite and cfl <= RUNAWAY_CFL:
+                if st.finite and cfl <= s.runaway_cfl():
                     continue
                 subs = sim.substeps if sim.substeps != "auto" else "auto"
                 what = (
@@ -991,23 +990,7 @@ class Runner:
                     else f"a particle speed of {st.max_speed:.3g} m/s (it crosses {cfl:.1f} cells per "
                     "substep)"
                 )
-                if s.family == "sph":
-                    if subs == "auto":
-                        advice = (
-                            f"lower solvers.sph.cfl or solvers.sph.max_substep, or the stiffness of '{name}' "
-                            f"(WCSPH)"
-                        )
-                    else:
-                        advice = (
-                            f"use substeps: auto (it follows the CFL, sound-speed and viscous limits), lower "
-                            f"sim.dt (now {sim.dt:g} s) or the stiffness of '{name}' (WCSPH)"
-                        )
-                    advice += f", or change solvers.sph.particle_size (now {dx:g} m)"
-                else:
-                    advice = (
-                        f"lower sim.dt (now {sim.dt:g} s), raise sim.substeps (now {subs}) or use substeps: "
-                        f"auto, or lower the stiffness E of '{name}'"
-                    )
+                advice = s.runaway_advice(name, sim)  # the family's own (the runner knows no family)
                 if isinstance(subs, int) and math.isfinite(cfl) and cfl > 0:
                     advice += (
                         f"; substeps >= {int(math.ceil(subs * cfl / 0.5))} would keep the CFL number "

@@ -38,7 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 # A substep whose CFL number (max speed * substep / length_scale()) exceeds this is a blow-up: MPM's
 # transfers assume particles move less than a cell per substep. The runner's runaway guard applies it;
-# it lives here, below the runner, so that a family may read it (SF scales its length_scale by it).
+# Solver.runaway_cfl() returns it unless a family has a limit of its own (SF: solvers.sf.max_cfl).
 RUNAWAY_CFL = 2.0
 
 
@@ -187,6 +187,20 @@ class Solver:
         """Resolution length [m] the runaway guard measures CFL numbers against (grid cell,
         particle spacing)."""
         raise NotImplementedError
+
+    def runaway_cfl(self) -> float:
+        """The runaway guard's limit: a substep whose CFL number (max speed x substep / length_scale())
+        exceeds it is a blow-up. Particle methods cannot take more than about two cells per substep."""
+        return RUNAWAY_CFL
+
+    def runaway_advice(self, name: str, sim: Any) -> str:
+        """What to change when entity ``name`` ran away or went non-finite (the runner adds the substep
+        count that would keep the CFL number below 0.5 when substeps are fixed)."""
+        subs = sim.substeps if sim.substeps != "auto" else "auto"
+        return (
+            f"lower sim.dt (now {sim.dt:g} s), raise sim.substeps (now {subs}) or use substeps: "
+            f"auto, or lower the stiffness E of '{name}'"
+        )
 
     def collider_loads(self) -> dict[str, np.ndarray]:
         """Impulse on each named collider since the last call, name -> (dim + 3,) [N s, N m s]; a

@@ -147,3 +147,21 @@ def test_symmetric_plume_stays_symmetric_3d(tmp_path):
     assert scale > 0.1
     assert np.abs(d - d[:, :, ::-1]).max() <= 1e-3 * scale and np.abs(d - d[:, ::-1, :]).max() <= 1e-3 * scale
     assert np.abs(w - w[:, :, ::-1]).max() <= 1e-3 * np.abs(w).max()
+
+
+def test_runaway_guard_fires_at_sf_max_cfl_with_sf_advice(tmp_path):
+    """SF's runaway limit is its own solvers.sf.max_cfl (Solver.runaway_cfl), measured in real cells: the
+    coarse cavity's lid flow crosses about half a cell per substep, so max_cfl 0.01 stops the run (exit
+    70) with SF's advice, and a default max_cfl does not."""
+    scene = ROOT / "configs" / "validation" / "sf_cavity_fast.yaml"
+    sets = ["solvers.sf.resolution=16", "sim.dt=0.08", "sim.substeps=1", "sim.duration=0.8", "output.every=5"]
+    cmd = [sys.executable, "-m", "simcli", "run", str(scene), "-o", str(tmp_path / "a"), "-q"]
+    for s in sets + ["solvers.sf.max_cfl=0.01"]:
+        cmd += ["--set", s]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
+    assert r.returncode == 70, r.stderr[-2000:]
+    assert "solvers.sf.max_cfl (now 0.01" in r.stderr and "stiffness" not in r.stderr
+    cells = float(r.stderr.split("crosses ")[1].split(" cells")[0])
+    assert 0.01 < cells < 2.0  # the real cells per substep (no longer scaled by max_cfl / RUNAWAY_CFL)
+    info = run(scene, tmp_path / "b", *sets)
+    assert info["status"] == "done"

@@ -30,7 +30,6 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import (
-    RUNAWAY_CFL,
     Body,
     FrameStats,
     Solver,
@@ -357,10 +356,19 @@ class SFSolver(Solver):
         return self.opts.cfl * min(self.layout.dx) / v if v > 0 and math.isfinite(v) else math.inf
 
     def length_scale(self) -> float:
-        # The runner flags a blow-up when a substep's CFL number (speed x dt / length_scale) exceeds its
-        # RUNAWAY_CFL, a particle-method limit. Semi-Lagrangian advection is stable at any CFL number:
-        # scale the length so that the guard fires at solvers.sf.max_cfl instead.
-        return min(self.layout.dx) * self.opts.max_cfl / RUNAWAY_CFL
+        return min(self.layout.dx)
+
+    def runaway_advice(self, name: str, sim) -> str:
+        subs = sim.substeps if sim.substeps != "auto" else "auto"
+        return (
+            f"lower sim.dt (now {sim.dt:g} s), raise sim.substeps (now {subs}) or use substeps: auto; "
+            f"the limit is solvers.sf.max_cfl (now {self.opts.max_cfl:g} cells per substep)"
+        )
+
+    def runaway_cfl(self) -> float:
+        # Semi-Lagrangian advection is stable at any CFL number: the guard fires at solvers.sf.max_cfl,
+        # not at the particle methods' RUNAWAY_CFL
+        return self.opts.max_cfl
 
     # ------------------------------------------------------------------ output
 

@@ -1078,6 +1078,16 @@ class SPHSolver(Solver):
     def length_scale(self) -> float:
         return self.ps
 
+    def runaway_advice(self, name: str, sim) -> str:
+        if sim.substeps == "auto":
+            advice = f"lower solvers.sph.cfl or solvers.sph.max_substep, or the stiffness of '{name}' (WCSPH)"
+        else:
+            advice = (
+                f"use substeps: auto (it follows the CFL, sound-speed and viscous limits), lower "
+                f"sim.dt (now {sim.dt:g} s) or the stiffness of '{name}' (WCSPH)"
+            )
+        return advice + f", or change solvers.sph.particle_size (now {self.ps:g} m)"
+
     def collider_loads(self) -> dict[str, np.ndarray]:
         """Named collider -> (dim + 3) impulse [N s] and its moment about the collider's moving pivot [N m s]
         the liquid gave it since the last call (the reaction of its boundary particles' pressure and no-slip
