@@ -34,8 +34,7 @@ from simcli.progress import Progress, plural
 from simcli.runsignals import RunSignals
 from simcli.scene.loader import LoadedScene
 from simcli.scene.models import resolved_scene_dict
-
-AUTO_MAX_SUBSTEPS = 100_000
+from simcli.substeps import SubstepPolicy
 
 
 def _atomic_write(path: Path, text: str) -> None:
@@ -158,6 +157,7 @@ class Runner:
         self._n_particles = 0
         self._t_loop = 0.0
         self._load_step = 0
+        self._policy = SubstepPolicy.of(self.scene)  # every substep size (simcli/substeps.py)
         self.timings = {
             "startup_s": 0.0,
             "setup_s": 0.0,
@@ -616,27 +616,18 @@ class Runner:
         """One step of sim.dt in substeps (the substep policy: fixed, auto per frame, or auto per substep),
         each: the emitters' entries, every solver's substep (or the coupling phase), the rigid bodies. Returns
         the last substep [s]."""
-        sim, every = self.scene.sim, self.scene.output.every
+        sim, policy = self.scene.sim, self._policy
         sources, coupler, dt_range = self._sources, self._coupler, self._dt_range
         step = loop.step
-        adaptive = sim.substeps == "auto" and sim.auto_check == "substep"
-        if sim.substeps == "auto" and not adaptive and (step % every == 0 or loop.substeps_now is None):
-            stable = max(
-                self._stable_dt(solvers, sim.dt / (loop.substeps_now or 1)), sim.dt / AUTO_MAX_SUBSTEPS
-            )
-            loop.substeps_now = min(AUTO_MAX_SUBSTEPS, max(1, int(math.ceil(sim.dt / stable))))
+
+        def stable(fallback: float) -> float:
+            return self._stable_dt(solvers, fallback)
+
+        loop.substeps_now = policy.step_substeps(step, loop.substeps_now, stable)
         ts = time.perf_counter()
         k, done_t, sub_dt = 0, 0.0, sim.dt
         while True:
-            if adaptive:
-                # each substep as large as the limits allow now; the remaining ones of the step made equal
-                # (rem / ceil(rem / stable)) so that the step ends on its boundary without a sliver
-                rem = sim.dt - done_t
-                stable = max(self._stable_dt(solvers, sub_dt), sim.dt / AUTO_MAX_SUBSTEPS)
-                n_left = max(1, int(math.ceil(rem / stable * (1.0 - 1e-9))))
-                sub_dt = rem / n_left
-            else:
-                n_left, sub_dt = loop.substeps_now - k, sim.dt / loop.substeps_now
+            sub_dt, n_left = policy.next_substep(k, done_t, loop.substeps_now, sub_dt, stable)
             if sources:  # the layers due by this substep's start enter (no host sync)
                 sources.before_substep(step * sim.dt + done_t)
             if coupler is None:
