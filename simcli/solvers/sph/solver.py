@@ -5,11 +5,18 @@ A substep reads like the paper (see wcsph.py and dfsph.py)::
 
     neighbours -> density -> non_pressure -> pressure_solve -> advect
 
-* neighbours.py: cell grid rebuilt by a counting sort each substep, particles reordered by cell,
-  per-particle neighbour lists with the kernel gradients;
+This module allocates the fields, makes the explicit bundle the kernel builders take (bundle.py: SPHParams,
+SPHFields, SPHFuncs), calls the builders and implements the Solver interface. The operators, one module each:
+
+* neighbours.py: cell grid rebuilt by a counting sort each substep, particles reordered by cell;
+  stencil.py: the cell stencil walked by every pass, particle mass and volume;
+* density.py: per-particle neighbour lists with the kernel gradients, density, and the boundary sums;
 * boundary.py: domain walls and colliders as static boundary particles (Akinci et al. 2012), sampled
   volume-correctly; their contributions are summed once per substep into a few per-particle values
   (density, sum V_b grad W_ib, and for no-slip walls a viscous matrix), so later passes cost nothing;
+* non_pressure.py (gravity, viscosity, surface tension; WCSPH's pressure force in the same pass), advect.py;
+* wcsph.py, dfsph.py: the pressure solvers' substeps; wall_pressure.py: extrapolated wall pressure;
+  moving.py: moving colliders and the loads on named colliders; outputs.py: frame check, stable_dt's inputs;
 * kernels.py: cubic spline with support radius 2 x particle_size.
 
 Non-pressure accelerations: gravity, viscosity (physical mu, Monaghan 2005 Laplacian, also against
