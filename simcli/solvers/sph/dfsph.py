@@ -48,6 +48,12 @@ tolerance (a few microseconds on the CPU, where a launch is synchronous anyway).
 
 import math
 
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
+
+with stdout_to_stderr():
+    import taichi as ti
+
 FIXED = float(2**40)  # fixed-point scale of the error sums
 # a particle's error counts at most this much in the sum (100% of rho0): a sum of n such terms stays below
 # 2^63 / 2^40 = 8.4e6 for n < 8 million. Unclamped, the overlapped particles of a liquid sampled inside a
@@ -67,24 +73,29 @@ BFAC = 1.0  # boundary term of the velocity update: k_i alone, as Akinci et al. 
 MIN_NEIGHBOURS = {2: 7, 3: 20}  # SPlisHSPlasH: no divergence correction for particles with fewer
 
 
-def make_dfsph(S):
-    ti = S.ti
-    f, dim = S.f, S.dim
-    rho, p, mid, v, vnew = S.rho, S.p, S.mid, S.v, S.vnew
-    nb_cnt, nb_j, nb_g, B, Sb, nbb_cnt = S.nb_cnt, S.nb_j, S.nb_g, S.B, S.Sb, S.nbb_cnt
-    alpha, kk, kacc, kappa, kappav = S.alpha, S.kk, S.kacc, S.kappa, S.kappav
-    mat_rho0 = S.mat_rho0
-    err_acc = S.err_acc
-    clamp = S.opts.clamp_pressure
-    warm = S.opts.warm_start
-    n = S.n
-    N = S.count  # the active count (emitters, sinks) or the constant n
+def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_live):
+    """DFSPH's substep: ``(substep, couple_phases)``. ``substep(dt)`` runs the solves (host loops over
+    kernel launches, iterations and errors recorded in ``stats``) and the advection; ``couple_phases`` is
+    ``(pre_couple, post_couple, v)``, the substep in two halves around a coupling phase and the velocity it
+    edits. ``n_live()`` (host) is the active particle count the mean error divides by. Needs every shared
+    func in ``fn`` (density.py, non_pressure.py, advect.py; wall_pressure.py, moving.py where the scene
+    has them)."""
+    f, dim = P.f, P.dim
+    rho, p, mid, v, vnew = F.rho, F.p, F.mid, F.v, F.vnew
+    nb_cnt, nb_j, nb_g, B, Sb, nbb_cnt = F.nb_cnt, F.nb_j, F.nb_g, F.B, F.Sb, F.nbb_cnt
+    alpha, kk, kacc, kappa, kappav = F.alpha, F.kk, F.kacc, F.kappa, F.kappav
+    mat_rho0 = F.mat_rho0
+    err_acc = F.err_acc
+    clamp = P.clamp_pressure
+    warm = P.warm_start
+    n = P.n
+    N = fn.count  # the active count (emitters, sinks) or the constant n
     min_nb = MIN_NEIGHBOURS[dim]
     DIV, DENS = 0, 1
 
-    kgc, Lm, Lc, kgc_scalar = S.kgc, S.Lm, S.Lc, S.kgc_scalar
-    uniform = S.uniform  # one material: the pair terms in their single-material form (bitwise as before)
-    wp = S.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
+    kgc, Lm, Lc, kgc_scalar = P.kgc, F.Lm, F.Lc, P.kgc_scalar
+    uniform = P.uniform  # one material: the pair terms in their single-material form (bitwise as before)
+    wp = fn.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
 
     @ti.func
@@ -104,7 +115,7 @@ def make_dfsph(S):
         s = vi.dot(corr(i, B[i])) - Sb[i]
         for k in range(nb_cnt[i]):
             j = nb_j[i, k]
-            s += S.volume_of(j) * (vi - v[j]).dot(corr(i, nb_g[i, k]))
+            s += fn.volume_of(j) * (vi - v[j]).dot(corr(i, nb_g[i, k]))
         return s
 
     @ti.func
@@ -147,26 +158,28 @@ def make_dfsph(S):
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
                 if ti.static(uniform):
-                    g += (kci + k_[j] * Lc[j]) * S.volume_of(j) * nb_g[i, k]
+                    g += (kci + k_[j] * Lc[j]) * fn.volume_of(j) * nb_g[i, k]
                 else:
-                    g += (S.volume_of(j) * kci + S.mass_of(j) / mat_rho0[mid[i]] * k_[j] * Lc[j]) * nb_g[i, k]
+                    g += (fn.volume_of(j) * kci + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j] * Lc[j]) * nb_g[
+                        i, k
+                    ]
         elif ti.static(kgc):
             kLi = ki * Lm[i]
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
                 if ti.static(uniform):
-                    g += S.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ nb_g[i, k])
+                    g += fn.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ nb_g[i, k])
                 else:
-                    g += (S.volume_of(j) * kLi + (S.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * Lm[j]) @ nb_g[
+                    g += (fn.volume_of(j) * kLi + (fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * Lm[j]) @ nb_g[
                         i, k
                     ]
         else:
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
                 if ti.static(uniform):
-                    g += (ki + k_[j]) * S.volume_of(j) * nb_g[i, k]
+                    g += (ki + k_[j]) * fn.volume_of(j) * nb_g[i, k]
                 else:
-                    g += (S.volume_of(j) * ki + S.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * nb_g[i, k]
+                    g += (fn.volume_of(j) * ki + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * nb_g[i, k]
         return g
 
     @ti.func
@@ -222,7 +235,7 @@ def make_dfsph(S):
             d = dv.dot(corr(i, B[i]))
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
-                d += S.volume_of(j) * (dv - dvt[j]).dot(corr(i, nb_g[i, k]))
+                d += fn.volume_of(j) * (dv - dvt[j]).dot(corr(i, nb_g[i, k]))
             cg_Ap[i] = -dt * d
         serial_dot(cg_p, cg_Ap, 1)
         a = ti.cast(0.0, ti.f64)
@@ -277,11 +290,11 @@ def make_dfsph(S):
 
     @ti.func
     def neighbours():
-        if ti.static(S.moving_boundary):
-            S.move_boundary()  # moving colliders' boundary particles to this substep's pose (moving.py)
-        S.sort(N())
+        if ti.static(P.moving_boundary):
+            fn.move_boundary()  # moving colliders' boundary particles to this substep's pose (moving.py)
+        fn.sort(N())
         for i in range(N()):
-            S.neighbours_density(i)
+            fn.neighbours_density(i)
         if ti.static(ext):
             wp.mark()  # the walls in reach of the liquid, and their hydrostatic k
 
@@ -302,13 +315,13 @@ def make_dfsph(S):
         else:
             neighbours()
         for i in range(N()):
-            a = S.non_pressure(i, False)
+            a = fn.non_pressure(i, False)
             if ti.static(ext):
                 a -= wp.wall_sum(i, wp.bhyd)  # the walls' hydrostatic pressure, once per substep
             vnew[i] = v[i] + dt * a
-        if ti.static(S.named_loads):  # no-slip viscosity's reaction on named colliders (moving.py)
+        if ti.static(P.named_loads):  # no-slip viscosity's reaction on named colliders (moving.py)
             for i in range(N()):
-                S.load_viscous(i, dt)
+                fn.load_viscous(i, dt)
         for i in range(N()):
             v[i] = vnew[i]
         solve_begin(dt, DENS)
@@ -319,25 +332,25 @@ def make_dfsph(S):
 
     @ti.func
     def named_loads(dt):
-        if ti.static(S.named_loads):
+        if ti.static(P.named_loads):
             # the pressure solves' reaction on named colliders (moving.py): the substep's total stiffness K_i
             # (in kk, a scratch field until the next solve) and its Shepard average on the walls (bval)
             for i in range(N()):
                 ktot = kacc[i]
-                if ti.static(S.opts.divergence_solve):
+                if ti.static(P.divergence_solve):
                     ktot += kappav[i] / dt
                 kk[i] = ktot
             if ti.static(ext):
                 wp.update(kk)
             for i in range(N()):
-                S.load_pressure(i, dt)
+                fn.load_pressure(i, dt)
 
     @ti.func
     def pressure(i, dt):
         kappa[i] = kacc[i]  # an acceleration-level stiffness: steady under gravity for any dt
         r = rho[i]
         kdiv = ti.cast(0.0, f)
-        if ti.static(S.opts.divergence_solve):
+        if ti.static(P.divergence_solve):
             kdiv = kappav[i] / dt
         p[i] = (kacc[i] + kdiv) * r * r / mat_rho0[mid[i]]
 
@@ -346,7 +359,7 @@ def make_dfsph(S):
         named_loads(dt)
         for i in range(N()):
             pressure(i, dt)
-            S.advect(i, v[i], dt)
+            fn.advect(i, v[i], dt)
 
     # coupled scenes (simcli/coupling/): finish in two halves around the coupling phase, which edits v
     @ti.kernel
@@ -358,15 +371,13 @@ def make_dfsph(S):
     @ti.kernel
     def advect_all(dt: f):
         for i in range(N()):
-            S.advect(i, v[i], dt)
+            fn.advect(i, v[i], dt)
 
     def error() -> float:
-        return float(err_acc[None]) / FIXED / max(1, S.n_live())
-
-    stats = S.dfsph_stats
+        return float(err_acc[None]) / FIXED / max(1, n_live())
 
     def solves(dt: float) -> None:
-        o = S.opts
+        o = P
         if o.divergence_solve:
             divergence_begin(dt)
             eta = o.max_divergence_error_percent / 100.0
@@ -395,8 +406,7 @@ def make_dfsph(S):
         solves(dt)
         finish_pressure(dt)
 
-    S._couple_phases = (pre_couple, advect_all, v)  # (pre, post, the velocity the coupling edits)
-    return substep
+    return substep, (pre_couple, advect_all, v)  # (pre, post, the velocity the coupling edits)
 
 
 class SolveStats:

@@ -36,6 +36,7 @@ instead of prescribed, a rigid body, goes the same way).
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
+from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
 
 with stdout_to_stderr():
     import taichi as ti
@@ -58,18 +59,19 @@ def moving_bounds(spec, lo, hi) -> tuple[np.ndarray, np.ndarray]:
     return lo - ext, hi + ext
 
 
-def make_moving_boundary(S):
+def make_moving_boundary(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, grid):
     """``move()`` (a Taichi func, called at kernel scope before the liquid's sort): every moving collider's
     boundary particles to the substep's middle pose, with the surface velocity, then the boundary
     particles re-sorted into the cells. Fields moved along by the sort: position, volume, velocity,
-    no-slip flag, body-frame position, collider index, and WCSPH's relaxing wall pressure."""
+    no-slip flag, body-frame position, collider index, and WCSPH's relaxing wall pressure
+    (``fn.wall_pressure`` must be built). ``poses``: the solver's ColliderPoses; ``grid``: its CellGrid."""
     from simcli.solvers.sph.neighbours import make_neighbour_funcs
 
-    grid, f, dim, nbp = S.grid, S.f, S.dim, max(1, S.nbp)
-    poses, specs = S.poses, S.poses.specs
+    f, dim, nbp = P.f, P.dim, max(1, P.nbp)
+    specs = poses.specs
     moving = [k for k, c in enumerate(specs) if c.moving]
-    bx, bvel, bx0, bcol = S.bx, S.bvel, S.bx0, S.bcol
-    move = [S.bx, S.bV, S.bvel, S.bns, S.bx0, S.bcol]
+    bx, bvel, bx0, bcol = F.bx, F.bvel, F.bx0, F.bcol
+    move = [F.bx, F.bV, F.bvel, F.bns, F.bx0, F.bcol]
     tmp = [
         ti.Vector.field(dim, f, shape=nbp),
         ti.field(f, shape=nbp),
@@ -78,26 +80,26 @@ def make_moving_boundary(S):
         ti.Vector.field(dim, f, shape=nbp),
         ti.field(ti.i32, shape=nbp),
     ]
-    wp = S.wall_pressure
+    wp = fn.wall_pressure
     if wp is not None and wp.pbar is not None:
         move.append(wp.pbar)
         tmp.append(ti.field(f, shape=nbp))
     sort, _, _ = make_neighbour_funcs(
         grid,
         f,
-        S.arch in ("x64", "arm64"),
+        P.cpu,
         {
-            "x": S.bx,
+            "x": F.bx,
             "move": move,
             "move_tmp": tmp,
             "cell_id": ti.field(ti.i32, shape=nbp),
             "rank": ti.field(ti.i32, shape=nbp),
             "count": ti.field(ti.i32, shape=grid.ncells),
-            "start": S.bstart,
+            "start": F.bstart,
             "block_sum": ti.field(ti.i32, shape=grid.nblocks),
         },
     )
-    n_b = S.nbp
+    n_b = P.nbp
 
     @ti.func
     def move_boundary():
@@ -114,26 +116,27 @@ def make_moving_boundary(S):
     return move_boundary
 
 
-def make_loads(S):
-    """Taichi funcs that add the liquid's loads on the named colliders to ``S.poses`` (see the module
-    docstring): ``pressure(i, dt)`` (WCSPH after its force pass; DFSPH in ``finish`` with the substep's total
-    stiffness in ``S.kk`` and its Shepard average in the wall pressure's ``bval``) and ``viscous(i, dt)``."""
-    f, dim = S.f, S.dim
-    poses, specs = S.poses, S.poses.specs
+def make_loads(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses):
+    """Taichi funcs that add the liquid's loads on the named colliders to ``poses`` (the solver's
+    ColliderPoses; see the module docstring): ``pressure(i, dt)`` (WCSPH after its force pass; DFSPH in
+    ``finish`` with the substep's total stiffness in ``F.kk`` and its Shepard average in the wall pressure's
+    ``bval``) and ``viscous(i, dt)``."""
+    f, dim = P.f, P.dim
+    specs = poses.specs
     named = [k for k, c in enumerate(specs) if c.name is not None]
-    named_noslip = [k for k in named if specs[k].contact == "sticky"] if S.has_noslip else []
-    x, v, rho, p, mid = S.x, S.v, S.rho, S.p, S.mid
-    bx, bV, bvel, bcol, bstart = S.bx, S.bV, S.bvel, S.bcol, S.bstart
-    mat_rho0, mat_nu = S.mat_rho0, S.mat_nu
-    rows, row_cell, gradW, h2 = S.rows, S.row_cell, S.gradWk, S.h2
-    R = S.grid.R
+    named_noslip = [k for k in named if specs[k].contact == "sticky"] if P.has_noslip else []
+    x, v, rho, p, mid = F.x, F.v, F.rho, F.p, F.mid
+    bx, bV, bvel, bcol, bstart = F.bx, F.bV, F.bvel, F.bcol, F.bstart
+    mat_rho0, mat_nu = F.mat_rho0, F.mat_nu
+    rows, row_cell, gradW, h2 = fn.rows, fn.row_cell, fn.gradW, P.h2
+    R = P.R
     row = 2 * R + 1
-    dfsph = S.opts.pressure_solver == "DFSPH"
-    wp = S.wall_pressure
+    dfsph = P.pressure_solver == "DFSPH"
+    wp = fn.wall_pressure
     ext = wp is not None
-    uniform = S.uniform
-    kgc, kgc_scalar, Lm, Lc = S.kgc, S.kgc_scalar, S.Lm, S.Lc
-    kk = S.kk
+    uniform = P.uniform
+    kgc, kgc_scalar, Lm, Lc = P.kgc, P.kgc_scalar, F.Lm, F.Lc
+    kk = F.kk
     from simcli.solvers.sph.dfsph import BFAC
     from simcli.solvers.sph.kernels import VISC_EPS
 
@@ -141,13 +144,13 @@ def make_loads(S):
     visc_c = 2.0 * (dim + 2)
     bq = wp.bq if ext and not dfsph else None
     bval, bhyd = (wp.bval, wp.bhyd) if ext else (None, None)
-    mat_k, mat_n = S.mat_k, S.mat_n
+    mat_k, mat_n = F.mat_k, F.mat_n
 
     @ti.func
     def pair_impulse(i, b, d, g, dt):
         """The impulse boundary particle b's pressure gave liquid particle i this substep, reversed (the
         collider's share), for g = grad W(x_i - x_b)."""
-        mi = S.mass_of(i)
+        mi = fn.mass_of(i)
         J = ti.Vector.zero(f, dim)
         if ti.static(dfsph):
             gi = g
@@ -194,7 +197,7 @@ def make_loads(S):
                                 J = ti.Vector.zero(f, dim)
                                 if ti.static(viscous):
                                     coef = visc_c * mat_nu[mid[i]] * bV[b] / (r2 + eps_visc)
-                                    J = -dt * S.mass_of(i) * coef * (v[i] - bvel[b]).dot(d) * g
+                                    J = -dt * fn.mass_of(i) * coef * (v[i] - bvel[b]).dot(d) * g
                                 else:
                                     J = pair_impulse(i, b, d, g, dt)
                                 poses.add_load(k, bx[b], J, 0)

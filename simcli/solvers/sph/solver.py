@@ -5,11 +5,18 @@ A substep reads like the paper (see wcsph.py and dfsph.py)::
 
     neighbours -> density -> non_pressure -> pressure_solve -> advect
 
-* neighbours.py: cell grid rebuilt by a counting sort each substep, particles reordered by cell,
-  per-particle neighbour lists with the kernel gradients;
+This module allocates the fields, makes the explicit bundle the kernel builders take (bundle.py: SPHParams,
+SPHFields, SPHFuncs), calls the builders and implements the Solver interface. The operators, one module each:
+
+* neighbours.py: cell grid rebuilt by a counting sort each substep, particles reordered by cell;
+  stencil.py: the cell stencil walked by every pass, particle mass and volume;
+* density.py: per-particle neighbour lists with the kernel gradients, density, and the boundary sums;
 * boundary.py: domain walls and colliders as static boundary particles (Akinci et al. 2012), sampled
   volume-correctly; their contributions are summed once per substep into a few per-particle values
   (density, sum V_b grad W_ib, and for no-slip walls a viscous matrix), so later passes cost nothing;
+* non_pressure.py (gravity, viscosity, surface tension; WCSPH's pressure force in the same pass), advect.py;
+* wcsph.py, dfsph.py: the pressure solvers' substeps; wall_pressure.py: extrapolated wall pressure;
+  moving.py: moving colliders and the loads on named colliders; outputs.py: frame check, stable_dt's inputs;
 * kernels.py: cubic spline with support radius 2 x particle_size.
 
 Non-pressure accelerations: gravity, viscosity (physical mu, Monaghan 2005 Laplacian, also against
@@ -19,6 +26,7 @@ normals, with the symmetric correction factor 2 rho0 / (rho_i + rho_j)).
 Particles are stored in cell order (``pid`` maps back to the entity order the writers get).
 """
 
+import dataclasses
 import json
 import math
 from typing import Any
@@ -28,20 +36,19 @@ import numpy as np
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, initial_positions
 from simcli.solvers.sources import ActiveSet, has_sources, is_emitter
+from simcli.solvers.sph.advect import make_advect
 from simcli.solvers.sph.boundary import make_pushout, sample_boundary
+from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
+from simcli.solvers.sph.density import make_neighbours_density
 from simcli.solvers.sph.dfsph import SolveStats, make_dfsph
-from simcli.solvers.sph.kernels import (
-    VISC_EPS,
-    kernel_constant,
-    lattice_sum,
-    make_kernels,
-    morris_laplacian_constant,
-)
+from simcli.solvers.sph.kernels import lattice_sum, make_kernels
 from simcli.solvers.sph.moving import make_loads, make_moving_boundary
 from simcli.solvers.sph.neighbours import CellGrid, make_neighbour_funcs, neighbour_capacity
+from simcli.solvers.sph.non_pressure import make_non_pressure
+from simcli.solvers.sph.outputs import make_outputs
+from simcli.solvers.sph.stencil import make_stencil
 from simcli.solvers.sph.wall_pressure import make_wall_pressure
 from simcli.solvers.sph.wcsph import make_wcsph
-from simcli.solvers.taichi_funcs import make_body_of, make_finite
 
 with stdout_to_stderr():
     import taichi as ti
@@ -51,11 +58,6 @@ OUTPUT_FIELDS = ("position", "velocity", "density", "pressure", "material_id")
 # Laplacian on a lattice (support 2, checkerboard mode; 0.31 at support 3), about half that next to a
 # no-slip wall; 0.05 leaves room for disorder.
 VISCOUS_SAFETY = 0.05
-# gradient_correction: scalar corrects particles whose moment matrix has a mean diagonal of at least this
-# (a full
-# neighbourhood; a lattice: 1.012 in 2D, 1.020 in 3D; the matrix correction's det >= 0.5, for an
-# isotropic matrix)
-FULL_MOMENT = 0.75
 
 
 class SPHSolver(Solver):
@@ -379,23 +381,13 @@ class SPHSolver(Solver):
         self._upload()
         self.count = self._count_func()
         self._make_kernels()
-        # extrapolated wall pressure (wall_pressure.py): only where there are walls and the option asks for it
-        self.wall_pressure = make_wall_pressure(self) if self.ext_walls and self.nbp > 0 else None
-        if self.moving_boundary:
-            self.move_boundary = make_moving_boundary(self)
-        if self.named_loads:
-            self.load_pressure, self.load_viscous = make_loads(self)
-        if dfsph:
-            self._substep = make_dfsph(self)
-        else:
-            self._substep, pressure_from_density = make_wcsph(self)
         self._built = True
         self._version = 0
         self._cache: dict = {}
         self._density_only()  # the density stable_dt reads before the first substep
-        if not dfsph:
+        if self._pressure_from_density is not None:
             # frame 0's pressure: Tait's of that density (DFSPH's exists after a solve)
-            pressure_from_density()
+            self._pressure_from_density()
         self.frame_check()
 
     def _upload(self) -> None:
@@ -517,373 +509,83 @@ class SPHSolver(Solver):
     # ---------------------------------------------------------------- kernels
 
     def _make_kernels(self) -> None:
-        dim, f, K, R = self.dim, self.f, self.K, self.grid.R
-        h = self.support
-        h2 = h * h
-        eps_visc = VISC_EPS * h2
-        Wk, gradW, Ckern, W_gradW = make_kernels(h, dim, f)
-        store_grad = self.store_grad
-        W0 = kernel_constant(h, dim)  # W(0)
-        x, v, mass, mid, rho = self.x, self.v, self.mass, self.mid, self.rho
-        nb_cnt, nbb_cnt, nb_j, nb_g, B, Sb = self.nb_cnt, self.nbb_cnt, self.nb_j, self.nb_g, self.B, self.Sb
-        nrm, Mv, mw, alpha, shift = self.nrm, self.Mv, self.mw, self.alpha, self.shift
-        has_shift = shift is not None
-        shift_c = float(self.opts.shifting * self.ps**2)
-        shift_max = 0.1 * self.ps
-        start, bstart, bx, bV, bvel, bns = self.start, self.bstart, self.bx, self.bV, self.bvel, self.bns
-        bnear = self.bnear
-        mat_rho0, mat_nu, mat_gamma, gravity = self.mat_rho0, self.mat_nu, self.mat_gamma, self.gravity
-        overflow = self.overflow
-        has_tension, has_noslip, has_visc = self.has_tension, self.has_noslip, self.has_viscosity
-        dfsph = alpha is not None
-        kgc, Lm, Lc, kgc_scalar = self.kgc, self.Lm, self.Lc, self.kgc_scalar
-        has_boundary = self.nbp > 0
-        ext_walls, nbw_end, bflag = self.ext_walls and has_boundary, self.nbw_end, self.bflag
-        cell_coords, linear, pushout = self.cell_coords, self.linear, self.pushout
-        dims = self.grid.dims
-        c_lo = ti.Vector([R] * dim)
-        c_hi = ti.Vector([d - 1 - R for d in dims])
-        visc_c = 2.0 * (dim + 2)
-        morris = self.opts.viscosity_operator == "morris"
-        morris_c = morris_laplacian_constant(h / self.ps, dim)
-        dom_lo = ti.Vector(list(self.domain_lo), dt=f)
-        dom_hi = ti.Vector(list(self.domain_hi), dt=f)
-        row = 2 * R + 1
-        from simcli.solvers.sph.dfsph import BFAC as bfac
+        """The bundle (bundle.py: constants, fields, shared funcs) and the builders' kernels, in build order:
+        smoothing kernels and stencil, the passes (density.py, non_pressure.py, advect.py), the walls'
+        pressure (wall_pressure.py), moving colliders and loads (moving.py), the per-frame kernels
+        (outputs.py), and the pressure solver's substep (wcsph.py or dfsph.py)."""
+        self.uniform = len(self.materials) == 1
+        P = self.params = self._params()
+        F = self.fields = self._fields()
+        fn = self.funcs = SPHFuncs(
+            count=self.count,
+            sort=self.sort,
+            cell_coords=self.cell_coords,
+            linear=self.linear,
+            pushout=self.pushout,
+        )
+        fn.Wk, fn.gradW, fn.Ckern, fn.W_gradW = make_kernels(P.h, P.dim, P.f)
+        fn.rows, fn.row_cell, fn.mass_of, fn.volume_of = make_stencil(P, F, fn)
+        fn.neighbours_density = make_neighbours_density(P, F, fn)
+        fn.non_pressure = make_non_pressure(P, F, fn)
+        fn.advect = make_advect(P, F, fn)
+        # extrapolated wall pressure (wall_pressure.py): only where there are walls and the option asks for it
+        fn.wall_pressure = make_wall_pressure(P, F, fn) if P.ext_walls and P.nbp > 0 else None
+        self.wall_pressure = fn.wall_pressure
+        if P.moving_boundary:
+            fn.move_boundary = make_moving_boundary(P, F, fn, self.poses, self.grid)
+        if P.named_loads:
+            fn.load_pressure, fn.load_viscous = make_loads(P, F, fn, self.poses)
+        self._frame_stats, self._density_only, self._dt_stats = make_outputs(P, F, fn, len(self.bodies))
+        if P.dfsph:
+            self._substep, self._couple_phases = make_dfsph(P, F, fn, self.dfsph_stats, self.n_live)
+            self._pressure_from_density = None
+        else:
+            self._substep, self._pressure_from_density, self._couple_phases = make_wcsph(P, F, fn)
 
-        uniform = self.uniform = len(self.materials) == 1
-        m_c = float(self.materials[0].rho * self.V_rest)
-        V_c = float(self.V_rest)
+    def _params(self) -> SPHParams:
+        o = self.opts
+        return SPHParams(
+            dim=self.dim,
+            f=self.f,
+            n=self.n,
+            ps=self.ps,
+            h=self.support,
+            K=self.K,
+            R=self.grid.R,
+            grid_dims=tuple(self.grid.dims),
+            domain_lo=tuple(self.domain_lo),
+            domain_hi=tuple(self.domain_hi),
+            nbp=self.nbp,
+            uniform=self.uniform,
+            m_c=float(self.materials[0].rho * self.V_rest),
+            V_c=float(self.V_rest),
+            pressure_solver=o.pressure_solver,
+            store_grad=self.store_grad,
+            has_viscosity=self.has_viscosity,
+            has_tension=self.has_tension,
+            has_noslip=self.has_noslip,
+            shifting=o.shifting,
+            viscosity_operator=o.viscosity_operator,
+            kgc=self.kgc,
+            kgc_scalar=self.kgc_scalar,
+            ext_walls=self.ext_walls,
+            moving_boundary=self.moving_boundary,
+            named_loads=self.named_loads,
+            clamp_pressure=o.clamp_pressure,
+            background_pressure=o.background_pressure,
+            wall_pressure_relaxation=o.wall_pressure_relaxation,
+            warm_start=o.warm_start,
+            divergence_solve=o.divergence_solve,
+            max_divergence_error_percent=o.max_divergence_error_percent,
+            max_density_error_percent=o.max_density_error_percent,
+            max_divergence_iterations=o.max_divergence_iterations,
+            max_density_iterations=o.max_density_iterations,
+            cpu=self.arch in ("x64", "arm64"),
+        )
 
-        @ti.func
-        def mass_of(j):
-            """Particle mass [kg]: a compile-time constant with one material (saves a load per neighbour)."""
-            m = ti.cast(m_c, f)
-            if ti.static(not uniform):
-                m = mass[j]
-            return m
-
-        @ti.func
-        def volume_of(j):
-            """Rest volume m_j / rho0_j [m^dim]."""
-            V = ti.cast(V_c, f)
-            if ti.static(not uniform):
-                V = mass[j] / mat_rho0[mid[j]]
-            return V
-
-        @ti.func
-        def rows(xi):
-            """Cell coordinates of the first cell of the central row of cells around xi (clamped so that
-            every row stays inside the grid)."""
-            c = ti.min(ti.max(cell_coords(xi), c_lo), c_hi)
-            c[0] -= R
-            return c
-
-        @ti.func
-        def row_cell(c0, a):
-            """Linear index of the first cell of row a (0 <= a < row^(dim - 1)) of the stencil that starts at
-            c0 (from rows): a row is `row` cells contiguous along x."""
-            c = c0
-            c[1] += a % row - R
-            if ti.static(dim == 3):
-                c[2] += a // row - R
-            return linear(c)
-
-        @ti.func
-        def neighbours_density(i):
-            """neighbours -> density: neighbour list with grad W, density, and the boundary sums."""
-            xi = x[i]
-            c0 = rows(xi)
-            rho0_i = mat_rho0[mid[i]]
-            r_i = mass_of(i) * W0
-            G = ti.Vector.zero(f, dim)
-            sumsq = ti.cast(0.0, f)
-            Mom = ti.Matrix.zero(f, dim, dim)  # sum_j V_j grad W_ij (x_j - x_i)^T (gradient correction)
-            Mtr = ti.cast(0.0, f)  # its trace (gradient_correction: scalar)
-            cnt = 0
-            for a in range(row ** (dim - 1)):  # a run-time loop: unrolled, it compiles for minutes
-                lin = row_cell(c0, a)
-                for j in range(start[lin], start[lin + row]):
-                    d = xi - x[j]
-                    r2 = d.dot(d)
-                    if r2 < h2 and j != i:
-                        r = ti.sqrt(r2)
-                        w, g = W_gradW(d, r)
-                        Vg = volume_of(j) * g
-                        if ti.static(uniform):
-                            r_i += mass_of(j) * w
-                            sumsq += Vg.dot(Vg)
-                        else:
-                            # number density rho0_i sum_j V_j W_ij (SPlisHSPlasH): continuous across an
-                            # interface of two rest densities, where the mass sum gives the lighter liquid a
-                            # false excess
-                            r_i += rho0_i * volume_of(j) * w
-                            # the pressure operator's diagonal with the momentum-conserving pair force
-                            # (dfsph.py): V_j (m_i / rho0_j) |grad W_ij|^2
-                            sumsq += (mass_of(i) / mat_rho0[mid[j]]) * Vg.dot(g)
-                        if ti.static(kgc_scalar):
-                            Mtr -= Vg.dot(d)
-                        elif ti.static(kgc):
-                            Mom -= Vg.outer_product(d)
-                        G += Vg
-                        if cnt < K:
-                            nb_j[i, cnt] = j
-                            if ti.static(store_grad):
-                                nb_g[i, cnt] = g
-                        cnt += 1
-            if cnt > K:
-                ti.atomic_add(overflow[None], cnt - K)
-            nb_cnt[i] = ti.min(cnt, K)
-            cnt_w = ti.min(cnt, K)  # extrapolated walls: the boundary neighbours' slots follow
-            Bi = ti.Vector.zero(f, dim)
-            Si = ti.cast(0.0, f)
-            Qb = ti.Matrix.zero(f, dim, dim)  # sum_b V_b grad W_ib v_b^T: Si with the corrected gradient
-            cntb = 0
-            M = ti.Matrix.zero(f, dim, dim)
-            m_w = ti.Vector.zero(f, dim)
-            if ti.static(has_boundary):  # noqa: SIM102 - compile-time, then run-time test
-                if bnear[linear(c0) + R] != 0:  # most particles have no boundary particle in reach
-                    for a in range(row ** (dim - 1)):
-                        lin = row_cell(c0, a)
-                        for b in range(bstart[lin], bstart[lin + row]):
-                            d = xi - bx[b]
-                            r2 = d.dot(d)
-                            if r2 < h2:
-                                r = ti.sqrt(r2)
-                                Vb = bV[b]
-                                w, g = W_gradW(d, r)
-                                r_i += rho0_i * Vb * w
-                                Bi += Vb * g
-                                if ti.static(ext_walls):
-                                    bflag[b] = 1  # the same value from every writer
-                                    if cnt_w < K:
-                                        nb_j[i, cnt_w] = b
-                                        if ti.static(store_grad):
-                                            nb_g[i, cnt_w] = Vb * g
-                                    cnt_w += 1
-                                Si += Vb * bvel[b].dot(g)
-                                if ti.static(kgc_scalar):
-                                    Mtr -= Vb * g.dot(d)
-                                elif ti.static(kgc):
-                                    Mom -= (Vb * g).outer_product(d)
-                                    Qb += (Vb * g).outer_product(bvel[b])
-                                cntb += 1
-                                if ti.static(has_noslip):  # noqa: SIM102 - compile-time, then run-time test
-                                    if bns[b] != 0:
-                                        coef = Vb / (r2 + eps_visc)
-                                        M += coef * g.outer_product(d)
-                                        m_w += coef * bvel[b].dot(d) * g
-            rho[i] = r_i
-            if ti.static(kgc_scalar):  # the isotropic part only: L_i = (dim / trace) I
-                ci = ti.cast(1.0, f)
-                if Mtr >= dim * FULL_MOMENT:  # a full neighbourhood (a lattice: 1.01-1.02)
-                    ci = dim / Mtr
-                Lc[i] = ci
-                Si *= ci  # sum_b V_b v_b . c_i grad W_ib
-            elif ti.static(kgc):
-                Li = ti.Matrix.identity(f, dim)
-                if Mom.determinant() >= 0.5:  # a full neighbourhood (a lattice: 1)
-                    Li = Mom.inverse()
-                Lm[i] = Li
-                Si = (Li @ Qb).trace()  # sum_b V_b v_b . L_i grad W_ib
-            B[i] = Bi
-            if ti.static(ext_walls):
-                if cnt_w > K:
-                    ti.atomic_add(overflow[None], cnt_w - K)
-                nbw_end[i] = ti.min(cnt_w, K)
-            Sb[i] = Si
-            nbb_cnt[i] = cntb
-            if ti.static(has_noslip):
-                Mv[i] = M
-                mw[i] = m_w
-            if ti.static(has_tension):
-                nrm[i] = h * G  # surface normal of Akinci et al. 2013 (eq. 4), fluid part only
-            if ti.static(has_shift):
-                # particle shifting (Lind et al. 2012): down the concentration gradient grad C = sum_j V_j
-                # grad W_ij + sum_b V_b grad W_ib, none in the deficient support of a free surface
-                ds = ti.Vector.zero(f, dim)
-                if r_i > 0.95 * rho0_i:
-                    ds = -shift_c * (G + Bi)
-                    ln = ds.norm()
-                    if ln > shift_max:
-                        ds *= shift_max / ln
-                shift[i] = ds
-            if ti.static(dfsph):
-                # diagonal of the pressure operator as the solve applies it: own velocity change
-                # -dt k_i (G + bfac B) against the density rate's (G + B), plus the neighbours' reaction
-                Gt = G + Bi
-                den = ti.max((G + bfac * Bi).dot(Gt), 0.0) + sumsq
-                alpha[i] = 1.0 / den if den > 1e-9 else 0.0
-
-        p = self.p
-
-        @ti.func
-        def non_pressure(i, with_pressure: ti.template()):
-            """gravity + viscosity + surface tension [m/s^2]; with_pressure: plus WCSPH's symmetric pressure
-            force, -sum_j m_j (p_i / rho_i^2 + p_j / rho_j^2) grad W_ij, in the same pass over the
-            neighbours."""
-            a = gravity[None]
-            if ti.static(has_visc or has_tension or with_pressure):
-                xi, vi = x[i], v[i]
-                m = mid[i]
-                nu = mat_nu[m]
-                gam = mat_gamma[m]
-                rho0 = mat_rho0[m]
-                ri = rho[i]
-                dpi = ti.cast(0.0, f)
-                if ti.static(with_pressure):
-                    dpi = p[i] / (ri * ri)
-                av = ti.Vector.zero(f, dim)
-                avm = ti.Vector.zero(f, dim)  # Morris et al. 1997 sum (viscosity_operator: morris)
-                at = ti.Vector.zero(f, dim)
-                ap = ti.Vector.zero(f, dim)
-                ni = ti.Vector.zero(f, dim)
-                if ti.static(has_tension):
-                    ni = nrm[i]
-                for k in range(nb_cnt[i]):
-                    j = nb_j[i, k]
-                    d = ti.Vector.zero(f, dim)
-                    r2 = ti.cast(0.0, f)
-                    if ti.static(has_visc or has_tension or not store_grad):
-                        d = xi - x[j]
-                        r2 = d.dot(d)
-                    g = ti.Vector.zero(f, dim)
-                    if ti.static(store_grad):
-                        g = nb_g[i, k]
-                    else:
-                        g = gradW(d, ti.sqrt(r2))
-                    rj = rho[j]
-                    mj = mass_of(j)
-                    if ti.static(with_pressure):
-                        if ti.static(uniform):
-                            ap -= mj * (dpi + p[j] / (rj * rj)) * g
-                        else:
-                            # several materials: Solenthaler & Pajarola's (2008) density-contrast form,
-                            # -(1 / m_i) sum_j (p_i / delta_i^2 + p_j / delta_j^2) grad W with delta = rho /
-                            # m, a consistent -grad p / rho_i across an interface (m_j p_j / rho_j^2 weighted
-                            # the lighter liquid's pressure by rho_i / rho_j there); the same for one material
-                            mi = mass_of(i)
-                            ap -= (mi * dpi + (mj * mj / mi) * p[j] / (rj * rj)) * g
-                    if ti.static(has_visc or has_tension):
-                        if ti.static(has_visc):
-                            vis = mj / rj  # one material: times nu_i below
-                            if ti.static(not uniform):
-                                # several materials: the pair's mean dynamic viscosity over rho_i rho_j,
-                                # symmetric in i and j so that momentum is conserved (Morris et al. 1997)
-                                vis *= 0.5 * (nu * rho0 + mat_nu[mid[j]] * mat_rho0[mid[j]]) / ri
-                            if ti.static(morris):
-                                avm += vis * (d.dot(g) / (r2 + eps_visc)) * (vi - v[j])
-                            else:
-                                av += vis * (vi - v[j]).dot(d) / (r2 + eps_visc) * g
-                        if ti.static(has_tension):  # noqa: SIM102 - compile-time, then run-time test
-                            if r2 > 0:
-                                r = ti.sqrt(r2)
-                                if ti.static(uniform):
-                                    kij = 2.0 * rho0 / (ri + rj)
-                                    at -= kij * (mj * Ckern(r) / r * d + (ni - nrm[j]))
-                                else:
-                                    # several materials: Akinci's pair term with symmetric coefficients (the
-                                    # pair's mean gamma, (rho0_i + rho0_j) / (rho_i + rho_j), the curvature
-                                    # term weighted 2 m_j / (m_i + m_j)), so that momentum is conserved; equal
-                                    # to Akinci's for equal materials
-                                    mi = mass_of(i)
-                                    kij = (
-                                        (0.5 * (gam + mat_gamma[mid[j]]))
-                                        * (rho0 + mat_rho0[mid[j]])
-                                        / (ri + rj)
-                                    )
-                                    at -= kij * (
-                                        mj * Ckern(r) / r * d + (2.0 * mj / (mi + mj)) * (ni - nrm[j])
-                                    )
-                if ti.static(uniform):
-                    if ti.static(has_noslip):
-                        av += Mv[i] @ vi - mw[i]
-                    a += visc_c * nu * av + gam * at + ap
-                    if ti.static(morris):
-                        a += morris_c * nu * avm
-                else:
-                    # the pair coefficients are inside av, avm and at; the walls' viscosity is the liquid's
-                    # own
-                    if ti.static(has_noslip):
-                        a += visc_c * nu * (Mv[i] @ vi - mw[i])
-                    a += visc_c * av + at + ap
-                    if ti.static(morris):
-                        a += morris_c * avm
-            return a
-
-        @ti.func
-        def advect(i, vi, dt):
-            """x += dt v; then the guards: clamp to the domain, push out of colliders."""
-            xi = x[i] + dt * vi
-            if ti.static(has_shift):
-                xi += shift[i]
-            for d in ti.static(range(dim)):
-                if xi[d] < dom_lo[d]:
-                    xi[d] = dom_lo[d]
-                    vi[d] = ti.max(vi[d], 0.0)
-                elif xi[d] > dom_hi[d]:
-                    xi[d] = dom_hi[d]
-                    vi[d] = ti.min(vi[d], 0.0)
-            xi, vi = pushout(xi, vi)
-            x[i] = xi
-            v[i] = vi
-
-        self.neighbours_density, self.non_pressure, self.advect = neighbours_density, non_pressure, advect
-        self.rows, self.row_cell, self.Wk, self.gradWk, self.h2 = rows, row_cell, Wk, gradW, h2
-        self.mass_of, self.volume_of = mass_of, volume_of
-
-        # ---- per-frame kernels
-        nb = len(self.bodies)
-        body_offsets, stat_speed, stat_bad, pid = self.body_offsets, self.stat_speed, self.stat_bad, self.pid
-        N = self.count
-        f64 = f == ti.f64
-
-        finite = make_finite(f64)
-
-        body_of = make_body_of(nb, body_offsets)
-
-        @ti.kernel
-        def frame_stats():
-            for b in range(nb):
-                stat_speed[b] = 0.0
-                stat_bad[b] = 0
-            for i in range(N()):
-                b = body_of(pid[i])
-                vi = v[i]
-                if finite(x[i]) and finite(vi):
-                    ti.atomic_max(stat_speed[b], vi.norm())
-                else:
-                    ti.atomic_add(stat_bad[b], 1)
-
-        @ti.kernel
-        def density_only():
-            if ti.static(self.moving_boundary):
-                self.move_boundary()
-            self.sort(N())
-            for i in range(N()):
-                neighbours_density(i)
-
-        stat_dt = self.stat_dt
-        wcsph = self.opts.pressure_solver == "WCSPH"
-
-        @ti.kernel
-        def dt_stats():
-            """stable_dt's inputs in one launch (before every substep with sim.auto_check: substep): the
-            largest finite particle speed, and for WCSPH the largest rho / rho0 (global reductions, cheaper
-            than
-            frame_stats' per-body atomics)."""
-            stat_dt[0] = 0.0
-            stat_dt[1] = 0.0
-            for i in range(N()):
-                vi = v[i]
-                if finite(vi):
-                    ti.atomic_max(stat_dt[0], vi.norm())
-                if ti.static(wcsph):
-                    ti.atomic_max(stat_dt[1], rho[i] / mat_rho0[mid[i]])
-
-        self._dt_stats = dt_stats
-        self._frame_stats = frame_stats
-        self._density_only = density_only
+    def _fields(self) -> SPHFields:
+        names = [fld.name for fld in dataclasses.fields(SPHFields)]
+        return SPHFields(**{k: getattr(self, k) for k in names})
 
     # ---------------------------------------------------------------- stepping
 

@@ -48,28 +48,35 @@ in a fixed order: bitwise reproducible at any thread count.
 
 from types import SimpleNamespace
 
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
 
-def make_wall_pressure(S):
-    """Fields and Taichi funcs of the extrapolated wall pressure for DFSPH solver ``S`` (after its kernels are
-    made)."""
-    ti = S.ti
-    f, dim = S.f, S.dim
-    nbp = S.nbp
-    R = S.grid.R
+with stdout_to_stderr():
+    import taichi as ti
+
+
+def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
+    """Fields and Taichi funcs of the extrapolated wall pressure (a namespace: ``mark``, ``update``,
+    ``wall_sum`` for DFSPH, ``wcsph_pressure``, ``wcsph_wall_force`` for WCSPH, and the fields ``bval``,
+    ``bhyd``, ``pbar``, ``bq``); needs the stencil and the smoothing kernels in ``fn``. Only for a scene
+    with boundary particles (``P.nbp > 0``)."""
+    f, dim = P.f, P.dim
+    nbp = P.nbp
+    R = P.R
     row = 2 * R + 1
     KB = max(
-        8, S.K // 2
+        8, P.K // 2
     )  # liquid neighbours listed per boundary particle: a half neighbourhood at rest is K / 4
-    x = S.x
-    bx, start = S.bx, S.start
-    nb_cnt, nb_j, nb_g, nbw_end = S.nb_cnt, S.nb_j, S.nb_g, S.nbw_end
-    Wk, h2 = S.Wk, S.h2
-    gravity, rows, row_cell, overflow = S.gravity, S.rows, S.row_cell, S.overflow
-    bflag = S.bflag
+    x = F.x
+    bx, start = F.bx, F.start
+    nb_cnt, nb_j, nb_g, nbw_end = F.nb_cnt, F.nb_j, F.nb_g, F.nbw_end
+    Wk, h2 = fn.Wk, P.h2
+    gravity, rows, row_cell, overflow = F.gravity, fn.rows, fn.row_cell, F.overflow
+    bflag = F.bflag
     # several materials: the walls carry a pressure, the Shepard average of rho0_f k_f (plus rho0_f g . (x_b -
     # x_f)), which liquid particle i feels as the stiffness p_b / rho0_i; with one material simply the average
     # of k_f
-    uniform, mat_rho0, mid = S.uniform, S.mat_rho0, S.mid
+    uniform, mat_rho0, mid = P.uniform, F.mat_rho0, F.mid
 
     bval = ti.field(f, shape=nbp)  # the boundary particle's k increment of the current iteration
     bhyd = ti.field(f, shape=nbp)  # its hydrostatic k of the substep
@@ -81,11 +88,11 @@ def make_wall_pressure(S):
     bnb_j = ti.field(ti.i32, shape=(nbp, KB))
     bnb_w = ti.field(f, shape=(nbp, KB))
 
-    TAU = float(S.opts.wall_pressure_relaxation)
-    filt = not S.store_grad  # WCSPH: the walls' pressure relaxes towards the extrapolation (wcsph_pressure)
+    TAU = float(P.wall_pressure_relaxation)
+    filt = not P.store_grad  # WCSPH: the walls' pressure relaxes towards the extrapolation (wcsph_pressure)
     pbar = ti.field(f, shape=nbp) if filt else None
     NEW = -1.0e30  # pbar of a boundary particle that no liquid reached in the last substep
-    clamp = S.opts.clamp_pressure
+    clamp = P.clamp_pressure
     if filt:
         pbar.fill(NEW)
 
@@ -158,10 +165,10 @@ def make_wall_pressure(S):
             out /= mat_rho0[mid[i]]
         return out
 
-    mat_k, mat_n = S.mat_k, S.mat_n
-    bq = ti.field(f, shape=nbp) if not S.store_grad else None  # WCSPH: p_b / rho_b^2 (one material)
-    p_liq = S.p
-    gradW, bV = S.gradWk, S.bV
+    mat_k, mat_n = F.mat_k, F.mat_n
+    bq = ti.field(f, shape=nbp) if not P.store_grad else None  # WCSPH: p_b / rho_b^2 (one material)
+    p_liq = F.p
+    gradW, bV = fn.gradW, F.bV
 
     @ti.func
     def wcsph_pressure(dt):

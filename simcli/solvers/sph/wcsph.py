@@ -15,19 +15,26 @@ single term alone is stable, and leaves the wall layer at 1.7x the hydrostatic p
 Time integration: symplectic Euler (v, then x with the new v).
 """
 
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
 
-def make_wcsph(S):
-    """The substep kernel of WCSPH for solver ``S`` (fields and shared funcs built by ``SPHSolver``), and a
-    kernel
-    that sets the pressure from the current density (the output before the first substep)."""
-    ti = S.ti
-    f = S.f
-    rho, p, mid, v, vnew = S.rho, S.p, S.mid, S.v, S.vnew
-    B = S.B
-    mat_rho0, mat_k, mat_n = S.mat_rho0, S.mat_k, S.mat_n
-    clamp = S.opts.clamp_pressure
-    p_bg = float(S.opts.background_pressure)
-    N = S.count  # the active count (emitters, sinks) or the constant n
+with stdout_to_stderr():
+    import taichi as ti
+
+
+def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
+    """WCSPH's kernels: ``(substep, pressure_from_density, couple_phases)``. ``substep(dt)`` is the whole
+    substep; ``pressure_from_density()`` sets the pressure from the current density (the output before the
+    first substep); ``couple_phases`` is ``(pre_couple, post_couple, vnew)``, the substep in two halves
+    around a coupling phase and the velocity it edits. Needs every shared func in ``fn`` (density.py,
+    non_pressure.py, advect.py; wall_pressure.py, moving.py where the scene has them)."""
+    f = P.f
+    rho, p, mid, v, vnew = F.rho, F.p, F.mid, F.v, F.vnew
+    B = F.B
+    mat_rho0, mat_k, mat_n = F.mat_rho0, F.mat_k, F.mat_n
+    clamp = P.clamp_pressure
+    p_bg = float(P.background_pressure)
+    N = fn.count  # the active count (emitters, sinks) or the constant n
 
     @ti.func
     def equation_of_state(i):
@@ -38,7 +45,7 @@ def make_wcsph(S):
             pi = ti.max(pi, 0.0)
         p[i] = pi + p_bg
 
-    wp = S.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
+    wp = fn.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
 
     @ti.func
@@ -58,27 +65,27 @@ def make_wcsph(S):
 
     @ti.func
     def forces(dt):
-        if ti.static(S.moving_boundary):
-            S.move_boundary()  # moving colliders' boundary particles to this substep's pose (moving.py)
-        S.sort(N())
+        if ti.static(P.moving_boundary):
+            fn.move_boundary()  # moving colliders' boundary particles to this substep's pose (moving.py)
+        fn.sort(N())
         for i in range(N()):
-            S.neighbours_density(i)
+            fn.neighbours_density(i)
             equation_of_state(i)
         if ti.static(ext):
             wp.mark()  # the walls in reach of the liquid and their hydrostatic part
             wp.wcsph_pressure(dt)
         for i in range(N()):
             # non_pressure and the liquid's pressure force in one pass over the neighbour list
-            vnew[i] = v[i] + dt * (S.non_pressure(i, True) + boundary_pressure_acceleration(i))
-        if ti.static(S.named_loads):  # the reaction on named colliders (moving.py), from the same state
+            vnew[i] = v[i] + dt * (fn.non_pressure(i, True) + boundary_pressure_acceleration(i))
+        if ti.static(P.named_loads):  # the reaction on named colliders (moving.py), from the same state
             for i in range(N()):
-                S.load_pressure(i, dt)
-                S.load_viscous(i, dt)
+                fn.load_pressure(i, dt)
+                fn.load_viscous(i, dt)
 
     @ti.func
     def advect_all(dt):
         for i in range(N()):
-            S.advect(i, vnew[i], dt)
+            fn.advect(i, vnew[i], dt)
 
     @ti.kernel
     def substep(dt: f):
@@ -95,5 +102,4 @@ def make_wcsph(S):
     def post_couple(dt: f):
         advect_all(dt)
 
-    S._couple_phases = (pre_couple, post_couple, vnew)
-    return substep, pressure_from_density
+    return substep, pressure_from_density, (pre_couple, post_couple, vnew)
