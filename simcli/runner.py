@@ -85,6 +85,9 @@ class _Loop:
     stable: float = math.inf  # the stable substep at the start (frame 0's check, the fixed-substep warning)
     stepping0: float = 0.0  # timings["stepping_s"] when this process's loop started
     first: bool = True  # the first substep (its time is the kernels' compile time)
+    last_sub: float | None = (
+        None  # the last substep taken [s] (the policy's horizon with auto_check: substep)
+    )
 
 
 class _StartupInterrupted(SimcliError):
@@ -495,6 +498,7 @@ class Runner:
             loop.frame = int(meta["frame"])
             loop.substeps_now = meta.get("substeps_now", loop.substeps_now)
             loop.sub_hist = list(meta.get("substeps_hist", []))
+            loop.last_sub = meta.get("last_substep")
             self.timings.update(
                 {k: float(v) for k, v in meta.get("timings", {}).items() if k == "stepping_s"}
             )
@@ -522,7 +526,10 @@ class Runner:
             self._rigid.open(sink, resume_frame)
         # the stable substep for the frame-0 check and the fixed-substep warning (not asked again on a resumed
         # auto run, whose check counts then match an uninterrupted run's)
-        loop.stable = self._stable_dt(solvers, sim.dt) if ckpt is None or sim.substeps != "auto" else sim.dt
+        h = self._policy.horizon(loop.last_sub)
+        loop.stable = (
+            self._stable_dt(solvers, sim.dt, h) if ckpt is None or sim.substeps != "auto" else sim.dt
+        )
         if ckpt is None:
             # the first substep: the fixed one, or with substeps: auto the stable one (not sim.dt: a long step
             # with auto_check: substep would make any initial speed look like a runaway)
@@ -620,8 +627,8 @@ class Runner:
         sources, coupler, dt_range = self._sources, self._coupler, self._dt_range
         step = loop.step
 
-        def stable(fallback: float) -> float:
-            return self._stable_dt(solvers, fallback)
+        def stable(fallback: float) -> float:  # (the horizon: how long the policy will keep the answer)
+            return self._stable_dt(solvers, fallback, policy.horizon(loop.last_sub))
 
         loop.substeps_now = policy.step_substeps(step, loop.substeps_now, stable)
         ts = time.perf_counter()
@@ -639,6 +646,7 @@ class Runner:
                 self._rigid.step(solvers, sub_dt)
             k += 1
             done_t += sub_dt
+            loop.last_sub = sub_dt
             dt_range[0], dt_range[1] = min(dt_range[0], sub_dt), max(dt_range[1], sub_dt)
             if loop.first:
                 for s in solvers:
@@ -699,6 +707,7 @@ class Runner:
             "substeps_now": loop.substeps_now,
             "dt_range": list(self._dt_range),
             "substeps_hist": loop.sub_hist[-10000:],
+            "last_substep": loop.last_sub,
             "scene_name": self.name,
             "timings": {"stepping_s": self.timings["stepping_s"]},
             "particles": self._n_particles,
@@ -807,12 +816,12 @@ class Runner:
         )
 
     @staticmethod
-    def _stable_dt(solvers, fallback: float) -> float:
+    def _stable_dt(solvers, fallback: float, horizon: float) -> float:
         """The smallest stable substep the solvers report [s]. A NaN (a solver whose state is no longer
         finite: the frame check at the end of the frame reports it, with advice) gives ``fallback`` instead of
         an
         unreadable error here."""
-        vals = [float(s.stable_dt()) for s in solvers]
+        vals = [float(s.stable_dt(horizon)) for s in solvers]
         return fallback if any(math.isnan(v) for v in vals) else min(vals)
 
     def _check_resume_scene(self, meta: dict, path) -> None:

@@ -135,8 +135,10 @@ class Solver:
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         raise NotImplementedError
 
-    def stable_dt(self) -> float:
-        """Largest stable substep for the current state [s]."""
+    def stable_dt(self, horizon: float = 0.0) -> float:
+        """Largest stable substep for the current state [s], to be kept for the next ``horizon`` seconds
+        (simcli.substeps.SubstepPolicy.horizon: a frame, or the last substep when the substep is chosen
+        before each one): a family whose limit shrinks as gravity speeds it up bounds it over that span."""
         raise NotImplementedError
 
     def counts(self) -> dict[str, int]:

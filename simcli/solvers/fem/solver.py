@@ -488,7 +488,7 @@ class FEMSolver(Solver):
             [e.name for e in self.entities], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
         )
 
-    def stable_dt(self) -> float:
+    def stable_dt(self, horizon: float = 0.0) -> float:
         """Explicit: cfl x (smallest current element height, at least a quarter of the rest one) / (P-wave
         speed + largest vertex speed). Implicit: unlimited."""
         if self.implicit:

@@ -847,7 +847,7 @@ class MPMSolver(Solver):
             [b.name for b in self.bodies], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
         )
 
-    def stable_dt(self) -> float:
+    def stable_dt(self, horizon: float = 0.0) -> float:
         """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p, viscosity limit) [s]; one reduction
         kernel. c_p is the P-wave speed of the stiffest material, raised by the largest current
         hardening factor (snow) and by the largest muscle activation."""

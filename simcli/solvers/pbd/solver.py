@@ -620,7 +620,7 @@ class PBDSolver(Solver):
             [e.name for e in self.entities], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
         )
 
-    def stable_dt(self) -> float:
+    def stable_dt(self, horizon: float = 0.0) -> float:
         """XPBD is unconditionally stable; contact needs a vertex to move less than its radius per
         substep to be caught before it crosses a thin collider: half the smallest radius / largest speed
         (of the particles and of the moving colliders' surfaces)."""

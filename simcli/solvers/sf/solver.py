@@ -347,7 +347,7 @@ class SFSolver(Solver):
         self._frame_stats()
         return float(self.stats[0])
 
-    def stable_dt(self) -> float:
+    def stable_dt(self, horizon: float = 0.0) -> float:
         """cfl x dx / max speed: the substep `substeps: auto` aims at. Semi-Lagrangian advection and
         the implicit viscosity are stable at any step; this only bounds the accuracy loss."""
         v = self.max_speed() if self._built else 0.0

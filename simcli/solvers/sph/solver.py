@@ -104,10 +104,6 @@ class SPHSolver(Solver):
         self.nu_max = max(m.mu / m.rho for m in self.materials)
         self.has_viscosity = self.nu_max > 0
         self.has_tension = any(m.gamma > 0 for m in self.materials)
-        # how far ahead stable_dt must look for what gravity adds: one output frame when the substep is chosen
-        # once per frame; the last substep when it is chosen before every substep (sim.auto_check: substep)
-        self.per_substep_check = scene.sim.substeps == "auto" and scene.sim.auto_check == "substep"
-        self.frame_time = float(scene.sim.dt) * int(scene.output.every)
         self.g_norm = float(np.linalg.norm(scene.sim.gravity_vec))
         # rest volume of a particle [m^dim]: the lattice cell over the kernel's lattice sum, so that a lattice
         # of liquid (and of wall particles) sits at rho0 exactly
@@ -594,8 +590,6 @@ class SPHSolver(Solver):
             self.poses.set_time(self.time, dt)
         self._substep(dt)
         self.time += dt
-        if self.per_substep_check:
-            self.frame_time = dt
         self._version += 1
 
     # Coupled scenes (simcli/coupling/): pre_couple = everything up to the end-of-substep velocity
@@ -608,8 +602,6 @@ class SPHSolver(Solver):
     def post_couple(self, dt: float) -> None:
         self._couple_phases[1](dt)
         self.time += dt
-        if self.per_substep_check:
-            self.frame_time = dt
         self._version += 1
 
     @property
@@ -622,10 +614,11 @@ class SPHSolver(Solver):
             [b.name for b in self.bodies], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
         )
 
-    def stable_dt(self) -> float:
+    def stable_dt(self, horizon: float = 0.0) -> float:
         """min(cfl ps / (v + c), VISCOUS_SAFETY ps^2 / nu, max_substep) [s], c the WCSPH sound speed at the
         largest compression now (0 for DFSPH). v is the largest particle speed now plus what gravity can add
-        before the next check (one frame; the last substep's length with sim.auto_check: substep)."""
+        before the next check, ``horizon`` seconds ahead (the runner's substep policy says how long: a frame,
+        or the last substep with sim.auto_check: substep)."""
         self._dt_stats()
         vmax, rho_ratio = (float(s) for s in self.stat_dt.to_numpy())
         if self.sources is not None:  # what an emitter will bring in
@@ -634,10 +627,8 @@ class SPHSolver(Solver):
             return self.opts.max_substep
         if self.poses.any_moving:  # a moving collider's surface must not cross more than cfl ps either
             vmax = max(vmax, self.poses.max_surface_speed(self.time))
-        # gravity cannot add more than one frame's g t, nor more than a free fall across the domain
-        v_est = min(
-            vmax + self.g_norm * self.frame_time, math.sqrt(vmax**2 + 2.0 * self.g_norm * self.fall_height)
-        )
+        # gravity cannot add more than g t over the horizon, nor more than a free fall across the domain
+        v_est = min(vmax + self.g_norm * horizon, math.sqrt(vmax**2 + 2.0 * self.g_norm * self.fall_height))
         c = 0.0
         if self.opts.pressure_solver == "WCSPH":
             # Tait's sound speed at the largest compression: c0 (rho / rho0)^((n - 1) / 2) (overlapping
@@ -723,9 +714,6 @@ class SPHSolver(Solver):
         d = {k: fld.to_numpy() for k, fld in self._state_fields().items()}
         if self.poses.needed:
             d["time"] = np.array([self.time])
-        d["frame_time"] = np.array(
-            [self.frame_time]
-        )  # stable_dt's look-ahead (the last substep with auto_check)
         # run.json's solver statistics (DFSPH iterations and errors, what set the substeps, neighbour-list
         # overflow), so that a resumed run reports the whole run, not what came after the resume (JSON bytes)
         stats = {
@@ -768,8 +756,7 @@ class SPHSolver(Solver):
             self._density_only()  # sorts every per-particle field along: after all of them are loaded
         if "time" in state:
             self.time = float(np.asarray(state["time"]).reshape(-1)[0])
-        if "frame_time" in state and self.per_substep_check:  # checkpoints before session 6 lack it
-            self.frame_time = float(np.asarray(state["frame_time"]).reshape(-1)[0])
+        # (a "frame_time" of checkpoints before session 10, stable_dt's look-ahead, is the runner's now)
         if "run_stats" in state:  # checkpoints before session 7 lack it: statistics restart at the resume
             stats = json.loads(np.asarray(state["run_stats"], dtype=np.uint8).tobytes().decode("utf-8"))
             self.dfsph_stats.d = stats["dfsph"]

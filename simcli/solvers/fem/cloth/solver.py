@@ -361,7 +361,7 @@ class ClothSolver(Solver):
             out[e.name] = FrameStats(finite=nbad == 0, max_speed=sp if nbad == 0 else math.inf, n_bad=nbad)
         return out
 
-    def stable_dt(self) -> float:
+    def stable_dt(self, horizon: float = 0.0) -> float:
         return math.inf
 
     def length_scale(self) -> float:
