@@ -984,9 +984,10 @@ class PBDSolver(Solver):
                         f"PBD state: the checkpoint has no {k!r} (written without emitters or sinks)"
                     )
                 arr = np.asarray(state[f"src_{k}"])
-                if arr.shape != fld.shape:
-                    raise ValueError(f"PBD state {k!r}: shape {arr.shape} does not fit {fld.shape}")
-                fld.from_numpy(arr.astype(fld.to_numpy().dtype))
+                have = fld.to_numpy()  # (shape and dtype, vector components included)
+                if arr.shape != have.shape:
+                    raise ValueError(f"PBD state {k!r}: shape {arr.shape} does not fit {have.shape}")
+                fld.from_numpy(arr.astype(have.dtype))
             self._n_seen = self.sources.n_active
             self.active_changed()
 
