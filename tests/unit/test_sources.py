@@ -238,6 +238,8 @@ emitters:
     max_particles: 200
 sinks:
   - {name: drain, type: Box, lower: [0.0, 0.0, 0.0], upper: [0.12, 0.03, 0.16]}
+probes:
+  - {name: mass, type: total, quantity: mass, entity: "*", every: 5}
 output: {every: 5, formats: [hdf5]}
 checkpoint: {every: 10, keep: 5}
 """
@@ -269,6 +271,10 @@ def test_pbd_emitters_flux_sink_cloth_and_resume(tmp_path):
         assert sheet.shape[1] == 49 and np.isfinite(sheet).all()  # the cloth's vertices never move slots
         pool = f["entities/pool/count"][:]
         assert pool[-1] < pool[0]  # what lay under the drain left
+        # probes follow the varying count: the cloth and pool's mass plus what entered minus what left
+        m = f["probes/mass/value"][:]
+        entered = full["emitted"][-1] + f["emitters/grains/emitted_mass"][-1]
+        assert m[-1] == pytest.approx(m[0] + entered - full["removed"][-1], rel=1e-5)
     import json
 
     info = json.loads((out / "run.json").read_text())
