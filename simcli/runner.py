@@ -158,6 +158,9 @@ class Runner:
         self._cvtk = None  # named and moving colliders' surfaces per frame (vtk/<name>.pvd)
         self._progress = None
         self._n_particles = 0
+        self._n_fixed = 0
+        self._particle_substeps = 0.0
+        self._entity_fields: dict = {}
         self._t_loop = 0.0
         self._load_step = 0
         self._policy = SubstepPolicy.of(self.scene)  # every substep size (simcli/substeps.py)
@@ -463,6 +466,9 @@ class Runner:
         self.info["counts"] = {s.family: s.counts() for s in solvers}
         self._n_particles = sum(int(s.counts().get("particles", 0)) for s in solvers)
         self.info["particles"] = self._n_particles
+        # emitters and sinks: the live count changes; run.json's counts and rates follow it (_finish_stats)
+        self._n_fixed = sum(int(s.counts().get("particles", 0)) for s in solvers if s.active_set is None)
+        self._particle_substeps = 0.0
         self.info["families"] = [s.family for s in solvers]
         return solvers
 
@@ -664,6 +670,7 @@ class Runner:
                 self.warn(w)
         self.timings["stepping_s"] += time.perf_counter() - ts
         loop.substeps_done += loop.substeps_now
+        self._particle_substeps += loop.substeps_now * self._live_particles(solvers, self._n_particles)
         loop.sub_hist.append(loop.substeps_now)
         return sub_dt
 
@@ -744,8 +751,12 @@ class Runner:
         ]
         if not rates:
             rates = [f"{tp.get('steps_per_s') or 0:.3g} steps/s"]
+        live = ""
+        if "particles_capacity" in info:  # emitters, sinks: the rate is over the live particles
+            live = f"; {info['particles']:,} particles live of {info['particles_capacity']:,} reserved"
         self.log(
             f"done: {plural(step, 'step')}, {plural(frame + 1, 'frame')} in {self.out} ({', '.join(rates)})"
+            + live
         )
         for line in self._rigid.log_lines() if self._rigid is not None else []:
             self.log(line)
@@ -762,6 +773,24 @@ class Runner:
         return EXIT_OK, info
 
     # ------------------------------------------------------------------ pieces
+    def _live_particles(self, solvers, n_particles: int) -> int:
+        """Particles in the simulation now (host, no sync): the build's count without emitters and sinks."""
+        if self._sources is None:
+            return n_particles
+        return self._n_fixed + sum(s.active_set.live_particles() for s in solvers if s.active_set is not None)
+
+    def _particle_counts(self) -> dict:
+        """run.json particle_counts: per particle entity whose count varies, its capacity (rows reserved in
+        sim.h5) and its live particles now."""
+        out = {}
+        for name, (s, _fields) in self._entity_fields.items():
+            if s.active_set is None or s.entity_kind(name) != "particles":
+                continue
+            cap = s.entity_size(name) - (1 if any(em.name == name for em in self.scene.emitters) else 0)
+            live = len(s.entity_arrays(name, ["position"])["position"])
+            out[name] = {"capacity": int(cap), "live": int(live)}
+        return out
+
     def _frame_series(self) -> dict[str, str] | None:
         """sim.h5 per-frame scalars: emitted and removed mass, and the live count of each entity whose count
         varies (emitters, sinks)."""
@@ -780,6 +809,13 @@ class Runner:
         sim = self.scene.sim
         if self._sources is not None:
             self.info["sources"] = self._sources.info()
+            # live counts now, not the build's: the total, per family and per entity (with its capacity)
+            solvers = self._solvers
+            self.info["particles"] = self._live_particles(solvers, n_particles)
+            self.info["counts"] = {s.family: s.counts() for s in solvers}
+            pc = self._particle_counts()
+            self.info["particle_counts"] = pc
+            self.info["particles_capacity"] = self._n_fixed + sum(d["capacity"] for d in pc.values())
         for s in self._solvers:
             try:
                 self.info.setdefault("solvers", {})[s.family] = s.info()
@@ -809,7 +845,10 @@ class Runner:
             throughput={
                 "steps_per_s": ((step - self._step0) / steady) if step else 0.0,
                 "substeps_per_s": sps,
-                "particle_substeps_per_s": sps * n_particles,
+                # particle substeps over the live counts (emitters, sinks), per substep
+                "particle_substeps_per_s": (
+                    sps * n_particles if self._sources is None else self._particle_substeps / steady
+                ),
                 "cell_substeps_per_s": sps * sum(int(s.counts().get("cells", 0)) for s in self._solvers),
                 "vertex_substeps_per_s": sps * sum(int(s.counts().get("vertices", 0)) for s in self._solvers),
             },

@@ -37,13 +37,22 @@ def make_mpm_pbd(mpm: Any, pbd: Any) -> GridContact:
                 r = 1.0 / w[i]
             return r
 
-        kinds = {str(e.material.type) for e in pbd.scene.entities if e.family == "PBD"}
+        ents = [e for e in list(pbd.scene.entities) + list(pbd.scene.emitters) if e.family == "PBD"]
+        kinds = {str(e.material.type) for e in ents}
         volumetric = all(k in ("PBD.Liquid", "PBD.Particle") for k in kinds)
         rho = None
         if volumetric:
-            rho = min(float(e.material.rho) for e in pbd.scene.entities if e.family == "PBD")
+            rho = min(float(e.material.rho) for e in ents)
         pair.other = ParticleSet(
-            n=pbd.n, pos=pos, mass=m, vel=pbd.v, vel_dim=3, rho=rho, move_x=pbd.x, shift_x=pbd.x
+            n=pbd.n,
+            pos=pos,
+            mass=m,
+            vel=pbd.v,
+            vel_dim=3,
+            rho=rho,
+            move_x=pbd.x,
+            shift_x=pbd.x,
+            count=pbd.count if pbd.active_set is not None else None,  # emitters, sinks: the active count
         )
         GridContact.build(pair)
 

@@ -128,6 +128,8 @@ class ProbeRecorder:
         if varying and s.family == "sph":
             n = len(s.entity_arrays(name, ["position"])["position"])
             return np.full(n, entity.material.rho * float(s.V_rest))
+        if varying and hasattr(s, "live_masses"):  # PBD: the live particles' masses, in output order
+            return np.asarray(s.live_masses(name), dtype=np.float64)
         if "mass" in s.output_fields():  # MPM
             m = s.entity_arrays(name, ["mass"])["mass"]
         elif s.family == "sph":  # every particle carries rho0 x V_rest (simcli.solvers.sph.solver)

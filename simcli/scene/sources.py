@@ -22,8 +22,10 @@ from simcli.scene.materials import Material
 
 NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_-]*$"
 # material types an emitter can emit (families whose solver has an active particle count)
-EMITTING_FAMILIES = ("MPM", "SPH")
-NOT_EMITTING = ("MPM.Muscle",)  # muscle groups and fibres are per body, not per nozzle
+EMITTING_FAMILIES = ("MPM", "SPH", "PBD")
+# muscle groups and fibres are per body, not per nozzle; cloth, rods and soft bodies are meshes, not particles
+NOT_EMITTING = ("MPM.Muscle", "PBD.Cloth", "PBD.Elastic")
+EMITTABLE = "MPM.* (not MPM.Muscle), SPH.Liquid, PBD.Liquid and PBD.Particle"
 
 
 class _Strict(BaseModel):
@@ -69,8 +71,8 @@ class Emitter(_Strict):
         "/entities/<name>, vtk/<name>.pvd) and /emitters/<name>/emitted_mass.",
     )
     material: Material = Field(
-        description="Material of the emitted particles: MPM.* (not MPM.Muscle) or SPH.Liquid. Its family's "
-        "particle spacing sets the lattice."
+        description="Material of the emitted particles: MPM.* (not MPM.Muscle), SPH.Liquid, PBD.Liquid or "
+        "PBD.Particle (3D). Its family's particle spacing sets the lattice."
     )
     shape: Nozzle = Field(description="The nozzle: Circle (radius) or Rectangle (size); a segment in 2D.")
     speed: float = Field(gt=0, description="Speed [m/s] along the nozzle's normal.")
@@ -233,8 +235,13 @@ def check_sources(scene, err) -> None:
         if em.family not in EMITTING_FAMILIES or t in NOT_EMITTING:
             err(
                 base + ("material", "type"),
-                f"{t} cannot be emitted in this version of simcli; emitters take MPM.* (not MPM.Muscle) and "
-                "SPH.Liquid materials",
+                f"{t} cannot be emitted in this version of simcli; emitters take {EMITTABLE} materials",
+            )
+            continue
+        if em.family == "PBD" and dim != 3:
+            err(
+                base + ("material", "type"),
+                f"{t}: PBD is 3D only; use sim.dim: 3, or an SPH.Liquid / MPM material in 2D",
             )
             continue
         if em.stop is not None and em.stop <= em.start:
@@ -302,8 +309,8 @@ def check_sources(scene, err) -> None:
         if other:
             err(
                 ("sinks",),
-                f"sinks remove MPM and SPH particles; this scene also has {', '.join(other)} entities, which "
-                "a sink would not remove. Remove the sinks or those entities",
+                f"sinks remove MPM, SPH and PBD particles; this scene also has {', '.join(other)} entities, "
+                "which a sink would not remove. Remove the sinks or those entities",
             )
 
 

@@ -1,4 +1,4 @@
-"""Emitters and sinks inside a particle solver (MPM, SPH): an active particle count, emission into the
+"""Emitters and sinks inside a particle solver (MPM, SPH, PBD): an active particle count, emission into the
 reserved slots and removal with compaction (docs/SCENE_FORMAT.md section 5, scene side in
 simcli/scene/sources.py).
 
@@ -85,16 +85,26 @@ class ActiveSet:
             )
         self.sinks = list(getattr(scene, "sinks", []))
         self.warnings: list[str] = []
+        self.first = 0  # the first slot sinks may remove (build)
         self._built = False
 
+    def live_particles(self) -> int:
+        """Particles live now (host, no sync): the active count less the slots before ``first``
+        (PBD's meshed vertices)."""
+        return self.n_active - self.first
+
     # ------------------------------------------------------------------ build
-    def build(self, solver, persistent: list, consts: dict, f, buffer_layers: int = 0) -> None:
+    def build(
+        self, solver, persistent: list, consts: dict, f, buffer_layers: int = 0, first: int = 0, mass=None
+    ) -> None:
         """``persistent``: every per-particle field that carries state (moved by compaction, reset from the
         fresh row on emission), x, v and pid among them (``solver.x``, ``solver.v``, ``solver.pid``);
         ``consts``: field -> per-emitter values (mass, material id, volume) written on emission;
         ``buffer_layers``: the newest layers of each emitter keep the nozzle's prescribed (ballistic) motion,
-        an inflow buffer (SPH: the kernel support), see before_substep."""
+        an inflow buffer (SPH: the kernel support), see before_substep; ``first``: the first slot a sink
+        may remove (PBD: the free particles follow the cloth, rod and soft-body vertices, which stay put)."""
         dim = self.dim
+        self.first = int(first)
         self.solver = solver
         self.f = f
         for e in self.emitters:
@@ -148,7 +158,7 @@ class ActiveSet:
         P = list(persistent)
         nP = len(P)
         nC = len(const_fields)
-        mass = solver.mass
+        mass = solver.mass if mass is None else mass  # the per-particle mass field (the sinks' sums)
         nact, lat_f, em_c, em_u = self.nact, self.lat, self.em_c, self.em_u
         sk_lo, sk_hi, removed, removed_n = self.sk_lo, self.sk_hi, self.removed, self.removed_n
         holes, movers, nmove = self.holes, self.movers, self.nmove
@@ -186,7 +196,7 @@ class ActiveSet:
         @ti.kernel
         def sink_count() -> ti.i32:
             c = 0
-            for i in range(nact[None]):
+            for i in range(first, nact[None]):
                 if which_sink(x[i]) >= 0:
                     c += 1
             return c
@@ -199,7 +209,7 @@ class ActiveSet:
                 new_n = n - cnt
                 h = 0
                 m = 0
-                for i in range(n):
+                for i in range(first, n):
                     k = which_sink(x[i])
                     if k >= 0:
                         removed[k] += ti.cast(mass[i], ti.f64)

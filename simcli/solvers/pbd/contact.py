@@ -24,13 +24,22 @@ with stdout_to_stderr():
 class ParticleContact:
     """Fields and kernels of the hashed grid and the contact pass, for ``n`` vertices."""
 
-    def __init__(self, n: int, f, cell: float, x, xp, x0, w, rad, body, mu_s, mu_k):
+    def __init__(self, n: int, f, cell: float, x, xp, x0, w, rad, body, mu_s, mu_k, count=None):
+        """``count``: a func giving the active count (emitters, sinks; ``n`` is then the capacity)."""
         self.n, self.cell = n, float(cell)
-        self.grid = grid = HashGrid(x, 0, n, self.cell)
+        self.grid = grid = HashGrid(x, 0, n, self.cell, count)
         self.dpos = dpos = ti.Vector.field(3, f, shape=n)
         start, srt = grid.start, grid.sorted
         inv_cell = 1.0 / self.cell
         around = grid.slots_around([(t // 4, (t // 2) % 2, t % 2) for t in range(8)])
+        active = count is not None
+
+        @ti.func
+        def npoints():
+            out = n
+            if ti.static(active):
+                out = count()
+            return out
 
         @ti.kernel
         def build():
@@ -38,7 +47,7 @@ class ParticleContact:
 
         @ti.kernel
         def collide():
-            for i in range(n):
+            for i in range(npoints()):
                 dp = ti.Vector.zero(float, 3)
                 if w[i] > 0:
                     sl = around(ti.floor(x[i] * inv_cell - 0.5, ti.i32))  # the 2 x 2 x 2 cells within reach
@@ -69,7 +78,7 @@ class ParticleContact:
                                     elif lt > 0:
                                         dp += share * tang * ti.min(1.0, mk * pen / lt)
                 dpos[i] = dp
-            for i in range(n):
+            for i in range(npoints()):
                 x[i] += dpos[i]
 
         self.build, self.collide = build, collide

@@ -24,20 +24,47 @@ class HashGrid:
     ``build()`` (top-level loops: call it at kernel scope) sorts the points by slot: ``sorted`` holds their
     local indices (0 .. n - 1), those of slot s at ``start[s]`` .. ``start[s + 1] - 1``. ``cell_of(p)`` is the
     cell of a position, ``slots_around(offsets)`` a func giving the slots of the cells c0 + offsets[t]
-    (-1 for a slot already listed)."""
+    (-1 for a slot already listed).
 
-    def __init__(self, x, lo: int, n: int, cell: float) -> None:
+    With ``count`` (a func: the number of points now, emitters and sinks), ``n`` is the capacity: the points
+    are x[lo], ..., x[lo + count() - 1] and the table uses its first ``table_size(count())`` slots only
+    (``resize`` sets it, from the host, when the count changes), so neither the points nor the slots beyond
+    the count cost anything per build."""
+
+    def __init__(self, x, lo: int, n: int, cell: float, count=None) -> None:
+        n_now = count
         self.slots = slots = table_size(n)
         self.count = count = ti.field(ti.i32, shape=slots)
         self.start = start = ti.field(ti.i32, shape=slots + 1)
         self.cursor = cursor = ti.field(ti.i32, shape=slots)
         self.sorted = srt = ti.field(ti.i32, shape=n)
         inv_cell = 1.0 / float(cell)
+        active = n_now is not None
+        self.mask = mask = ti.field(ti.i32, shape=()) if active else None
+        if active:
+            mask[None] = slots - 1
+
+        @ti.func
+        def npoints():
+            out = n
+            if ti.static(active):
+                out = n_now()
+            return out
+
+        @ti.func
+        def nslots():
+            out = slots
+            if ti.static(active):
+                out = mask[None] + 1
+            return out
 
         @ti.func
         def slot_of(c):
             hsh = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791)
-            return hsh & (slots - 1)
+            out = hsh & (slots - 1)
+            if ti.static(active):
+                out = hsh & mask[None]
+            return out
 
         @ti.func
         def cell_of(p):
@@ -45,20 +72,25 @@ class HashGrid:
 
         @ti.func
         def build():
-            for s in range(slots):
+            for s in range(nslots()):
                 count[s] = 0
-            for a in range(n):
+            for a in range(npoints()):
                 ti.atomic_add(count[slot_of(cell_of(x[lo + a]))], 1)
             ti.loop_config(serialize=True)
-            for s in range(slots):
+            for s in range(nslots()):
                 start[s + 1] = start[s] + count[s]
-            for s in range(slots):
+            for s in range(nslots()):
                 cursor[s] = start[s]
-            for a in range(n):
+            for a in range(npoints()):
                 k = ti.atomic_add(cursor[slot_of(cell_of(x[lo + a]))], 1)
                 srt[k] = a
 
         self.slot_of, self.cell_of, self.build = slot_of, cell_of, build
+
+    def resize(self, n_now: int) -> None:
+        """Use the first table_size(n_now) slots (active mode; host side, when the count changed)."""
+        if self.mask is not None:
+            self.mask[None] = min(self.slots, table_size(n_now)) - 1
 
     def slots_around(self, offsets: list[tuple[int, int, int]]):
         """A func c0 -> the slots of the cells c0 + offsets[t], in order, with -1 where a slot was listed

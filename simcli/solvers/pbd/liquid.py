@@ -15,6 +15,12 @@ v_i += c sum_j V_j (v_j - v_i) W_ij (eq. 17). rho0 is the lattice sum m sum_j W 
 of the initial lattice (so the initial block is at rest density exactly; the particle mass is rho x
 volume / count), S0 the same particle's sum |grad C|^2: eps = density_relaxation x S0 and s_corr's k are
 dimensionless. Liquid particles see only liquid neighbours (no two-way coupling with cloth or solids).
+
+Active mode (emitters and sinks, simcli/solvers/sources.py): one pass over the solver's active particles
+[0, count()) instead of one per entity; ``lid`` (per particle) picks each liquid particle's parameters
+(density relaxation, artificial pressure, viscosity, vorticity; -1: not a liquid, skipped) and every
+liquid sees every other (a jet pours into a pool). Masses are per particle: rho0_i = m_i sum W (the
+lattice sum), V = 1 / sum W for all, the wall tables scale with m_i.
 """
 
 import math
@@ -87,8 +93,22 @@ def lattice_constants(spacing: float, h: float) -> tuple[float, float]:
 class PBFLiquid:
     """Fields and kernels of the position-based fluid pass over the liquid particles [lo, hi)."""
 
-    def __init__(self, solver, lo: int, hi: int, spacing: float, mass: float, opts, materials, k_corr: float):
+    def __init__(
+        self,
+        solver,
+        lo: int,
+        hi: int,
+        spacing: float,
+        mass: float,
+        opts,
+        materials,
+        k_corr: float,
+        active=None,
+    ):
+        """``active``: None, or (count func, per-particle mass field, lid field, parameter field (liquids,
+        4): eps relative to S0, k_corr, viscosity c, vorticity eps_v) with lo = 0 and hi the capacity."""
         f = solver.f
+        act = active is not None
         self.lo, self.hi = lo, hi
         n = hi - lo
         h = 2.0 * spacing
@@ -96,13 +116,20 @@ class PBFLiquid:
         wsum, gsum = lattice_constants(spacing, h)
         rho0 = mass * wsum
         vol = mass / rho0
+        count = mass_f = lid = par = None  # (closure cells of the funcs below, unused without active)
+        if act:
+            count, mass_f, lid, par = active
+            vol = 1.0 / wsum
+            rho0 = mass * wsum  # (the first liquid's, reported in run.json)
         s0 = vol * vol * gsum  # sum_k |grad_k C|^2 of a rest-lattice particle [1/m^2]
         self.rho0, self.s0 = rho0, s0
         relax, visc, self.vort = materials
         eps = relax * s0
         wdq = float(poly6(np.array([S_CORR_DQ * h]), h)[0])
         self.iterations = opts.density_iterations
-        _, half, dhalf, quarter, dq1, dq2 = wall_tables(spacing, h, mass)
+        # active mode: tables per unit mass, scaled by each particle's mass
+        _, half, dhalf, quarter, dq1, dq2 = wall_tables(spacing, h, 1.0 if act else mass)
+        rho0_div = wsum if act else rho0  # a wall gradient's density over rho0
         npf = solver.npf
         w_half = ti.field(f, shape=WALL_SAMPLES)
         w_dhalf = ti.field(f, shape=WALL_SAMPLES)
@@ -115,7 +142,29 @@ class PBFLiquid:
         wstep = h / (WALL_SAMPLES - 1)
         use_walls = opts.liquid_walls
         x, v, w = solver.x, solver.v, solver.w
-        grid = HashGrid(x, lo, n, h)
+
+        @ti.func
+        def npts():
+            out = n
+            if ti.static(act):
+                out = count()
+            return out
+
+        @ti.func
+        def m_of(a):
+            out = mass
+            if ti.static(act):
+                out = mass_f[lo + a]
+            return out
+
+        @ti.func
+        def liquid(a):
+            out = True
+            if ti.static(act):
+                out = lid[lo + a] >= 0
+            return out
+
+        self.grid = grid = HashGrid(x, lo, n, h, npts if act else None)
         start, srt, cell_of = grid.start, grid.sorted, grid.cell_of
         around = grid.slots_around([(t // 9 - 1, (t // 3) % 3 - 1, t % 3 - 1) for t in range(27)])
         nb = ti.field(ti.i32, shape=(n, CAPACITY))
@@ -164,7 +213,7 @@ class PBFLiquid:
                 if dist[q] < h:
                     i0, t = coord(dist[q])
                     rw += (1 - t) * w_half[i0] + t * w_half[i0 + 1]
-                    gw[q // 2] += sgn[q] * ((1 - t) * w_dhalf[i0] + t * w_dhalf[i0 + 1]) / rho0
+                    gw[q // 2] += sgn[q] * ((1 - t) * w_dhalf[i0] + t * w_dhalf[i0 + 1]) / rho0_div
             for q1 in ti.static(range(6)):
                 for q2 in ti.static(range(6)):
                     if ti.static(q1 // 2 < q2 // 2):  # noqa: SIM102 - two walls of different axes: an edge
@@ -190,21 +239,23 @@ class PBFLiquid:
                                 + t * u * w_dq2[i + 1, j + 1]
                             )
                             rw -= wq
-                            gw[q1 // 2] -= sgn[q1] * d1 / rho0
-                            gw[q2 // 2] -= sgn[q2] * d2 / rho0
+                            gw[q1 // 2] -= sgn[q1] * d1 / rho0_div
+                            gw[q2 // 2] -= sgn[q2] * d2 / rho0_div
             return rw, gw
 
         @ti.kernel
         def neighbours():
             grid.build()
-            for a in range(n):
+            for a in range(npts()):
                 sl = around(cell_of(x[lo + a]))  # the 3 x 3 x 3 cells around a's
                 m = 0
                 for t in ti.static(range(27)):
                     s = sl[t]
+                    if not liquid(a):
+                        s = -1
                     for q in range(start[ti.max(s, 0)], start[s + 1]):  # empty for s = -1
                         b = srt[q]
-                        if b != a and (x[lo + a] - x[lo + b]).norm() < h:
+                        if b != a and liquid(b) and (x[lo + a] - x[lo + b]).norm() < h:
                             if m < CAPACITY:
                                 nb[a, m] = b
                                 m += 1
@@ -214,52 +265,78 @@ class PBFLiquid:
 
         @ti.kernel
         def density_step(k_corr: float):
-            for a in range(n):
+            for a in range(npts()):
                 xi = x[lo + a]
                 r_i = mass * W(0.0)
+                if ti.static(act):
+                    r_i = m_of(a) * W(0.0)
                 gi = ti.Vector.zero(float, 3)
                 g2 = 0.0
                 for m in range(nnb[a]):
                     d = xi - x[lo + nb[a, m]]
                     r = d.norm()
-                    r_i += mass * W(r)
+                    if ti.static(act):
+                        r_i += m_of(nb[a, m]) * W(r)
+                    else:
+                        r_i += mass * W(r)
                     gj = vol * gradW(d, r)
                     gi += gj
                     g2 += gj.norm_sqr()
                 if ti.static(use_walls):
                     rw, gw = walls(xi)
-                    r_i += rw
+                    if ti.static(act):
+                        r_i += m_of(a) * rw
+                    else:
+                        r_i += rw
                     gi += gw
-                rho[a] = r_i
-                C = ti.max(r_i / rho0 - 1.0, 0.0)
-                lam[a] = -C / (gi.norm_sqr() + g2 + eps)
-            for a in range(n):
+                if ti.static(act):
+                    if not liquid(a):
+                        r_i = 0.0
+                    rho[a] = r_i
+                    C = ti.max(r_i / (m_of(a) * wsum) - 1.0, 0.0)
+                    lam[a] = -C / (gi.norm_sqr() + g2 + par[ti.max(lid[lo + a], 0)][0] * s0)
+                else:
+                    rho[a] = r_i
+                    C = ti.max(r_i / rho0 - 1.0, 0.0)
+                    lam[a] = -C / (gi.norm_sqr() + g2 + eps)
+            for a in range(npts()):
                 xi = x[lo + a]
                 dp = ti.Vector.zero(float, 3)
+                kc = k_corr
+                if ti.static(act):
+                    kc = par[ti.max(lid[lo + a], 0)][1]
                 for m in range(nnb[a]):
                     b = nb[a, m]
                     d = xi - x[lo + b]
                     r = d.norm()
                     sc = -k_corr * (W(r) / wdq) ** S_CORR_N / s0
+                    if ti.static(act):
+                        sc = -kc * (W(r) / wdq) ** S_CORR_N / s0
                     dp += (lam[a] + lam[b] + sc) * vol * gradW(d, r)
                 if ti.static(use_walls):
                     rw, gw = walls(xi)
                     dp += lam[a] * gw  # the wall moves nothing: i moves along its own constraint's gradient
                 dpos[a] = dp
-            for a in range(n):
+            for a in range(npts()):
                 if w[lo + a] > 0:
                     x[lo + a] += dpos[a]
 
         @ti.kernel
         def viscosity(c: float):
-            for a in range(n):
+            for a in range(npts()):
                 dv = ti.Vector.zero(float, 3)
                 for m in range(nnb[a]):
                     b = nb[a, m]
                     d = x[lo + a] - x[lo + b]
-                    dv += mass / ti.max(rho[b], 1e-6) * (v[lo + b] - v[lo + a]) * W(d.norm())
-                dvel[a] = c * dv
-            for a in range(n):
+                    if ti.static(act):
+                        dv += m_of(b) / ti.max(rho[b], 1e-6) * (v[lo + b] - v[lo + a]) * W(d.norm())
+                    else:
+                        dv += mass / ti.max(rho[b], 1e-6) * (v[lo + b] - v[lo + a]) * W(d.norm())
+                if ti.static(act):
+                    dvel[a] = par[ti.max(lid[lo + a], 0)][2] * dv
+                else:
+                    dvel[a] = c * dv
+            for a in range(npts()):
                 if w[lo + a] > 0:
                     v[lo + a] += dvel[a]
 
@@ -270,14 +347,14 @@ class PBFLiquid:
             """Vorticity confinement (Macklin and Mueller 2013 eqs. 15-16; Fedkiw et al. 2001): curl
             omega_i = sum_j V grad W_ij x (v_j - v_i), eta = grad |omega|, N = eta / |eta|, and the
             acceleration eps_v (N x omega) puts back the swirl the position projection damps."""
-            for a in range(n):
+            for a in range(npts()):
                 cw = ti.Vector.zero(float, 3)
                 for m in range(nnb[a]):
                     b = nb[a, m]
                     d = x[lo + a] - x[lo + b]
                     cw += vol * gradW(d, d.norm()).cross(v[lo + b] - v[lo + a])
                 omega[a] = cw
-            for a in range(n):
+            for a in range(npts()):
                 eta = ti.Vector.zero(float, 3)
                 wa = omega[a].norm()
                 for m in range(nnb[a]):
@@ -287,9 +364,12 @@ class PBFLiquid:
                 le = eta.norm()
                 dv = ti.Vector.zero(float, 3)
                 if le > 1e-9:
-                    dv = dt * eps_v * (eta / le).cross(omega[a])
+                    if ti.static(act):
+                        dv = dt * par[ti.max(lid[lo + a], 0)][3] * (eta / le).cross(omega[a])
+                    else:
+                        dv = dt * eps_v * (eta / le).cross(omega[a])
                 dvel[a] = dv
-            for a in range(n):
+            for a in range(npts()):
                 if w[lo + a] > 0:
                     v[lo + a] += dvel[a]
 

@@ -18,7 +18,9 @@ DEFAULT_FIELDS = ["position", "velocity", "displacement"]
 
 
 def baseline(scene) -> int:
-    liquid = any(e.material.type == "PBD.Liquid" for e in scene.entities)
+    liquid = any(
+        e.material.type == "PBD.Liquid" for e in list(scene.entities) + list(getattr(scene, "emitters", []))
+    )
     return BASELINE_LIQUID if liquid else BASELINE
 
 
@@ -82,12 +84,26 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
             n_liq += v
         if v > big_n:
             big, big_n = (i, e, kind), v
+    for i, em in enumerate(getattr(scene, "emitters", [])):
+        if em.family != "PBD":
+            continue
+        # reserved slots (and the fresh row): allocated up front (simcli/solvers/sources.py)
+        v = em.max_particles + 1
+        nv, n_free = nv + v, n_free + v
+        if em.material.type == "PBD.Liquid":
+            n_liq += v
+        if v > big_n:
+            big, big_n = (i, em, "emitter"), v
+    if big is None:
+        return None
     meshed = (nv - n_free) * PBD_VERTEX_BYTES * fp + nc * PBD_CONSTRAINT_BYTES
     free = n_free * PBD_VERTEX_BYTES * fp + n_liq * PBD_LIQUID_BYTES * fp
     b = int(meshed * PBD_HOST_FACTOR + free * PBD_PARTICLE_HOST_FACTOR)
 
     i, e, kind = big
-    if kind == "particles":
+    if kind == "emitter":
+        key, advice = ("emitters", i, "max_particles"), f"lower emitters.{i}.max_particles ('{e.name}')"
+    elif kind == "particles":
         key, advice = ("solvers", "pbd", "particle_size"), "raise solvers.pbd.particle_size"
     elif kind == "tets":
         key, advice = ("solvers", "pbd", "tet_resolution"), "lower solvers.pbd.tet_resolution"

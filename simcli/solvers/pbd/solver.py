@@ -23,17 +23,25 @@ A substep reads like the paper (Algorithm 1)::
 * Velocities are the positions' change over the substep (v = (x - x_prev) / dt, computed as the
   predicted velocity plus correction / dt so that f32 round-off of the positions does not bias
   gravity); pinned vertices (``fixed``) have inverse mass 0.
+
+Emitters and sinks (PBD.Liquid, PBD.Particle; simcli/solvers/sources.py): the meshed bodies (cloth, rods,
+soft bodies) first, then the free-particle entities, then each emitter's reserved slots; every particle
+loop, the contact and fluid hash grids run over the active count, and a sink removes free particles only
+(compaction from the first free slot: constraint indices never move). Scenes without emitters or sinks
+take the original path (a constant particle count, one fluid pass per PBD.Liquid entity).
 """
 
 import math
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
-from simcli.solvers.pbd.topology import colour, fixed_vertices, mesh_for_entity
-from simcli.solvers.taichi_funcs import make_body_frame_stats
+from simcli.solvers.pbd.topology import PBDMesh, colour, fixed_vertices, mesh_for_entity
+from simcli.solvers.sources import ActiveSet, has_sources, is_emitter
+from simcli.solvers.taichi_funcs import make_body_frame_stats, make_finite
 
 with stdout_to_stderr():
     import taichi as ti
@@ -93,15 +101,54 @@ class PBDSolver(Solver):
         self.entities = [e for e in scene.entities if e.family == "PBD"]
         self.scene_dir = scene_dir  # collider motion files are relative to it
         self.meshes = [mesh_for_entity(e, scene_dir, self.opts) for e in self.entities]
+        # emitters and sinks (simcli/solvers/sources.py): an active count; None in scenes without them
+        self.sources = None
+        if has_sources(scene, "PBD"):
+            self._source_layout(scene, bodies)
         self._index = {e.name: k for k, e in enumerate(self.entities)}
         self.offsets = [0]
         for m in self.meshes:
             self.offsets.append(self.offsets[-1] + m.n)
         self.n = self.offsets[-1]
+        if self.sources is not None:
+            self.sources = ActiveSet(
+                scene, [SimpleNamespace(n=m.n, entity=e) for e, m in self._pairs()], "PBD"
+            )
+        self.active_set = self.sources
         self._prepare_host()
         self._built = False
         self.time = 0.0
         self.last_dt = 0.0
+
+    def _pairs(self):
+        return list(zip(self.entities, self.meshes))
+
+    def _source_layout(self, scene, bodies) -> None:
+        """Active mode: meshed bodies first (sinks never move them), free particles next, then one block of
+        ``max_particles + 1`` slots per emitter (the last a fresh row, simcli/solvers/sources.py), each
+        emitted particle carrying rho x particle_size^3 (the lattice cell, as a sampled block's)."""
+        pairs = sorted(zip(self.entities, self.meshes), key=lambda em: not em[1].meshed)  # stable
+        self.entities = [e for e, _ in pairs]
+        self.meshes = [m for _, m in pairs]
+        self.n_meshed = sum(m.n for m in self.meshes if m.meshed)
+        ps = float(self.opts.particle_size)
+        for b in bodies:
+            if not is_emitter(b):
+                continue
+            n = b.n
+            self.entities.append(b.entity)
+            self.meshes.append(
+                PBDMesh(
+                    x=np.asarray(b.x, dtype=np.float64),
+                    mass=np.full(n, float(b.entity.material.rho) * ps**3),
+                    kind="particles",
+                    cells=np.zeros((0, 1)),
+                    stretch=np.zeros((0, 2), np.int64),
+                    stretch_rest=np.zeros(0),
+                    meshed=False,
+                )
+            )
+        self.sources = True  # the ActiveSet follows, once the offsets exist
 
     # ---------------------------------------------------------------- host side
     def _prepare_host(self) -> None:
@@ -118,6 +165,7 @@ class PBDSolver(Solver):
         mu_k = np.zeros(n)
         st, st_r, st_c, bd, bd_r, bd_c, dh, dh_r, dh_c, tv, tv_r, tv_c = ([] for _ in range(12))
         meshed = np.zeros(n, np.int32)
+        lid = np.full(n, -1, np.int32)  # active mode: the liquid (parameters) of each particle, -1 none
         vfix = np.zeros((n, 3))
         self.warnings = []
         for k, (e, m) in enumerate(zip(self.entities, self.meshes)):
@@ -145,6 +193,8 @@ class PBDSolver(Solver):
             st_r.append(m.stretch_rest)
             st_c.append(np.full(len(m.stretch), getattr(mat, "stretch_compliance", 0.0)))
             meshed[lo:hi] = int(m.meshed)
+            if mat.type == "PBD.Liquid":
+                lid[lo:hi] = int(lid.max()) + 1
             if getattr(mat, "bending_compliance", None) is None:  # a chain, particles: no bending constraints
                 m.bend_dist, m.dihedral = m.bend_dist[:0], m.dihedral[:0]
                 m.bend_dist_rest, m.dihedral_rest = m.bend_dist_rest[:0], m.dihedral_rest[:0]
@@ -162,6 +212,7 @@ class PBDSolver(Solver):
         self.x0, self.xstart, self.v0, self.mass, self.fixed = x0, xs, v, mass, fixed
         self.radius, self.drag, self.body, self.mu_s, self.mu_k = radius, drag, body, mu_s, mu_k
         self.meshed = meshed
+        self.lid_host = lid
         self.inv_mass = np.where(fixed, 0.0, 1.0 / np.maximum(mass, 1e-300))
         cat = np.concatenate
         self.stretch = _ConstraintSet(
@@ -207,6 +258,14 @@ class PBDSolver(Solver):
         self.rad.from_numpy(self.radius.astype(npf))
         self.drag_f.from_numpy(self.drag.astype(npf))
         self.gravity[None] = [float(c) for c in self.scene.sim.gravity_vec]
+        self.count = self._count_func()
+        if self.sources is not None:  # per-particle identity, mass and liquid (active mode)
+            self.pid = ti.field(ti.i32, shape=n)
+            self.pid.from_numpy(np.arange(n, dtype=np.int32))
+            self.mass_f = ti.field(f, shape=n)
+            self.mass_f.from_numpy(self.mass.astype(npf))
+            self.lid = ti.field(ti.i32, shape=n)
+            self.lid.from_numpy(self.lid_host)
         for cs in (self.stretch, self.bend_dist, self.dihedral, self.volume):
             cs.allocate(f, npf)
         # walls and colliders: kinds compile-time, numbers in fields
@@ -246,9 +305,12 @@ class PBDSolver(Solver):
             for k, e in enumerate(self.entities):
                 liquid[self.offsets[k] : self.offsets[k + 1]] = e.material.type == "PBD.Liquid"
             ids = np.where(self.meshed > 0, self.body, -1 - np.arange(n))
-            ids = np.where(liquid, LIQUID_BODY + self.body, ids)
+            # active mode: the liquids are one fluid (their pairs the fluid's business, not contact's)
+            ids = np.where(liquid, LIQUID_BODY + (0 if self.sources is not None else self.body), ids)
             body_f.from_numpy(ids.astype(np.int32))
+            self.body_f = body_f
             mus, muk = ti.field(f, shape=n), ti.field(f, shape=n)
+            self.mus, self.muk = mus, muk
             mus.from_numpy(self.mu_s.astype(npf))
             muk.from_numpy(self.mu_k.astype(npf))
             self.contact = ParticleContact(
@@ -263,9 +325,12 @@ class PBDSolver(Solver):
                 body_f,
                 mus,
                 muk,
+                None if self.sources is None else self.count,
             )
         self.liquids = []
-        for k, e in enumerate(self.entities):
+        if self.sources is not None:
+            self._active_liquid()
+        for k, e in enumerate(self.entities if self.sources is None else []):
             if e.material.type == "PBD.Liquid":
                 from simcli.solvers.pbd.liquid import PBFLiquid
 
@@ -286,19 +351,147 @@ class PBDSolver(Solver):
                         e.material.artificial_pressure,
                     )
                 )
+        if self.sources is not None:
+            self._build_sources()
         self._make_kernels()
         self._built = True
         self.frame_check()
 
+    # ------------------------------------------------------------ emitters and sinks
+    def _count_func(self):
+        """The particle loops' bound: the active count with emitters or sinks, else the constant n."""
+        if self.sources is None:
+            n = self.n
+
+            @ti.func
+            def count():
+                return n
+
+            return count
+        src = self.sources
+
+        @ti.func
+        def count():  # (the count field exists by the time a kernel compiles: ActiveSet.build)
+            return src.nact[None]
+
+        return count
+
+    def _liquid_params(self) -> list:
+        """Active mode: the distinct liquids (entities and emitters), in order: the lid of each."""
+        return [e.material for e in self.entities if e.material.type == "PBD.Liquid"]
+
+    def _active_liquid(self) -> None:
+        """Active mode: one position-based fluid pass over every active particle, liquids by lid."""
+        mats = self._liquid_params()
+        if not mats:
+            return
+        from simcli.solvers.pbd.liquid import PBFLiquid
+
+        par = ti.Vector.field(4, self.f, shape=len(mats))
+        par.from_numpy(
+            np.array(
+                [
+                    [
+                        m.density_relaxation,
+                        m.artificial_pressure,
+                        m.viscosity_relaxation,
+                        m.vorticity_confinement,
+                    ]
+                    for m in mats
+                ],
+                dtype=self.npf,
+            )
+        )
+        first = int(np.flatnonzero(self.lid_host >= 0)[0])
+        self.liquids.append(
+            PBFLiquid(
+                self,
+                0,
+                self.n,
+                self.opts.particle_size,
+                float(self.mass[first]),
+                self.opts,
+                (
+                    mats[0].density_relaxation,
+                    max(m.viscosity_relaxation for m in mats),
+                    max(m.vorticity_confinement for m in mats),
+                ),
+                mats[0].artificial_pressure,
+                active=(self.count, self.mass_f, self.lid, par),
+            )
+        )
+
+    def _build_sources(self) -> None:
+        src = self.sources
+        persistent = [self.x, self.v, self.x0_f, self.w, self.vfix_f, self.rad, self.drag_f]
+        persistent += [self.pid, self.mass_f, self.lid]
+        em_ents = [self.entities[e["body"]] for e in src.emitters]
+        liq_idx = [k for k, e in enumerate(self.entities) if e.material.type == "PBD.Liquid"]
+        lid_of = {k: i for i, k in enumerate(liq_idx)}
+        masses = [float(self.mass[self.offsets[e["body"]]]) for e in src.emitters]
+        for e, m in zip(src.emitters, masses):
+            e["mass"] = m
+        consts = {
+            self.mass_f: masses,
+            self.w: [1.0 / m for m in masses],
+            self.lid: [lid_of.get(e["body"], -1) for e in src.emitters],
+            self.drag_f: [e.material.air_resistance for e in em_ents],
+        }
+        if self.contact is not None:
+            persistent += [self.body_f, self.mus, self.muk]
+            consts[self.body_f] = [LIQUID_BODY if e.material.type == "PBD.Liquid" else -1 for e in em_ents]
+            consts[self.mus] = [e.material.static_friction for e in em_ents]
+            consts[self.muk] = [e.material.kinetic_friction for e in em_ents]
+        for liq in self.liquids:
+            persistent.append(liq.rho)
+        src.build(self, persistent, consts, self.f, first=self.n_meshed, mass=self.mass_f)
+        x, x0, pid, lid = self.x, self.x0_f, self.pid, self.lid
+        has_body = self.contact is not None
+        body = self.body_f if has_body else self.lid  # (lid: a placeholder, never written)
+
+        @ti.kernel
+        def entered(a: ti.i32, b: ti.i32):
+            """Emitted particles [a, b): their rest position (displacement output) and, PBD.Particle, a
+            contact id of their own (free particles collide with each other)."""
+            for s in range(a, b):
+                x0[s] = x[s]
+                if ti.static(has_body):
+                    if lid[s] < 0:
+                        body[s] = -1 - pid[s]
+
+        self._entered = entered
+        self._n_seen = src.n_active
+        entered(0, 0)  # compiled with the build
+        for g in [liq.grid for liq in self.liquids] + (
+            [self.contact.grid] if self.contact is not None else []
+        ):
+            g.resize(src.n_active)
+
+    def active_changed(self) -> None:
+        """The active count changed (emission, sinks): the new particles' ids, the grids' table sizes."""
+        n = self.sources.n_active
+        if n > self._n_seen:
+            self._entered(self._n_seen, n)
+        self._n_seen = n
+        if self.contact is not None:
+            self.contact.grid.resize(n)
+        for liq in self.liquids:
+            liq.grid.resize(n)
+
+    def n_live(self) -> int:
+        """Particles and vertices in the simulation now (the active count)."""
+        return self.n if self.sources is None else self.sources.n_active
+
     def _make_kernels(self) -> None:
         n = self.n
+        N = self.count  # the active count (emitters, sinks) or the constant n
         x, v, xp, w, rad, drag, gravity = self.x, self.v, self.xp, self.w, self.rad, self.drag_f, self.gravity
         vfix = self.vfix_f
         eps = 1e-12 if self.f == ti.f64 else 1e-9
 
         @ti.kernel
         def predict(dt: float):
-            for i in range(n):
+            for i in range(N()):
                 xp[i] = x[i]
                 if w[i] > 0:
                     vi = (v[i] + dt * gravity[None]) * ti.exp(-drag[i] * dt)
@@ -479,7 +672,7 @@ class PBDSolver(Solver):
 
         @ti.kernel
         def contact(friction: ti.template()):
-            for i in range(n):
+            for i in range(N()):
                 if w[i] > 0:
                     xi, xpi, r = x[i], xp[i], rad[i]
                     for fc in ti.static(range(6)):
@@ -542,7 +735,7 @@ class PBDSolver(Solver):
             substep of 4e-4 s makes g dt^2 only ~13 ulps and would bias gravity by several per cent; the
             predicted position is recomputed exactly as predict() rounded it, so free motion keeps its
             velocity exactly and only corrections are rounded."""
-            for i in range(n):
+            for i in range(N()):
                 if w[i] > 0:
                     x_pred = xp[i] + dt * v[i]
                     v[i] = v[i] + (x[i] - x_pred) / dt
@@ -574,7 +767,27 @@ class PBDSolver(Solver):
         nb = len(self.entities)
         f64 = self.f == ti.f64
 
-        frame_stats = make_body_frame_stats(nb, body_off, x, v, stat_speed, stat_bad, f64)
+        if self.sources is None:
+            frame_stats = make_body_frame_stats(nb, body_off, x, v, stat_speed, stat_bad, f64)
+        else:  # active mode: a particle's entity by its pid (sinks move particles between slots)
+            finite = make_finite(f64)
+            pid = self.pid
+
+            @ti.kernel
+            def frame_stats():
+                for b in range(nb):
+                    stat_speed[b] = 0.0
+                    stat_bad[b] = 0
+                for i in range(N()):
+                    p = pid[i]
+                    b = 0
+                    for k in range(nb):
+                        if body_off[k] <= p:
+                            b = k
+                    if finite(x[i]) and finite(v[i]):
+                        ti.atomic_max(stat_speed[b], v[i].norm())
+                    else:
+                        ti.atomic_add(stat_bad[b], 1)
 
         self._predict, self._reset, self._contact = predict, reset_multipliers, contact
         self._update_velocity, self._reactions, self._frame_stats = update_velocity, reactions, frame_stats
@@ -628,6 +841,8 @@ class PBDSolver(Solver):
         vmax = float(np.max(self.stat_speed.to_numpy()))
         if self.poses.any_moving and math.isfinite(vmax):  # a moving collider's surface counts too
             vmax = max(vmax, self.poses.max_surface_speed(self.time))
+        if self.sources is not None and math.isfinite(vmax):  # what an emitter will bring in
+            vmax = max([vmax] + [float(e["cfg"].speed) for e in self.sources.emitters])
         if not math.isfinite(vmax) or vmax <= 0:
             return math.inf
         return 0.5 * float(self.radius.min()) / vmax
@@ -667,9 +882,25 @@ class PBDSolver(Solver):
             "density": (1, "kg/m^3"),
         }
 
+    def _live_slots(self, k: int) -> np.ndarray:
+        """Active mode: the slots of entity k's live particles, in pid order (the order they entered)."""
+        lo, hi = self.offsets[k], self.offsets[k + 1]
+        pid = self.pid.to_numpy()[: self.sources.n_active]
+        slots = np.flatnonzero((pid >= lo) & (pid < hi))
+        return slots[np.argsort(pid[slots], kind="stable")]
+
+    def live_masses(self, name: str) -> np.ndarray:
+        """Masses [kg] of an entity's live particles (probes' totals)."""
+        k = self._index[name]
+        if self.sources is None:
+            return np.asarray(self.mass[self.offsets[k] : self.offsets[k + 1]], dtype=np.float64)
+        return self.mass_f.to_numpy()[self._live_slots(k)].astype(np.float64)
+
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
         k = self._index[name]
         lo, hi = self.offsets[k], self.offsets[k + 1]
+        if self.sources is not None:
+            return self._entity_arrays_active(k, fields)
         out = {}
         for fld in fields:
             if fld == "position":
@@ -693,23 +924,82 @@ class PBDSolver(Solver):
             out[fld] = np.array(a[lo:hi])
         return out
 
+    def _entity_arrays_active(self, k: int, fields: list[str]) -> dict[str, np.ndarray]:
+        slots = self._live_slots(k)
+        out = {}
+        for fld in fields:
+            if fld == "position":
+                a = self.x.to_numpy()
+            elif fld == "velocity":
+                a = self.v.to_numpy()
+            elif fld == "displacement":  # from where each particle started (an emitted one: entered)
+                a = self.x.to_numpy() - self.x0_f.to_numpy()
+            elif fld == "density":
+                a = self.liquids[0].rho.to_numpy() if self.liquids else np.zeros(self.n)
+                a = np.where(self.lid.to_numpy() >= 0, a, 0.0)
+            elif fld == "reaction":
+                if self.last_dt > 0:
+                    self._reactions(self.last_dt)
+                    a = self.reaction.to_numpy()
+                else:
+                    a = np.zeros((self.n, 3))
+            else:
+                raise KeyError(f"unknown PBD output field {fld!r}; known: {', '.join(OUTPUT_FIELDS)}")
+            out[fld] = np.array(a[slots])
+        return out
+
     # ----------------------------------------------------------------- state
+    def _state_fields(self) -> dict:
+        """Active mode: every per-particle field that carries state (compaction moves them)."""
+        d = {"x0": self.x0_f, "w": self.w, "vfix": self.vfix_f, "rad": self.rad, "drag": self.drag_f}
+        d.update(pid=self.pid, mass=self.mass_f, lid=self.lid)
+        if self.contact is not None:
+            d.update(body=self.body_f, mu_s=self.mus, mu_k=self.muk)
+        for k, liq in enumerate(self.liquids):
+            d[f"rho{k}"] = liq.rho
+        return d
+
     def get_state(self) -> dict[str, np.ndarray]:
-        return {
+        d = {
             "x": self.x.to_numpy(),
             "v": self.v.to_numpy(),
             "time": np.array([self.time]),
             "last_dt": np.array([self.last_dt]),
         }
+        if self.sources is not None:
+            d.update({f"src_{k}": fld.to_numpy() for k, fld in self._state_fields().items()})
+            d.update(self.sources.get_state())
+        return d
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("x", self.x), ("v", self.v)):
             upload_state_array(fld, state, key, (self.n, 3), self.npf, "PBD")
         self.time = float(np.asarray(state.get("time", [0.0])).reshape(-1)[0])
         self.last_dt = float(np.asarray(state.get("last_dt", [0.0])).reshape(-1)[0])
+        if self.sources is not None:
+            self.sources.set_state(state)
+            for k, fld in self._state_fields().items():
+                if f"src_{k}" not in state:
+                    raise ValueError(
+                        f"PBD state: the checkpoint has no {k!r} (written without emitters or sinks)"
+                    )
+                arr = np.asarray(state[f"src_{k}"])
+                have = fld.to_numpy()  # (shape and dtype, vector components included)
+                if arr.shape != have.shape:
+                    raise ValueError(f"PBD state {k!r}: shape {arr.shape} does not fit {have.shape}")
+                fld.from_numpy(arr.astype(have.dtype))
+            self._n_seen = self.sources.n_active
+            self.active_changed()
 
     def counts(self) -> dict[str, int]:
         free = sum(m.n for m in self.meshes if m.kind == "particles")  # PBD.Particle and PBD.Liquid
+        if self.sources is not None:  # the live ones (capacity: counts_capacity)
+            free = self.sources.n_active - self.n_meshed
+            return {
+                "vertices": self.n_meshed,
+                "particles": free,
+                "constraints": self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k,
+            }
         return {
             "vertices": self.n - free,
             "particles": free,
