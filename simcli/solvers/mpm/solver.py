@@ -2,9 +2,15 @@
 Displacement Discontinuity and Two-Way Rigid Body Coupling"), APIC transfers (or FLIP/PIC with
 ``solvers.mpm.transfer: flip``, see transfer.py), quadratic B-splines, 2D and 3D, f32 and f64.
 
-A substep is four named kernels, in the paper's order::
+A substep is four named operators, in the paper's order, one module each::
 
-    clear_grid -> p2g -> grid_update -> g2p
+    clear_grid -> p2g -> grid_update -> g2p      (p2g.py, grid_update.py, g2p.py; kernels.py composes)
+
+Their builders take the explicit bundle of fields.py (``MPMParams``, ``MPMFields``), not this solver;
+this module allocates the fields, builds the bundle and the kernels, and implements the Solver
+interface (stepping, stable substep, outputs, state). The constitutive laws and their return mappings
+live in constitutive.py / plasticity.py / fluid_muscle.py (dispatch: laws.py), the grid boundary in
+boundary.py, the per-frame kernels in outputs.py.
 
 Design choices (measured on a 2-core CPU, see benchmarks/mpm_micro.py):
 
