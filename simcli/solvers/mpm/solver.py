@@ -260,8 +260,13 @@ class MPMSolver(Solver):
         # runner's once-per-frame choice cannot foresee: with substeps: auto the solver then checks
         # every substep and subdivides it when the hardening made it unstable
         self.guard_hardening = self.stiff_cap > 1.0 and self.scene.sim.substeps == "auto"
-        self._make_kernels()
-        self._compute_bbox()
+        # the kernels (kernels.py), built from the explicit bundle, not from this object
+        self.params, self.fields = self._bundle()
+        self.kernels = build_kernels(
+            self.params, self.fields, self.laws, self.boundary, self.flip, self.count
+        )
+        self._outputs = None  # the derived-outputs kernel, built on first use
+        self.kernels.compute_bbox()
         self._built = True
         self._version = 0
         self._cache: dict = {}
@@ -334,7 +339,7 @@ class MPMSolver(Solver):
         self.chunk_start.from_numpy(
             (np.arange(self.T + 1, dtype=np.int64) * self.n_live() // self.T).astype(np.int32)
         )
-        self._compute_bbox()
+        self.kernels.compute_bbox()
         self._version += 1
 
     def set_gravity(self, g: list[float]) -> None:
@@ -388,24 +393,6 @@ class MPMSolver(Solver):
         )
         return params, fields
 
-    def _make_kernels(self) -> None:
-        self.params, self.fields = self._bundle()
-        k = build_kernels(self.params, self.fields, self.laws, self.boundary, self.flip, self.count)
-        self._kernels = k
-        self._substep = k.substep
-        self._pre_couple_k = k.pre_couple
-        self._stage_p2g, self._stage_grid_update, self._stage_g2p = (
-            k.stage_p2g,
-            k.stage_grid_update,
-            k.stage_g2p,
-        )
-        self._compute_bbox, self._frame_stats, self._make_outputs = (
-            k.compute_bbox,
-            k.frame_stats,
-            k.make_outputs,
-        )
-        self._outputs = None
-
     # ---------------------------------------------------------------- stepping
 
     def substep(self, dt: float) -> None:
@@ -422,7 +409,7 @@ class MPMSolver(Solver):
             law.host_update(self.time)
         if self.boundary.any_moving:  # collider poses of this substep (host, no sync)
             self.boundary.set_time(self.time, dt)
-        self._substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
+        self.kernels.substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
         self.time += dt
         self._version += 1
 
@@ -436,17 +423,17 @@ class MPMSolver(Solver):
             law.host_update(self.time)
         if self.boundary.any_moving:
             self.boundary.set_time(self.time, dt)
-        self._pre_couple_k(dt)
+        self.kernels.pre_couple(dt)
 
     def post_couple(self, dt: float) -> None:
-        self._stage_g2p(dt)
+        self.kernels.stage_g2p(dt)
         self.time += dt
         self._version += 1
 
     # ------------------------------------------------------------ frame checks
 
     def frame_check(self) -> dict[str, FrameStats]:
-        self._frame_stats()
+        self.kernels.frame_stats()
         return frame_stats_per_body(
             [b.name for b in self.bodies], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
         )
@@ -455,7 +442,7 @@ class MPMSolver(Solver):
         """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p, viscosity limit) [s]; one reduction
         kernel. c_p is the P-wave speed of the stiffest material, raised by the largest current
         hardening factor (snow) and by the largest muscle activation."""
-        self._frame_stats()
+        self.kernels.frame_stats()
         vmax = float(np.max(self.stat_speed.to_numpy()))
         if self.sources is not None:  # what an emitter will bring in
             vmax = max([vmax] + [float(e["cfg"].speed) for e in self.sources.emitters])
@@ -480,7 +467,7 @@ class MPMSolver(Solver):
         elif key in DERIVED_FIELDS:
             if self._out is None:  # allocated on first use: only scenes that write them pay
                 self._out = tuple(ti.field(self.f, shape=self.n) for _ in DERIVED_FIELDS)
-                self._outputs = self._make_outputs(self._out)
+                self._outputs = self.kernels.make_outputs(self._out)
             self._outputs()
             for name, fld in zip(DERIVED_FIELDS, self._out):
                 self._cache[name] = (self._version, fld.to_numpy())
@@ -569,7 +556,7 @@ class MPMSolver(Solver):
             self.chunk_start.from_numpy(
                 (np.arange(self.T + 1, dtype=np.int64) * self.n_live() // self.T).astype(np.int32)
             )
-        self._compute_bbox()
+        self.kernels.compute_bbox()
         self._version += 1
 
     def length_scale(self) -> float:
