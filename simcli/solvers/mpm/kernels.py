@@ -18,7 +18,7 @@ from simcli.backend import stdout_to_stderr
 from simcli.solvers.mpm.fields import MPMFields, MPMParams
 from simcli.solvers.mpm.g2p import build_g2p
 from simcli.solvers.mpm.grid_update import build_grid_update
-from simcli.solvers.mpm.laws import LawDispatch, build_law_dispatch
+from simcli.solvers.mpm.laws import build_law_dispatch
 from simcli.solvers.mpm.outputs import build_frame_stats, build_outputs
 from simcli.solvers.mpm.p2g import build_p2g
 from simcli.solvers.mpm.stencil import build_stencil
@@ -41,7 +41,6 @@ class MPMKernels:
     compute_bbox: Any
     frame_stats: Any
     make_outputs: Any
-    dispatch: LawDispatch
 
 
 def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, flip, count) -> MPMKernels:
@@ -106,5 +105,4 @@ def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, fl
         compute_bbox=compute_bbox,
         frame_stats=frame_stats,
         make_outputs=make_outputs,
-        dispatch=dispatch,
     )
