@@ -292,14 +292,14 @@ def test_p2g_g2p_conserve_mass_and_momentum(transfer_solver):
     p_before = (m[:, None] * state["v"]).sum(axis=0)
 
     dt = 1e-4
-    solver._stage_p2g(dt)
+    solver.kernels.stage_p2g(dt)
     gm, gp = _grid_totals(solver)
     assert gm == pytest.approx(m.sum(), rel=1e-5)
     # affine (m C) and stress terms cancel in the sum: sum_i w_i (x_i - x_p) = 0
     assert np.allclose(gp, p_before, rtol=1e-4, atol=1e-5 * np.abs(m[:, None] * state["v"]).sum())
 
-    solver._stage_grid_update(dt)  # no gravity, body far from the walls: node momentum unchanged
-    solver._stage_g2p(dt)
+    solver.kernels.stage_grid_update(dt)  # no gravity, body far from the walls: node momentum unchanged
+    solver.kernels.stage_g2p(dt)
     v_after = solver.v.to_numpy().astype(np.float64)
     p_after = (m[:, None] * v_after).sum(axis=0)
     # APIC: sum_p m_p sum_i w_ip v_i = sum_i m_i v_i
@@ -316,8 +316,8 @@ def test_uniform_velocity_is_transferred_exactly(transfer_solver):
     state["F"] = np.broadcast_to(np.eye(dim, dtype=np.float32), (n, dim, dim)).copy()
     solver.set_state(state)
     dt = 1e-4
-    solver._stage_p2g(dt)
-    solver._stage_grid_update(dt)
-    solver._stage_g2p(dt)
+    solver.kernels.stage_p2g(dt)
+    solver.kernels.stage_grid_update(dt)
+    solver.kernels.stage_g2p(dt)
     assert np.allclose(solver.v.to_numpy(), u, atol=1e-6)
     assert np.abs(solver.C.to_numpy()).max() < 1e-3  # partition of unity: no spurious gradient

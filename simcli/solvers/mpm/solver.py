@@ -2,9 +2,15 @@
 Displacement Discontinuity and Two-Way Rigid Body Coupling"), APIC transfers (or FLIP/PIC with
 ``solvers.mpm.transfer: flip``, see transfer.py), quadratic B-splines, 2D and 3D, f32 and f64.
 
-A substep is four named kernels, in the paper's order::
+A substep is four named operators, in the paper's order, one module each::
 
-    clear_grid -> p2g -> grid_update -> g2p
+    clear_grid -> p2g -> grid_update -> g2p      (p2g.py, grid_update.py, g2p.py; kernels.py composes)
+
+Their builders take the explicit bundle of fields.py (``MPMParams``, ``MPMFields``), not this solver;
+this module allocates the fields, builds the bundle and the kernels, and implements the Solver
+interface (stepping, stable substep, outputs, state). The constitutive laws and their return mappings
+live in constitutive.py / plasticity.py / fluid_muscle.py (dispatch: laws.py), the grid boundary in
+boundary.py, the per-frame kernels in outputs.py.
 
 Design choices (measured on a 2-core CPU, see benchmarks/mpm_micro.py):
 
@@ -53,16 +59,16 @@ from simcli.solvers.base import (
 )
 from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import ConstitutiveLaw, elastic_moduli, law_key
+from simcli.solvers.mpm.fields import MPMFields, MPMParams
+from simcli.solvers.mpm.kernels import build_kernels
 from simcli.solvers.mpm.laws import LAWS
 from simcli.solvers.mpm.transfer import FlipTransfer
 from simcli.solvers.sources import ActiveSet, has_sources
-from simcli.solvers.taichi_funcs import make_body_of, make_finite
 
 with stdout_to_stderr():
     import taichi as ti
 
 PAD = 3  # grid cells beyond each domain face (the wall band)
-CHUNK_STRIDE = 512  # Taichi's smallest CPU range-for task (see module docstring)
 MAX_PRIVATE_GRID_BYTES = 1 << 30  # memory allowed for the per-thread grid copies of P2G
 WAVE_SAFETY = 0.5  # dt <= WAVE_SAFETY * dx / c_p, c_p the P-wave speed (B1 runs at 0.47)
 
@@ -208,7 +214,9 @@ class MPMSolver(Solver):
 
         # grid: T private copies of (momentum, mass[, fixed mass]) + the updated velocity
         self.gdim = dim + 1 + (1 if self.has_fixed else 0)
-        self.flip = FlipTransfer(self) if self.transfer == "flip" else None
+        self.flip = (
+            FlipTransfer(dim, f, self.grid_shape, self.flip_ratio) if self.transfer == "flip" else None
+        )
         if self.flip is not None:
             self.gdim = self.flip.allocate(self.gdim)
         self.grid = ti.Vector.field(self.gdim, f, shape=(T,) + self.grid_shape)
@@ -252,8 +260,13 @@ class MPMSolver(Solver):
         # runner's once-per-frame choice cannot foresee: with substeps: auto the solver then checks
         # every substep and subdivides it when the hardening made it unstable
         self.guard_hardening = self.stiff_cap > 1.0 and self.scene.sim.substeps == "auto"
-        self._make_kernels()
-        self._compute_bbox()
+        # the kernels (kernels.py), built from the explicit bundle, not from this object
+        self.params, self.fields = self._bundle()
+        self.kernels = build_kernels(
+            self.params, self.fields, self.laws, self.boundary, self.flip, self.count
+        )
+        self._outputs = None  # the derived-outputs kernel, built on first use
+        self.kernels.compute_bbox()
         self._built = True
         self._version = 0
         self._cache: dict = {}
@@ -326,7 +339,7 @@ class MPMSolver(Solver):
         self.chunk_start.from_numpy(
             (np.arange(self.T + 1, dtype=np.int64) * self.n_live() // self.T).astype(np.int32)
         )
-        self._compute_bbox()
+        self.kernels.compute_bbox()
         self._version += 1
 
     def set_gravity(self, g: list[float]) -> None:
@@ -337,470 +350,48 @@ class MPMSolver(Solver):
 
     # ---------------------------------------------------------------- kernels
 
-    def _make_kernels(self) -> None:
-        dim, f, T = self.dim, self.f, self.T
-        N = self.count  # the active count (emitters, sinks) or the constant n
-        pid = self.pid
-        dynamic = pid is not None
-        gdim, chunked, has_fixed = self.gdim, self.chunked, self.has_fixed
-        x, v, C, F, mass, vol, mid, fixed = (
-            self.x,
-            self.v,
-            self.C,
-            self.F,
-            self.mass,
-            self.vol,
-            self.mid,
-            self.fixed,
+    def _bundle(self) -> tuple[MPMParams, MPMFields]:
+        """The explicit bundle the kernel builders take (fields.py): compile-time constants and fields."""
+        params = MPMParams(
+            dim=self.dim,
+            dtype=self.f,
+            dx=self.dx,
+            origin=tuple(float(o) for o in self.origin),
+            domain_lo=tuple(float(o) for o in self.domain_lo),
+            domain_hi=tuple(float(o) for o in self.domain_hi),
+            grid_shape=tuple(self.grid_shape),
+            T=self.T,
+            chunked=self.chunked,
+            gdim=self.gdim,
+            has_fixed=self.has_fixed,
+            n_bodies=len(self.bodies),
         )
-        grid, grid_v, bbox, bbox_all, chunk_start = (
-            self.grid,
-            self.grid_v,
-            self.bbox,
-            self.bbox_all,
-            self.chunk_start,
+        fields = MPMFields(
+            x=self.x,
+            v=self.v,
+            C=self.C,
+            F=self.F,
+            mass=self.mass,
+            vol=self.vol,
+            mid=self.mid,
+            fixed=self.fixed,
+            pid=self.pid,
+            grid=self.grid,
+            grid_v=self.grid_v,
+            grid_m=self.grid_m,
+            bbox=self.bbox,
+            bbox_all=self.bbox_all,
+            chunk_start=self.chunk_start,
+            gravity=self.gravity,
+            mat_mu=self.mat_mu,
+            mat_lam=self.mat_lam,
+            mat_law_id=self.mat_law_id,
+            body_offsets=self.body_offsets,
+            stat_speed=self.stat_speed,
+            stat_bad=self.stat_bad,
+            stat_stiff=self.stat_stiff,
         )
-        gravity, mat_mu, mat_lam, mat_law_id = self.gravity, self.mat_mu, self.mat_lam, self.mat_law_id
-        laws, boundary = self.laws, self.boundary
-        grid_m = self.grid_m  # None unless coupled (the coupling phase reads node masses)
-        keep_m = grid_m is not None
-        flip = self.flip  # None under APIC (the default): nothing below compiles FLIP code then
-        use_flip = flip is not None
-        n_laws = len(laws)
-        any_plastic = any(law.plastic for law in laws)
-        dx, inv_dx = self.dx, self.inv_dx
-        origin = ti.Vector(list(self.origin), dt=f)
-        dom_lo = ti.Vector(list(self.domain_lo), dt=f)
-        dom_hi = ti.Vector(list(self.domain_hi), dt=f)
-        big = 1 << 30
-        base_max = ti.Vector([s - 3 for s in self.grid_shape])  # the stencil is base .. base + 2
-
-        @ti.func
-        def chunk_of(j):
-            """Chunk index of outer iteration j, or -1 (see CHUNK_STRIDE)."""
-            t = -1
-            if j % CHUNK_STRIDE == 0:
-                t = j // CHUNK_STRIDE
-            return t
-
-        @ti.func
-        def base_node(xp):
-            # floor (Xp >= PAD > 0.5 for positions in the domain); the clamp only matters for a
-            # NaN/inf position, which then stays inside the grid arrays (memory safety) while its
-            # NaN weights show up in the next frame check
-            b = ti.cast((xp - origin) * inv_dx - 0.5, ti.i32)
-            return ti.min(ti.max(b, 0), base_max)
-
-        @ti.func
-        def bspline(xp):
-            Xp = (xp - origin) * inv_dx
-            base = base_node(xp)
-            fx = Xp - ti.cast(base, f)
-            w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
-            return base, fx, w
-
-        @ti.func
-        def kirchhoff(p, Fp, J, update: ti.template()):
-            m = mid[p]
-            mu = mat_mu[m]
-            lam = mat_lam[m]
-            tau = ti.Matrix.zero(f, dim, dim)
-            if ti.static(n_laws == 1):
-                tau = laws[0].kirchhoff(p, Fp, J, mu, lam, update)
-            else:
-                lid = mat_law_id[m]
-                for k in ti.static(range(n_laws)):
-                    if lid == k:
-                        tau = laws[k].kirchhoff(p, Fp, J, mu, lam, update)
-            return tau
-
-        # The stencil loops below are written as nested static loops over plain ints with the
-        # offset-dependent parts hoisted (q_i, q_ij, w_i w_j): Taichi compiles that several times
-        # faster than a loop over ti.grouped offset vectors, and it does fewer flops.
-
-        @ti.func
-        def cols(M):
-            return [ti.Vector([M[r, c] for r in ti.static(range(dim))]) for c in ti.static(range(dim))]
-
-        @ti.func
-        def node_value(val, weight, m, fm, mv):
-            c = ti.Vector.zero(f, gdim)
-            for d in ti.static(range(dim)):
-                c[d] = weight * val[d]
-            c[dim] = weight * m
-            if ti.static(has_fixed):
-                c[dim + 1] = weight * fm
-            if ti.static(use_flip):  # FLIP: the momentum without the stress impulse too
-                c = flip.momentum(c, weight, mv)
-            return c
-
-        @ti.func
-        def p2g_particle(p, t, dt):
-            base, fx, w = bspline(x[p])
-            Fp = ti.Matrix.identity(f, dim) + F[p]  # F stores H = F - I
-            J = Fp.determinant()
-            tau = kirchhoff(p, Fp, J, True)
-            m = mass[p]
-            # MLS-MPM (Hu et al. 2018, eq. 16 and 29): node i gets w_i (m v + Q (x_i - x_p)) with
-            # Q = m C - dt V0 D^-1 tau, D^-1 = 4 / dx^2 for quadratic B-splines; x_i - x_p = (i - fx) dx
-            affine = (-dt * vol[p] * 4.0 * inv_dx * inv_dx) * tau
-            if ti.static(not use_flip):  # APIC sends the affine velocity C; FLIP only the stress
-                affine = affine + m * C[p]
-            mv = m * v[p]
-            q0 = mv - affine @ (fx * dx)
-            A = cols(affine * dx)
-            fm = 0.0
-            if ti.static(has_fixed):
-                fm = m * ti.cast(fixed[p], f)
-            for i in ti.static(range(3)):
-                qi = q0 + A[0] * i
-                wi = w[i][0]
-                for j in ti.static(range(3)):
-                    qij = qi + A[1] * j
-                    wij = wi * w[j][1]
-                    if ti.static(dim == 2):
-                        c = node_value(qij, wij, m, fm, mv)
-                        if ti.static(chunked):  # chunk t owns copy t: plain read-add-write
-                            grid[t, base[0] + i, base[1] + j] = grid[t, base[0] + i, base[1] + j] + c
-                        else:
-                            grid[0, base[0] + i, base[1] + j] += c
-                    else:
-                        for k in ti.static(range(3)):
-                            c = node_value(qij + A[2] * k, wij * w[k][2], m, fm, mv)
-                            if ti.static(chunked):
-                                grid[t, base[0] + i, base[1] + j, base[2] + k] = (
-                                    grid[t, base[0] + i, base[1] + j, base[2] + k] + c
-                                )
-                            else:
-                                grid[0, base[0] + i, base[1] + j, base[2] + k] += c
-
-        @ti.func
-        def g2p_particle(p, dt):
-            base, fx, w = bspline(x[p])
-            new_v = ti.Vector.zero(f, dim)
-            b = [ti.Vector.zero(f, dim) for _ in ti.static(range(dim))]  # columns of sum w v i^T
-            for i in ti.static(range(3)):
-                for j in ti.static(range(3)):
-                    wij = w[i][0] * w[j][1]
-                    s0 = ti.Vector.zero(f, dim)  # sum_k w_k v
-                    s1 = ti.Vector.zero(f, dim)  # sum_k w_k k v
-                    if ti.static(dim == 2):
-                        s0 = grid_v[base[0] + i, base[1] + j]
-                    else:
-                        for k in ti.static(range(3)):
-                            g = w[k][2] * grid_v[base[0] + i, base[1] + j, base[2] + k]
-                            s0 += g
-                            if ti.static(k > 0):
-                                s1 += g * k
-                    t0 = wij * s0
-                    new_v += t0
-                    if ti.static(i > 0):
-                        b[0] += t0 * i
-                    if ti.static(j > 0):
-                        b[1] += t0 * j
-                    if ti.static(dim == 3):
-                        b[2] += wij * s1
-            B = ti.Matrix.cols(b)
-            # C = D^-1 sum_i w_i v_i (x_i - x_p)^T = (4 / dx) (sum_i w_i v_i i^T - v fx^T)
-            new_C = (4.0 * inv_dx) * (B - new_v.outer_product(fx))
-            is_fixed = False
-            if ti.static(has_fixed):
-                is_fixed = fixed[p] != 0
-            if is_fixed:
-                v[p] = ti.Vector.zero(f, dim)
-                C[p] = ti.Matrix.zero(f, dim, dim)
-            else:
-                # F_new = (I + dt C) F, kept as H_new = H + dt C (I + H) (see build: F stores H)
-                Hp = F[p]
-                Hp = Hp + dt * (new_C @ (ti.Matrix.identity(f, dim) + Hp))
-                if ti.static(any_plastic):
-                    m = mid[p]
-                    for k in ti.static(range(n_laws)):
-                        if ti.static(laws[k].plastic):  # noqa: SIM102 - compile-time, then run-time test
-                            if ti.static(n_laws == 1) or mat_law_id[m] == k:
-                                Fp = laws[k].return_mapping(
-                                    p, ti.Matrix.identity(f, dim) + Hp, m, mat_mu[m], mat_lam[m]
-                                )
-                                Hp = Fp - ti.Matrix.identity(f, dim)
-                F[p] = Hp
-                v_grid = new_v  # positions move with the grid velocity under both transfers
-                if ti.static(use_flip):
-                    new_v = flip.blend(v[p], v_grid, flip.gather(base, w))
-                xp = x[p] + dt * v_grid
-                if ti.static(boundary.n_colliders > 0):
-                    # a particle that ended inside a collider goes back to its surface (the grid
-                    # contact alone lets particles that start inside, or tunnel, stay there)
-                    xp, new_v = boundary.project_particle(xp, new_v, mass[p])
-                xp = ti.min(ti.max(xp, dom_lo), dom_hi)
-                v[p] = new_v
-                C[p] = new_C
-                x[p] = xp
-
-        @ti.func
-        def particle_base(p):
-            return base_node(x[p])
-
-        @ti.func
-        def clear_copy(t):
-            """Zero copy t of the grid over the node box of chunk t (the nodes p2g will write)."""
-            a = bbox[t, 0]
-            b = bbox[t, 1]
-            if ti.static(dim == 3):
-                for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
-                    grid[t, i, j, k] = ti.Vector.zero(f, gdim)
-            else:
-                for i, j in ti.ndrange((a[0], b[0]), (a[1], b[1])):
-                    grid[t, i, j] = ti.Vector.zero(f, gdim)
-
-        @ti.func
-        def clear_grid():
-            # chunked (CPU): each chunk clears its own copy at the start of its p2g task, see p2g
-            if ti.static(not chunked):
-                clear_copy(0)
-
-        @ti.func
-        def p2g(dt):
-            if ti.static(chunked):
-                for j in range(T * CHUNK_STRIDE):
-                    t = chunk_of(j)
-                    if t >= 0:
-                        clear_copy(t)  # serial inside the chunk's task: saves a parallel launch
-                        for p in range(chunk_start[t], chunk_start[t + 1]):
-                            p2g_particle(p, t, dt)
-            else:
-                for p in range(N()):
-                    p2g_particle(p, 0, dt)
-
-        @ti.func
-        def node_update(I, dt):
-            g = ti.Vector.zero(f, gdim)
-            if ti.static(T == 1):
-                g = grid[0, I]
-            else:
-                for t in ti.static(range(T)):
-                    a = bbox[t, 0]
-                    b = bbox[t, 1]
-                    inside = True
-                    for d in ti.static(range(dim)):
-                        inside = inside and a[d] <= I[d] and I[d] < b[d]
-                    if inside:  # outside its chunk's box a copy holds stale values
-                        g += grid[t, I]
-            m = g[dim]
-            vI = ti.Vector.zero(f, dim)
-            if m > 0:
-                for d in ti.static(range(dim)):
-                    vI[d] = g[d] / m
-                vI += dt * gravity[None]
-                pinned = False
-                if ti.static(has_fixed):
-                    pinned = g[dim + 1] > 0
-                if pinned:
-                    vI = ti.Vector.zero(f, dim)
-                else:
-                    vI = boundary.apply(I, vI, m)
-            grid_v[I] = vI
-            if ti.static(keep_m):
-                grid_m[I] = m
-            if ti.static(use_flip):
-                flip.store(I, g, vI)
-
-        @ti.func
-        def grid_update(dt):
-            lo = bbox[0, 0]
-            hi = bbox[0, 1]
-            for t in ti.static(range(1, T)):
-                lo = ti.min(lo, bbox[t, 0])
-                hi = ti.max(hi, bbox[t, 1])
-            bbox_all[0] = lo
-            bbox_all[1] = hi
-            a = bbox_all[0]
-            b = bbox_all[1]
-            if ti.static(dim == 3):
-                for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
-                    node_update(ti.Vector([i, j, k]), dt)
-            else:
-                for i, j in ti.ndrange((a[0], b[0]), (a[1], b[1])):
-                    node_update(ti.Vector([i, j]), dt)
-
-        @ti.func
-        def particle_pass(dt, move: ti.template()):
-            """The node box [lo, hi) of each chunk's particles (of all of them without chunks), after
-            moving each particle by g2p first when ``move``."""
-            if ti.static(chunked):
-                for j in range(T * CHUNK_STRIDE):
-                    t = chunk_of(j)
-                    if t >= 0:
-                        lo = ti.Vector([big] * dim)
-                        hi = ti.Vector([-big] * dim)
-                        for p in range(chunk_start[t], chunk_start[t + 1]):
-                            if ti.static(move):
-                                g2p_particle(p, dt)
-                            bp = particle_base(p)
-                            lo = ti.min(lo, bp)
-                            hi = ti.max(hi, bp)
-                        bbox[t, 0] = lo
-                        bbox[t, 1] = hi + 3
-            else:
-                bbox[0, 0] = ti.Vector([big] * dim)
-                bbox[0, 1] = ti.Vector([-big] * dim)
-                for p in range(N()):
-                    if ti.static(move):
-                        g2p_particle(p, dt)
-                    bp = particle_base(p)
-                    for d in ti.static(range(dim)):
-                        ti.atomic_min(bbox[0, 0][d], bp[d])
-                        ti.atomic_max(bbox[0, 1][d], bp[d] + 3)
-
-        @ti.func
-        def g2p(dt):
-            particle_pass(dt, True)
-
-        @ti.kernel
-        def substep(dt: f):
-            # one launch per substep: each top-level loop below is one parallel task, and on the
-            # CPU every kernel launch and every parallel task costs tens of microseconds
-            clear_grid()
-            p2g(dt)
-            grid_update(dt)
-            g2p(dt)
-
-        # the same stages one kernel each, for tests and profiling (not on the hot path)
-        @ti.kernel
-        def stage_p2g(dt: f):
-            clear_grid()
-            p2g(dt)
-
-        @ti.kernel
-        def stage_grid_update(dt: f):
-            grid_update(dt)
-
-        @ti.kernel
-        def stage_g2p(dt: f):
-            g2p(dt)
-
-        @ti.kernel
-        def pre_couple_k(dt: f):
-            # coupled scenes: the substep up to the updated grid velocities (the coupling phase edits them)
-            clear_grid()
-            p2g(dt)
-            grid_update(dt)
-
-        @ti.kernel
-        def compute_bbox():
-            particle_pass(0.0, False)
-
-        # ---- per-frame kernels
-        nb = len(self.bodies)
-        body_offsets, stat_speed, stat_bad = self.body_offsets, self.stat_speed, self.stat_bad
-        f64 = f == ti.f64
-
-        finite = make_finite(f64)
-        body_of = make_body_of(nb, body_offsets)
-
-        stat_stiff = self.stat_stiff
-        any_hardening = any(law.hardens for law in laws)
-
-        @ti.func
-        def law_call_scalar(p, which: ti.template()):
-            """A per-particle scalar of the particle's law (plastic_J, stiffness_factor)."""
-            r = 1.0
-            if ti.static(n_laws == 1):
-                r = ti.static(getattr(laws[0], which))(p)
-            else:
-                lid = mat_law_id[mid[p]]
-                for k in ti.static(range(n_laws)):
-                    if lid == k:
-                        r = ti.static(getattr(laws[k], which))(p)
-            return r
-
-        @ti.kernel
-        def frame_stats():
-            for b in range(nb):
-                stat_speed[b] = 0.0
-                stat_bad[b] = 0
-            stat_stiff[None] = 1.0
-            for p in range(N()):
-                b = body_of(p)
-                if ti.static(dynamic):
-                    b = body_of(pid[p])
-                vp = v[p]
-                if finite(x[p]) and finite(vp):
-                    ti.atomic_max(stat_speed[b], vp.norm())
-                else:
-                    ti.atomic_add(stat_bad[b], 1)
-                if ti.static(any_hardening):
-                    ti.atomic_max(stat_stiff[None], law_call_scalar(p, "stiffness_factor"))
-
-        @ti.func
-        def law_scalar(p, Fp, J, m, which: ti.template()):
-            """tau_zz or energy_density of the particle's law."""
-            r = 0.0
-            if ti.static(n_laws == 1):
-                r = ti.static(getattr(laws[0], which))(p, Fp, J, mat_mu[m], mat_lam[m])
-            else:
-                for k in ti.static(range(n_laws)):
-                    if mat_law_id[m] == k:
-                        r = ti.static(getattr(laws[k], which))(p, Fp, J, mat_mu[m], mat_lam[m])
-            return r
-
-        @ti.func
-        def law_scalar2(p, J, which: ti.template()):
-            r = 0.0
-            if ti.static(n_laws == 1):
-                r = ti.static(getattr(laws[0], which))(p, J)
-            else:
-                lid = mat_law_id[mid[p]]
-                for k in ti.static(range(n_laws)):
-                    if lid == k:
-                        r = ti.static(getattr(laws[k], which))(p, J)
-            return r
-
-        def make_outputs(out):
-            out_J, out_vm, out_p, out_jp, out_e = out
-
-            @ti.kernel
-            def outputs():
-                for p in range(N()):
-                    Fp = ti.Matrix.identity(f, dim) + F[p]  # F stores H = F - I
-                    m = mid[p]
-                    J = Fp.determinant()
-                    tau = kirchhoff(p, Fp, J, False)
-                    Je = law_scalar2(p, J, "elastic_J")
-                    invJ = 0.0
-                    if Je != 0:
-                        invJ = 1.0 / Je
-                    s = tau * invJ  # Cauchy stress
-                    vm = 0.0
-                    pressure = 0.0
-                    if ti.static(dim == 3):
-                        pressure = -s.trace() / 3.0
-                        dev = s + ti.Matrix.identity(f, 3) * pressure
-                        vm = ti.sqrt(1.5 * (dev * dev).sum())
-                    else:
-                        # plane strain: add the out-of-plane normal stress
-                        szz = law_scalar(p, Fp, J, m, "tau_zz") * invJ
-                        mean = (s[0, 0] + s[1, 1] + szz) / 3.0
-                        d0 = s[0, 0] - mean
-                        d1 = s[1, 1] - mean
-                        d2 = szz - mean
-                        vm = ti.sqrt(
-                            1.5 * (d0 * d0 + d1 * d1 + d2 * d2 + s[0, 1] * s[0, 1] + s[1, 0] * s[1, 0])
-                        )
-                        pressure = -mean
-                    jp = law_call_scalar(p, "plastic_J")
-                    out_J[p] = law_scalar2(p, J, "total_J")  # total volume ratio J = J_p J_E
-                    out_vm[p] = vm
-                    out_p[p] = pressure
-                    out_jp[p] = jp
-                    out_e[p] = law_scalar(p, Fp, J, m, "energy_density") * vol[p]
-
-            return outputs
-
-        self._substep = substep
-        self._pre_couple_k = pre_couple_k
-        self._stage_p2g, self._stage_grid_update, self._stage_g2p = stage_p2g, stage_grid_update, stage_g2p
-        self._compute_bbox, self._frame_stats, self._make_outputs = compute_bbox, frame_stats, make_outputs
-        self._outputs = None
+        return params, fields
 
     # ---------------------------------------------------------------- stepping
 
@@ -818,7 +409,7 @@ class MPMSolver(Solver):
             law.host_update(self.time)
         if self.boundary.any_moving:  # collider poses of this substep (host, no sync)
             self.boundary.set_time(self.time, dt)
-        self._substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
+        self.kernels.substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
         self.time += dt
         self._version += 1
 
@@ -832,17 +423,17 @@ class MPMSolver(Solver):
             law.host_update(self.time)
         if self.boundary.any_moving:
             self.boundary.set_time(self.time, dt)
-        self._pre_couple_k(dt)
+        self.kernels.pre_couple(dt)
 
     def post_couple(self, dt: float) -> None:
-        self._stage_g2p(dt)
+        self.kernels.stage_g2p(dt)
         self.time += dt
         self._version += 1
 
     # ------------------------------------------------------------ frame checks
 
     def frame_check(self) -> dict[str, FrameStats]:
-        self._frame_stats()
+        self.kernels.frame_stats()
         return frame_stats_per_body(
             [b.name for b in self.bodies], self.stat_speed.to_numpy(), self.stat_bad.to_numpy()
         )
@@ -851,7 +442,7 @@ class MPMSolver(Solver):
         """min(cfl dx / max particle speed, WAVE_SAFETY dx / c_p, viscosity limit) [s]; one reduction
         kernel. c_p is the P-wave speed of the stiffest material, raised by the largest current
         hardening factor (snow) and by the largest muscle activation."""
-        self._frame_stats()
+        self.kernels.frame_stats()
         vmax = float(np.max(self.stat_speed.to_numpy()))
         if self.sources is not None:  # what an emitter will bring in
             vmax = max([vmax] + [float(e["cfg"].speed) for e in self.sources.emitters])
@@ -876,7 +467,7 @@ class MPMSolver(Solver):
         elif key in DERIVED_FIELDS:
             if self._out is None:  # allocated on first use: only scenes that write them pay
                 self._out = tuple(ti.field(self.f, shape=self.n) for _ in DERIVED_FIELDS)
-                self._outputs = self._make_outputs(self._out)
+                self._outputs = self.kernels.make_outputs(self._out)
             self._outputs()
             for name, fld in zip(DERIVED_FIELDS, self._out):
                 self._cache[name] = (self._version, fld.to_numpy())
@@ -965,7 +556,7 @@ class MPMSolver(Solver):
             self.chunk_start.from_numpy(
                 (np.arange(self.T + 1, dtype=np.int64) * self.n_live() // self.T).astype(np.int32)
             )
-        self._compute_bbox()
+        self.kernels.compute_bbox()
         self._version += 1
 
     def length_scale(self) -> float:

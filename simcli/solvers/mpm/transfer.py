@@ -38,11 +38,11 @@ with stdout_to_stderr():
 class FlipTransfer:
     """Grid storage and the per-node / per-particle pieces of the FLIP/PIC transfer."""
 
-    def __init__(self, solver: Any) -> None:
-        self.dim = solver.dim
-        self.f = solver.f
-        self.grid_shape = solver.grid_shape
-        self.ratio = float(solver.flip_ratio)
+    def __init__(self, dim: int, dtype: Any, grid_shape: tuple, flip_ratio: float) -> None:
+        self.dim = dim
+        self.f = dtype
+        self.grid_shape = grid_shape
+        self.ratio = float(flip_ratio)
         if not 0.0 <= self.ratio <= 1.0:
             raise ValueError(f"flip_ratio must be in [0, 1], not {self.ratio}")
         self.vo = -1

@@ -1,0 +1,136 @@
+"""P2G, particle to grid (MLS-MPM, Hu et al. 2018, eq. 16 and 29), with the Kirchhoff stress fused in.
+
+Each particle scatters ``w_i (m v + Q (x_i - x_p))`` to the 3^dim nodes of its quadratic B-spline stencil,
+``Q = m C - dt V0 D^-1 tau`` (APIC; FLIP sends only the stress part, see transfer.py), plus its mass (and
+the mass of fixed particles in their own channel).
+
+On the CPU (``params.chunked``) particles are split into T contiguous chunks; chunk t clears and then
+scatters into its own grid copy t with plain read-add-write (no atomics, bitwise reproducible for a given
+thread count; see solver.py's module docstring). Elsewhere one grid copy with atomic adds.
+"""
+
+from dataclasses import dataclass
+from typing import Any
+
+from simcli.backend import stdout_to_stderr
+from simcli.solvers.mpm.fields import CHUNK_STRIDE, MPMFields, MPMParams
+from simcli.solvers.mpm.stencil import Stencil, chunk_of
+
+with stdout_to_stderr():
+    import taichi as ti
+
+
+@dataclass(frozen=True)
+class P2G:
+    """``clear_grid()``: zero the grid copy (atomic path; the chunked path clears inside ``p2g``);
+    ``p2g(dt)``: scatter every particle. Both are ``ti.func``: call them from a kernel."""
+
+    clear_grid: Any
+    p2g: Any
+
+
+def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff, flip, count) -> P2G:
+    """``kirchhoff(p, F, J, update)``: the particle's Kirchhoff stress (laws.LawDispatch.kirchhoff);
+    ``flip``: the FLIP transfer (transfer.FlipTransfer) or None (APIC); ``count``: ti.func, the particle
+    loop's bound. Reads x, v, C, F, mass, vol, fixed, bbox, chunk_start; writes grid."""
+    dim, f, T, gdim = params.dim, params.dtype, params.T, params.gdim
+    chunked, has_fixed = params.chunked, params.has_fixed
+    dx, inv_dx = params.dx, params.inv_dx
+    N = count
+    x, v, C, F, mass, vol, fixed = (
+        fields.x,
+        fields.v,
+        fields.C,
+        fields.F,
+        fields.mass,
+        fields.vol,
+        fields.fixed,
+    )
+    grid, bbox, chunk_start = fields.grid, fields.bbox, fields.chunk_start
+    use_flip = flip is not None
+    bspline, cols = stencil.bspline, stencil.cols
+
+    @ti.func
+    def node_value(val, weight, m, fm, mv):
+        c = ti.Vector.zero(f, gdim)
+        for d in ti.static(range(dim)):
+            c[d] = weight * val[d]
+        c[dim] = weight * m
+        if ti.static(has_fixed):
+            c[dim + 1] = weight * fm
+        if ti.static(use_flip):  # FLIP: the momentum without the stress impulse too
+            c = flip.momentum(c, weight, mv)
+        return c
+
+    @ti.func
+    def p2g_particle(p, t, dt):
+        base, fx, w = bspline(x[p])
+        Fp = ti.Matrix.identity(f, dim) + F[p]  # F stores H = F - I
+        J = Fp.determinant()
+        tau = kirchhoff(p, Fp, J, True)
+        m = mass[p]
+        # MLS-MPM (Hu et al. 2018, eq. 16 and 29): node i gets w_i (m v + Q (x_i - x_p)) with
+        # Q = m C - dt V0 D^-1 tau, D^-1 = 4 / dx^2 for quadratic B-splines; x_i - x_p = (i - fx) dx
+        affine = (-dt * vol[p] * 4.0 * inv_dx * inv_dx) * tau
+        if ti.static(not use_flip):  # APIC sends the affine velocity C; FLIP only the stress
+            affine = affine + m * C[p]
+        mv = m * v[p]
+        q0 = mv - affine @ (fx * dx)
+        A = cols(affine * dx)
+        fm = 0.0
+        if ti.static(has_fixed):
+            fm = m * ti.cast(fixed[p], f)
+        for i in ti.static(range(3)):
+            qi = q0 + A[0] * i
+            wi = w[i][0]
+            for j in ti.static(range(3)):
+                qij = qi + A[1] * j
+                wij = wi * w[j][1]
+                if ti.static(dim == 2):
+                    c = node_value(qij, wij, m, fm, mv)
+                    if ti.static(chunked):  # chunk t owns copy t: plain read-add-write
+                        grid[t, base[0] + i, base[1] + j] = grid[t, base[0] + i, base[1] + j] + c
+                    else:
+                        grid[0, base[0] + i, base[1] + j] += c
+                else:
+                    for k in ti.static(range(3)):
+                        c = node_value(qij + A[2] * k, wij * w[k][2], m, fm, mv)
+                        if ti.static(chunked):
+                            grid[t, base[0] + i, base[1] + j, base[2] + k] = (
+                                grid[t, base[0] + i, base[1] + j, base[2] + k] + c
+                            )
+                        else:
+                            grid[0, base[0] + i, base[1] + j, base[2] + k] += c
+
+    @ti.func
+    def clear_copy(t):
+        """Zero copy t of the grid over the node box of chunk t (the nodes p2g will write)."""
+        a = bbox[t, 0]
+        b = bbox[t, 1]
+        if ti.static(dim == 3):
+            for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
+                grid[t, i, j, k] = ti.Vector.zero(f, gdim)
+        else:
+            for i, j in ti.ndrange((a[0], b[0]), (a[1], b[1])):
+                grid[t, i, j] = ti.Vector.zero(f, gdim)
+
+    @ti.func
+    def clear_grid():
+        # chunked (CPU): each chunk clears its own copy at the start of its p2g task, see p2g
+        if ti.static(not chunked):
+            clear_copy(0)
+
+    @ti.func
+    def p2g(dt):
+        if ti.static(chunked):
+            for j in range(T * CHUNK_STRIDE):
+                t = chunk_of(j)
+                if t >= 0:
+                    clear_copy(t)  # serial inside the chunk's task: saves a parallel launch
+                    for p in range(chunk_start[t], chunk_start[t + 1]):
+                        p2g_particle(p, t, dt)
+        else:
+            for p in range(N()):
+                p2g_particle(p, 0, dt)
+
+    return P2G(clear_grid, p2g)
