@@ -645,7 +645,12 @@ class Runner:
                 sources.before_substep(step * sim.dt + done_t)
             if coupler is None:
                 for s in solvers:
-                    s.substep(sub_dt)
+                    if s.splits_substep():  # a family under its own limit inside the common substep
+                        n = policy.split(sub_dt, s.stable_dt())
+                        for _ in range(n):
+                            s.substep(sub_dt / n)
+                    else:
+                        s.substep(sub_dt)
             else:  # pre_couple -> coupling phase -> post_couple
                 coupler.substep(sub_dt)
             if self._rigid is not None:  # the bodies take the substep's loads and move

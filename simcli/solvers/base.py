@@ -190,6 +190,12 @@ class Solver:
         particle spacing)."""
         raise NotImplementedError
 
+    def splits_substep(self) -> bool:
+        """Whether this family must stay under its own stable_dt() inside the common substep (the runner's
+        substep policy then gives it SubstepPolicy.split(dt, stable_dt()) equal substeps of its own, in
+        scenes without a coupling phase); MPM with hardening under substeps: auto."""
+        return False
+
     def runaway_cfl(self) -> float:
         """The runaway guard's limit: a substep whose CFL number (max speed x substep / length_scale())
         exceeds it is a blow-up. Particle methods cannot take more than about two cells per substep."""

@@ -395,16 +395,13 @@ class MPMSolver(Solver):
 
     # ---------------------------------------------------------------- stepping
 
-    def substep(self, dt: float) -> None:
-        if self.guard_hardening:
-            # one reduction and a host read per substep, only in scenes with hardening and auto substeps
-            n = max(1, math.ceil(dt / self.stable_dt() - 1e-9))
-            for _ in range(n):
-                self._advance(dt / n)
-        else:
-            self._advance(dt)
+    def splits_substep(self) -> bool:
+        # hardening (snow) under substeps: auto: the stable substep can shrink within a frame, so the runner's
+        # substep policy cuts each substep to this family's stable_dt (one reduction and a host read per
+        # substep, only in such scenes)
+        return self.guard_hardening
 
-    def _advance(self, dt: float) -> None:
+    def substep(self, dt: float) -> None:
         for law in self.laws:  # muscle activations at the start of the substep (host, no sync)
             law.host_update(self.time)
         if self.boundary.any_moving:  # collider poses of this substep (host, no sync)
@@ -415,7 +412,7 @@ class MPMSolver(Solver):
 
     # Coupled scenes (simcli/coupling/): the same substep in two phases around the coupling phase, which
     # edits grid_v between them: pre_couple = muscle, collider poses, clear_grid -> p2g -> grid_update;
-    # post_couple = g2p. MPM's own hardening split (guard_hardening) is not applied in coupled scenes: the
+    # post_couple = g2p. The hardening split (splits_substep) is not applied in coupled scenes: the
     # runner's auto substep, which asks stable_dt, bounds the substep instead.
 
     def pre_couple(self, dt: float) -> None:
