@@ -196,7 +196,8 @@ class ProbeRecorder:
         for e in ents:
             sp = self._spacing(e)
             x = self._arrays(e.name, ("position",), cache)["position"][:, : self.dim]
-            h = sampling.surface_height(x, p.position, ax, sp, 0.5 * sp)
+            gap = 2.0 * sp if p.surface == "connected" else None
+            h = sampling.surface_height(x, p.position, ax, sp, 0.5 * sp, gap)
             if not math.isnan(h) and (math.isnan(best) or h > best):
                 best = h
         return np.asarray(best)
