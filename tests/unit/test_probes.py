@@ -388,13 +388,14 @@ def test_mpm_probes_answer_with_masses_momentum_and_the_liquid_level(tmp_path):
           - {name: ee, type: total, quantity: elastic_energy}
           - {name: mom, type: total, quantity: momentum, entity: jelly}
           - {name: mass, type: total, quantity: mass}
+          - {name: hc, type: height, position: [0.01], entity: water, surface: connected}
         """)
     )
     out = tmp_path / "out"
     r = _run([str(scene), "-o", str(out)])
     assert r.returncode == 0, r.stderr
     rows = _rows(out / "probes.csv")
-    assert rows[0] == ["time", "p", "rho", "v.x", "v.y", "h", "ee", "mom.x", "mom.y", "mass"]
+    assert rows[0] == ["time", "p", "rho", "v.x", "v.y", "h", "ee", "mom.x", "mom.y", "mass", "hc"]
     first, last = [float(x) for x in rows[1]], [float(x) for x in rows[-1]]
     assert first[9] == pytest.approx(1000 * 0.1 * 0.2 + 500 * 0.04 * 0.04, rel=1e-6) == last[9]  # mass
     assert first[7:9] == pytest.approx([0.0, -0.8], abs=1e-6)  # jelly: 0.8 kg at -1 m/s
@@ -403,6 +404,8 @@ def test_mpm_probes_answer_with_masses_momentum_and_the_liquid_level(tmp_path):
     assert first[5] == pytest.approx(0.2, abs=1e-6) and last[5] == pytest.approx(0.2, abs=0.0025)
     assert first[6] == 0.0 and last[6] > 0.0  # the liquid's stored energy as it settles under gravity
     assert last[1] > 0.0
+    # a calm liquid has no spray: the connected surface is the highest particle's
+    assert [float(r[10]) for r in rows[1:]] == [float(r[5]) for r in rows[1:]]
 
 
 def test_fem_totals_follow_free_fall(tmp_path):
