@@ -8,7 +8,8 @@ A probe is a time series sampled every ``every`` steps (default: output.every):
   particle spacings) or a trilinear interpolation of the SF grid.
 * ``height``: the free-surface height [m] along ``axis`` of the particles in a column of radius one particle
   spacing through ``position`` (the coordinates along the other axes): the highest particle plus half a
-  spacing.
+  spacing (``surface: connected``: the highest one connected to the column's bottom without a gap wider than
+  the particles' reach, SPH's support radius or three MPM cells; spray left out).
 * ``total``: kinetic_energy [J], elastic_energy [J] (MPM), mass [kg], momentum [kg m/s] or com [m] of one
   entity or of every entity (``"*"``).
 """
@@ -115,6 +116,14 @@ class HeightProbe(_Probe):
         "height [m] is the coordinate of the highest particle within one particle spacing of the "
         "gauge's line "
         "plus half a spacing; NaN while the column is dry.",
+    )
+    surface: Literal["highest", "connected"] = Field(
+        "highest",
+        description="highest (default): the highest particle in the column. connected: the top of the "
+        "liquid connected to the column's lowest particle, the particles taken from the bottom up to the "
+        "first gap along `axis` wider than the distance over which two particles still act on each other "
+        "(SPH: the kernel's support radius; MPM: three grid cells; PBD: two particle sizes), so that spray "
+        "and droplets above the liquid are not the surface (as a wave gauge's wire reads it).",
     )
 
 

@@ -150,6 +150,17 @@ class ProbeRecorder:
             return sol.mpm.spacing
         return sol.pbd.particle_size
 
+    def _reach(self, entity) -> float:
+        """How far apart two particles of ``entity`` still act on each other: SPH: the kernel's support
+        radius; MPM: three grid cells (quadratic B-splines reach 1.5 cells from each particle); PBD: two
+        particle sizes. A connected height gauge's gap."""
+        sol = self.scene.solvers
+        if entity.family == "SPH":
+            return sol.sph.support_radius
+        if entity.family == "MPM":
+            return 3.0 * sol.mpm.dx
+        return 2.0 * sol.pbd.particle_size
+
     def _point(self, p, ents, cache):
         q = p.quantity
         ent0 = ents[0]
@@ -198,7 +209,8 @@ class ProbeRecorder:
         for e in ents:
             sp = self._spacing(e)
             x = self._arrays(e.name, ("position",), cache)["position"][:, : self.dim]
-            h = sampling.surface_height(x, p.position, ax, sp, 0.5 * sp)
+            gap = self._reach(e) if p.surface == "connected" else None
+            h = sampling.surface_height(x, p.position, ax, sp, 0.5 * sp, gap)
             if not math.isnan(h) and (math.isnan(best) or h > best):
                 best = h
         return np.asarray(best)

@@ -84,9 +84,13 @@ def grid_interpolate(data: np.ndarray, origin, spacing, at) -> np.ndarray:
     return out
 
 
-def surface_height(x: np.ndarray, at, axis: int, radius: float, half: float) -> float:
+def surface_height(
+    x: np.ndarray, at, axis: int, radius: float, half: float, gap: float | None = None
+) -> float:
     """The free-surface coordinate along ``axis`` over the column of radius ``radius`` through ``at`` (the
-    coordinates along the other axes, in order): the highest particle in it plus ``half``; NaN if none."""
+    coordinates along the other axes, in order): the highest particle in it plus ``half``; NaN if none.
+    With ``gap``: the highest particle connected to the column's lowest one, the particles sorted along
+    ``axis`` up to the first step wider than ``gap`` (spray above the liquid is not its surface)."""
     x = np.asarray(x, dtype=np.float64)
     if x.shape[0] == 0:
         return float("nan")
@@ -98,7 +102,12 @@ def surface_height(x: np.ndarray, at, axis: int, radius: float, half: float) -> 
     inside = d2 <= radius * radius
     if not inside.any():
         return float("nan")
-    return float(x[inside, axis].max() + half)
+    h = x[inside, axis]
+    if gap is None:
+        return float(h.max() + half)
+    h = np.sort(h)
+    wide = np.flatnonzero(np.diff(h) > gap)
+    return float((h[wide[0]] if len(wide) else h[-1]) + half)
 
 
 def totals(quantity: str, mass: np.ndarray, x=None, v=None, energy=None) -> tuple[np.ndarray, float]:

@@ -86,15 +86,29 @@ class ErrorSpec(_M):
         "mean_value_abs",
         "midrange_rel",
         "period_mean_rel",
+        "nmae",
+        "arrival_rel",
     ] = Field(
         "max_rel",
         description="How measured and reference series are compared. mean_value_*: compare the time averages "
         "over the window (an oscillation about a static state); midrange_rel: (max + min) / 2 over the "
         "window; period_mean_rel: the time average over the largest whole number of oscillation periods in "
-        "the window (the static state of an undamped oscillation).",
+        "the window (the static state of an undamped oscillation). nmae: the normalised mean absolute error, "
+        "mean |measured - reference| over the window / max |reference| over the window (a measured series "
+        "against an experiment's time series). arrival_rel: |t_m - t_r| / t_r, the first times each series "
+        "reaches `threshold` (an impact's arrival).",
     )
     window: list[float] | None = Field(None, description="Time window [t0, t1] compared [s].")
     scale: float | None = Field(None, description="Normalisation for *_rel metrics (default |reference|).")
+    threshold: float | None = Field(
+        None, description="arrival_rel: the value whose first crossing (from below) is the arrival."
+    )
+
+    @model_validator(mode="after")
+    def _threshold(self):
+        if (self.metric == "arrival_rel") != (self.threshold is not None):
+            raise ValueError("threshold is required by metric arrival_rel and used by no other metric")
+        return self
 
 
 class Case(_M):

@@ -102,9 +102,11 @@ def kinetic_energy(f, entity, mass=1.0, **_):
 
 
 @measurement("probe")
-def probe(f, entity=None, name=None, axis=None, **_):
+def probe(f, entity=None, name=None, axis=None, nan_as=None, **_):
     """A probe's time series as the run sampled it (sim.h5 /probes/<name>/time, /value; scene key `probes`);
-    ``axis`` picks a component of a vector probe (default: its magnitude). ``entity`` is not used."""
+    ``axis`` picks a component of a vector probe (default: its magnitude). ``entity`` is not used.
+    ``nan_as``: the value of a dry sample (NaN: no particle in reach), e.g. 0 for a height gauge on a dry
+    floor at z = 0; default: left NaN."""
     if name is None or "probes" not in f or name not in f["probes"]:
         have = ", ".join(f["probes"].keys()) if "probes" in f else "none"
         raise KeyError(f"probe '{name}' not in sim.h5 (probes: {have}); give params: {{name: <probe name>}}")
@@ -113,6 +115,8 @@ def probe(f, entity=None, name=None, axis=None, **_):
     t, v = g["time"][:n], np.asarray(g["value"][:n], dtype=np.float64)
     if v.ndim == 2:
         v = v[:, axis] if axis is not None else np.linalg.norm(v, axis=1)
+    if nan_as is not None:
+        v = np.where(np.isnan(v), float(nan_as), v)
     return t, v
 
 

@@ -96,6 +96,20 @@ def test_surface_height_is_the_top_particle_plus_half_a_spacing_in_the_column():
     assert sampling.surface_height(x2, [0.03], 0, s, 0.5 * s) == pytest.approx(0.3)
 
 
+def test_connected_surface_height_leaves_out_spray_above_the_liquid():
+    s = 0.01
+    x = _lattice(3, s, [0, 0, 0], [0.2, 0.2, 0.1])
+    spray = [[0.15, 0.15, 0.18], [0.151, 0.15, 0.121]]  # a droplet 2.6 spacings above, one 2.1 above the top
+    x = np.vstack([x, spray])
+    at = [0.151, 0.149]
+    assert sampling.surface_height(x, at, 2, s, 0.5 * s) == pytest.approx(0.185)  # highest: the spray
+    assert sampling.surface_height(x, at, 2, s, 0.5 * s, gap=2 * s) == pytest.approx(0.1)
+    # a particle within two spacings of the top is liquid (a wavy surface, a thin sheet)
+    x = np.vstack([x, [[0.15, 0.15, 0.112]]])
+    assert sampling.surface_height(x, at, 2, s, 0.5 * s, gap=2 * s) == pytest.approx(0.126)
+    assert math.isnan(sampling.surface_height(x, [0.5, 0.5], 2, s, 0.5 * s, gap=2 * s))
+
+
 def test_totals_from_masses_and_velocities():
     m = np.array([1.0, 2.0, 3.0])
     x = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]])
@@ -374,13 +388,14 @@ def test_mpm_probes_answer_with_masses_momentum_and_the_liquid_level(tmp_path):
           - {name: ee, type: total, quantity: elastic_energy}
           - {name: mom, type: total, quantity: momentum, entity: jelly}
           - {name: mass, type: total, quantity: mass}
+          - {name: hc, type: height, position: [0.01], entity: water, surface: connected}
         """)
     )
     out = tmp_path / "out"
     r = _run([str(scene), "-o", str(out)])
     assert r.returncode == 0, r.stderr
     rows = _rows(out / "probes.csv")
-    assert rows[0] == ["time", "p", "rho", "v.x", "v.y", "h", "ee", "mom.x", "mom.y", "mass"]
+    assert rows[0] == ["time", "p", "rho", "v.x", "v.y", "h", "ee", "mom.x", "mom.y", "mass", "hc"]
     first, last = [float(x) for x in rows[1]], [float(x) for x in rows[-1]]
     assert first[9] == pytest.approx(1000 * 0.1 * 0.2 + 500 * 0.04 * 0.04, rel=1e-6) == last[9]  # mass
     assert first[7:9] == pytest.approx([0.0, -0.8], abs=1e-6)  # jelly: 0.8 kg at -1 m/s
@@ -389,6 +404,8 @@ def test_mpm_probes_answer_with_masses_momentum_and_the_liquid_level(tmp_path):
     assert first[5] == pytest.approx(0.2, abs=1e-6) and last[5] == pytest.approx(0.2, abs=0.0025)
     assert first[6] == 0.0 and last[6] > 0.0  # the liquid's stored energy as it settles under gravity
     assert last[1] > 0.0
+    # a calm liquid has no spray: the connected surface is the highest particle's
+    assert [float(r[10]) for r in rows[1:]] == [float(r[5]) for r in rows[1:]]
 
 
 def test_fem_totals_follow_free_fall(tmp_path):
@@ -465,3 +482,14 @@ def test_a_height_gauge_reads_the_liquids_unless_it_names_an_entity(tmp_path):
         }
     )
     assert [e.name for e in probe_entities(scene, scene.probes[0])] == ["w"]  # not the floating block
+
+
+def test_height_gauge_surface_is_highest_or_connected():
+    from pydantic import ValidationError
+
+    from simcli.probes.config import HeightProbe
+
+    assert HeightProbe(name="h", type="height", position=[0.1]).surface == "highest"
+    assert HeightProbe(name="h", type="height", position=[0.1], surface="connected").surface == "connected"
+    with pytest.raises(ValidationError):
+        HeightProbe(name="h", type="height", position=[0.1], surface="top")

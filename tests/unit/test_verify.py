@@ -82,6 +82,48 @@ def test_table_reference_shipped_with_simcli(tmp_path):
     assert e["error"] == pytest.approx(0.05, rel=1e-6)
 
 
+def test_nmae_is_the_mean_absolute_error_over_the_reference_maximum(tmp_path):
+    c = _case(
+        tmp_path,
+        "measure: {quantity: com}\nreference: {analytic: 'sin(t)'}\n"
+        "error: {metric: nmae, window: [0.0, 3.0]}\ntolerance: 0.1\n",
+    )
+    t = np.linspace(0, 3, 3001)
+    e = compute_error(c, t, np.sin(t) + 0.02 * np.where(t < 1.5, 1.0, -1.0))
+    assert e["error"] == pytest.approx(0.02 / 1.0, rel=1e-3)  # max sin over [0, 3] = 1
+
+
+def test_arrival_time_of_a_jump_against_a_table(tmp_path):
+    tab = read_table(reference_dir() / "kleefsman2005_spheric_test2.csv")
+    (tmp_path / "ref.csv").write_text("t,p\n" + "\n".join(f"{a},{b}" for a, b in zip(tab[:, 0], tab[:, 1])))
+    c = _case(
+        tmp_path,
+        "measure: {quantity: probe}\nreference: {table: ref.csv}\n"
+        "error: {metric: arrival_rel, threshold: 1000.0, window: [0.0, 1.0]}\ntolerance: 0.1\n",
+    )
+    t_exp = tab[np.argmax(tab[:, 1] >= 1000.0), 0]
+    assert 0.38 < t_exp < 0.41  # the MARIN P1 impact
+    t = np.linspace(0, 1, 1001)
+    p = np.where(t < 0.44, np.nan, 5000.0)  # dry until an impact at 0.44 s
+    e = compute_error(c, t, p)
+    assert e["measured"] == pytest.approx(0.44, abs=1e-3)
+    assert e["error"] == pytest.approx(abs(0.44 - e["reference"]) / e["reference"])
+    assert abs(e["reference"] - t_exp) <= 0.0051  # interpolated within the table's 5 ms sample
+    never = compute_error(c, t, np.zeros_like(t))
+    assert never["error"] == math.inf
+
+
+def test_arrival_metric_needs_a_threshold(tmp_path):
+    from simcli.errors import SceneError
+
+    with pytest.raises(SceneError, match="threshold"):
+        _case(
+            tmp_path,
+            "measure: {quantity: probe}\nreference: {value: 1}\n"
+            "error: {metric: arrival_rel}\ntolerance: 0.1\n",
+        )
+
+
 def test_every_case_reads_its_table_from_inside_the_repository():
     """A clone is self-contained: every table a shipped case reads lies in the repository (the
     shipped reference_data/ is package data, so it also ships with a non-editable install), and every
