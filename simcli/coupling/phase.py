@@ -28,7 +28,13 @@ def _mpm_pbd(mpm, pbd):
     return make_mpm_pbd(mpm, pbd)
 
 
-IMPLEMENTED: dict[str, Callable] = {"mpm_sph": _mpm_sph, "mpm_pbd": _mpm_pbd}
+def _mpm_fem(mpm, fem):
+    from simcli.coupling.mpm_fem import make_mpm_fem
+
+    return make_mpm_fem(mpm, fem)
+
+
+IMPLEMENTED: dict[str, Callable] = {"mpm_sph": _mpm_sph, "mpm_pbd": _mpm_pbd, "mpm_fem": _mpm_fem}
 
 
 def make_coupler(scene: Any, solvers: list, warn: Callable[[str], None] | None = None) -> Coupler | None:

@@ -400,7 +400,8 @@ class Coupling(Strict):
         True, description="MPM <-> PBD: contact on the MPM grid (two-way, momentum conserving)."
     )
     mpm_fem: bool = Field(
-        True, description="MPM <-> FEM: not implemented yet (a warning; they do not interact)."
+        True,
+        description="MPM <-> FEM: FEM vertices in a contact on the MPM grid (two-way, momentum conserving).",
     )
     sph_pbd: bool = Field(
         True, description="SPH <-> PBD: not implemented yet (a warning; they do not interact)."
