@@ -20,16 +20,19 @@ SEPARATION x the excess x dx per substep (positions only: the overlap correction
 
 The grid: cell ``dx`` = the coarser set's particle spacing (each node then sees particles of both sets within
 1.5 cells, the B-spline's reach; the two stay about a cell apart), over the scene's domain with two cells of
-margin; one kernel launch per substep (two scatters, a node pass, two gathers, a clear). Nodes on the grid's
-border are never in contact (each family keeps its own walls).
+margin, sparse (pointer blocks of BLOCK^dim nodes allocated where particles splat, freed after each substep:
+memory and the node loops scale with the bodies, not the domain); one kernel launch per substep (two
+scatters, a node pass, two gathers, a clear) and the blocks' release. Nodes on the grid's border are never in
+contact (each family keeps its own walls).
 """
 
 import math
 
-import numpy as np
 import taichi as ti
 
 from simcli.coupling.grid_contact import OVERLAP_TOL, SEPARATION, ParticleSet
+
+BLOCK = 4  # nodes per side of the sparse grid's blocks
 
 
 class ParticleContact:
@@ -57,14 +60,24 @@ class ParticleContact:
         origin = [c - 2.0 * dx for c in self.lo]
         shape = tuple(int(math.ceil((h - l) * inv_dx)) + 5 for l, h in zip(self.lo, self.hi))  # noqa: E741
         self.shape = shape
-        self.ma = ti.field(f, shape=shape)
-        self.mb = ti.field(f, shape=shape)
-        self.pa = ti.Vector.field(dim, f, shape=shape)  # momentum of a, then its velocity change
-        self.pb = ti.Vector.field(dim, f, shape=shape)
+        # sparse: blocks of BLOCK^dim nodes, allocated where a particle splats (a domain much larger than the
+        # bodies costs nothing), every loop over the grid runs over the active blocks only
+        nblk = [int(math.ceil(s / BLOCK)) for s in shape]
+        axes = ti.ij if dim == 2 else ti.ijk
+        self.blocks = ti.root.pointer(axes, nblk)
+        cells = self.blocks.dense(axes, BLOCK)
+        self.ma, self.mb = ti.field(f), ti.field(f)
+        self.pa = ti.Vector.field(dim, f)  # momentum of a, then its velocity change
+        self.pb = ti.Vector.field(dim, f)
+        cells.place(self.ma, self.mb, self.pa, self.pb)
         shifted = {"a": a, "b": b}.get(self.shift) if self.shift else None
         sep = shifted is not None and a.rho is not None and b.rho is not None and shifted.shift_x is not None
-        self.px = ti.Vector.field(dim, f, shape=shape) if sep else None
-        self.bytes = int(np.prod(shape)) * (2 + 2 * dim + (dim if sep else 0)) * (8 if f == ti.f64 else 4)
+        self.px = ti.Vector.field(dim, f) if sep else None
+        if sep:
+            cells.place(self.px)
+        # per active node (the blocks the two sets touch); the full grid's count for the record
+        self.node_bytes = (2 + 2 * dim + (dim if sep else 0)) * (8 if f == ti.f64 else 4)
+        self.bytes = 0  # allocated on the fly per active block: nothing fixed per particle or per domain
         ma, mb, pa, pb, px = self.ma, self.mb, self.pa, self.pb, self.px
         cell = dx**dim
         use_a, use_b = a.rho is not None, b.rho is not None
@@ -225,3 +238,4 @@ class ParticleContact:
 
     def couple(self, dt: float) -> None:
         self._couple(dt)
+        self.blocks.deactivate_all()  # the next substep allocates where the particles are then
