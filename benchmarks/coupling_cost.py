@@ -55,8 +55,10 @@ def main(argv=None) -> int:
     wall = time.perf_counter() - t0
     tot = sum(coupler.times.values())
     counts = {s.family: s.counts() for s in solvers}
-    other = sum(int(c.get("particles", 0)) for f, c in counts.items() if f != "mpm")
-    nodes = int(np.prod(next(s for s in solvers if s.family == "mpm").grid_shape))
+    # the coupled particles of the families other than MPM (FEM: its vertices); a pair without MPM counts both
+    other = sum(int(c.get("particles", c.get("vertices", 0))) for f, c in counts.items() if f != "mpm")
+    mpm = next((s for s in solvers if s.family == "mpm"), None)
+    nodes = int(np.prod(mpm.grid_shape)) if mpm is not None else 0
     mem = coupler.memory_bytes() + nodes * (8 if scene.sim.precision == "f64" else 4)  # + MPM's grid_m
     out = {
         "scene": args.scene,

@@ -49,6 +49,7 @@ class ParticleSet:
     move_x: Any = None  # positions already advanced by vel over dt (PBD): moved by dt du too
     shift_x: Any = None  # positions the overlap correction moves (SPH's before advect, PBD's after)
     count: Any = None  # ti.func () -> the particles in the simulation (emitters, sinks); None: n
+    overlap_tol: Any = None  # the overlap correction's tolerance for this set; None: OVERLAP_TOL
 
 
 # Overlap correction: where the two volume fractions at a node sum to more than 1 + OVERLAP_TOL (the materials
@@ -83,6 +84,7 @@ class GridContact:
         ms, pm, px = self.ms, self.pm, self.px
         shift_x = o.shift_x
         sep_dx = SEPARATION * float(mpm.dx)
+        tol = OVERLAP_TOL if o.overlap_tol is None else float(o.overlap_tol)
         grid_v, grid_m, bbox_all = mpm.grid_v, mpm.grid_m, mpm.bbox_all
         flip = mpm.flip
         use_flip = flip is not None
@@ -157,7 +159,7 @@ class GridContact:
                     if gn > eps:
                         nrm = g / gn
                         if ti.static(sep):
-                            over = vm[I] * inv_cell + M * inv_vo - (1.0 + OVERLAP_TOL)
+                            over = vm[I] * inv_cell + M * inv_vo - (1.0 + tol)
                             if over > 0:
                                 px[I] = (sep_dx * ti.min(over, 1.0)) * nrm
                         v = grid_v[I]

@@ -28,7 +28,29 @@ def _mpm_pbd(mpm, pbd):
     return make_mpm_pbd(mpm, pbd)
 
 
-IMPLEMENTED: dict[str, Callable] = {"mpm_sph": _mpm_sph, "mpm_pbd": _mpm_pbd}
+def _mpm_fem(mpm, fem):
+    from simcli.coupling.mpm_fem import make_mpm_fem
+
+    return make_mpm_fem(mpm, fem)
+
+
+def _particles(key):
+    def make(a, b):
+        from simcli.coupling.particle_pairs import make_particle_pair
+
+        return make_particle_pair(key, a, b)
+
+    return make
+
+
+IMPLEMENTED: dict[str, Callable] = {
+    "mpm_sph": _mpm_sph,
+    "mpm_pbd": _mpm_pbd,
+    "mpm_fem": _mpm_fem,
+    "sph_pbd": _particles("sph_pbd"),
+    "sph_fem": _particles("sph_fem"),
+    "pbd_fem": _particles("pbd_fem"),
+}
 
 
 def make_coupler(scene: Any, solvers: list, warn: Callable[[str], None] | None = None) -> Coupler | None:

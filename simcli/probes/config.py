@@ -10,7 +10,7 @@ A probe is a time series sampled every ``every`` steps (default: output.every):
   spacing through ``position`` (the coordinates along the other axes): the highest particle plus half a
   spacing (``surface: connected``: the highest one connected to the column's bottom without a gap wider than
   the particles' reach, SPH's support radius or three MPM cells; spray left out).
-* ``total``: kinetic_energy [J], elastic_energy [J] (MPM), mass [kg], momentum [kg m/s] or com [m] of one
+* ``total``: kinetic_energy [J], elastic_energy [J] (MPM, FEM), mass [kg], momentum [kg m/s] or com [m] of one
   entity or of every entity (``"*"``).
 """
 
@@ -38,7 +38,7 @@ TOTAL_FAMILIES = {
     "mass": ("MPM", "SPH", "PBD", "FEM"),
     "momentum": ("MPM", "SPH", "PBD", "FEM"),
     "com": ("MPM", "SPH", "PBD", "FEM"),
-    "elastic_energy": ("MPM",),
+    "elastic_energy": ("MPM", "FEM"),
 }
 UNITS = {
     "pressure": "Pa",
@@ -132,7 +132,7 @@ class TotalProbe(_Probe):
     quantity: Literal["kinetic_energy", "elastic_energy", "mass", "momentum", "com"] = Field(
         description="kinetic_energy [J], mass [kg], momentum [kg m/s] (dim components), com (centre "
         "of mass [m], dim "
-        "components) of MPM, SPH, PBD and FEM entities; elastic_energy [J] of MPM entities (per "
+        "components) of MPM, SPH, PBD and FEM entities; elastic_energy [J] of MPM and FEM entities (per "
         "metre of depth "
         "in 2D)."
     )
@@ -321,8 +321,8 @@ def check_probes(scene, err) -> None:
             bad = [e.name for e in all_entities(scene) if e.family != "SF" and not answers(e, p)]
             err(
                 base + ("quantity",),
-                f"elastic_energy is available for MPM entities only, not for {', '.join(bad)}; name "
-                f"an MPM entity "
+                f"elastic_energy is available for MPM and FEM entities only, not for {', '.join(bad)}; "
+                f"name an MPM or FEM entity "
                 "with entity: <name>, or use kinetic_energy",
             )
 

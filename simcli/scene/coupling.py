@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 # implemented pairs (simcli/coupling/phase.py IMPLEMENTED; a test keeps the two in step)
-IMPLEMENTED_PAIRS = ("mpm_sph", "mpm_pbd")
+IMPLEMENTED_PAIRS = ("mpm_sph", "mpm_pbd", "mpm_fem", "sph_pbd", "sph_fem", "pbd_fem")
 
 
 def pair_families(key: str) -> tuple[str, str]:

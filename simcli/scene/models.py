@@ -400,16 +400,23 @@ class Coupling(Strict):
         True, description="MPM <-> PBD: contact on the MPM grid (two-way, momentum conserving)."
     )
     mpm_fem: bool = Field(
-        True, description="MPM <-> FEM: not implemented yet (a warning; they do not interact)."
+        True,
+        description="MPM <-> FEM: FEM vertices in a contact on the MPM grid (two-way, momentum conserving).",
     )
     sph_pbd: bool = Field(
-        True, description="SPH <-> PBD: not implemented yet (a warning; they do not interact)."
+        True,
+        description="SPH <-> PBD: contact on a background grid of the pair's own (two-way, momentum "
+        "conserving).",
     )
     sph_fem: bool = Field(
-        True, description="SPH <-> FEM: not implemented yet (a warning; they do not interact)."
+        True,
+        description="SPH <-> FEM: contact on a background grid of the pair's own (two-way, momentum "
+        "conserving).",
     )
     pbd_fem: bool = Field(
-        True, description="PBD <-> FEM: not implemented yet (a warning; they do not interact)."
+        True,
+        description="PBD <-> FEM: contact on a background grid of the pair's own (two-way, momentum "
+        "conserving).",
     )
 
 

@@ -31,6 +31,7 @@ class _Fake:
     def __init__(self, family):
         self.family = family
         self.store_node_mass = False
+        self.dim = 3
 
 
 def _scene(tmp_path: Path, extra: str = ""):
@@ -59,11 +60,16 @@ def test_single_family_has_no_coupler(tmp_path):
     assert make_coupler(load_scene(_scene(tmp_path)).scene, [_Fake("mpm")]) is None
 
 
-def test_unimplemented_pair_warns_and_is_not_coupled(tmp_path):
-    said = []
-    c = make_coupler(load_scene(_scene(tmp_path)).scene, [_Fake("sph"), _Fake("fem")], said.append)
-    assert c is None
-    assert len(said) == 1 and "coupling.sph_fem" in said[0] and "do not interact" in said[0]
+def test_every_pair_is_implemented_and_none_warns(tmp_path):
+    assert set(IMPLEMENTED) == {k for k, _, _ in PAIRS}
+    scene = load_scene(_scene(tmp_path)).scene
+    for key, a, b in PAIRS:
+        said = []
+        c = make_coupler(scene, [_Fake(a), _Fake(b)], said.append)
+        assert c is not None and c.names == [key], key
+        assert said == []  # "do not interact yet" is gone for every pair
+    off = load_scene(_scene(tmp_path, "coupling: {sph_fem: false}\n")).scene
+    assert make_coupler(off, [_Fake("sph"), _Fake("fem")]) is None  # false: they pass through each other
 
 
 def test_key_for_absent_pair_is_a_warning_with_location(tmp_path):

@@ -32,6 +32,7 @@ OUTPUT_FIELDS = (
     "von_mises_nodal",
     "J_nodal",
     "mass",
+    "elastic_energy",
 )
 
 
@@ -45,7 +46,7 @@ def _active_factor(m) -> float:
 class FEMSolver(Solver):
     family = "fem"
     # per element (cell data in .vtu, sim.h5 and XDMF); the *_nodal fields are volume-weighted vertex means
-    cell_fields = ("von_mises", "J")
+    cell_fields = ("von_mises", "J", "elastic_energy")
 
     def __init__(self, scene: Any, bodies: list[Body], scene_dir=None) -> None:
         super().__init__(scene, bodies)
@@ -258,6 +259,7 @@ class FEMSolver(Solver):
         self.out_J = ti.field(f, shape=n)
         self.el_vm = ti.field(f, shape=m)
         self.el_J = ti.field(f, shape=m)
+        self.el_E = None  # per element elastic energy V psi(F) [J]: allocated when first asked for (probes)
         mm = m if self.has_muscle else 1
         self.el_group_f = ti.field(ti.i32, shape=mm)
         self.el_fiber_f = V3(mm)
@@ -538,6 +540,7 @@ class FEMSolver(Solver):
             "von_mises_nodal": (1, "Pa"),
             "J_nodal": (1, "1"),
             "mass": (1, "kg"),
+            "elastic_energy": (1, "J"),
         }
 
     def entity_arrays(self, name: str, fields: list[str]) -> dict[str, np.ndarray]:
@@ -548,6 +551,9 @@ class FEMSolver(Solver):
             self._outputs()
         tlo, thi = self.toffsets[k], self.toffsets[k + 1]
         for fld in fields:
+            if fld == "elastic_energy":
+                out[fld] = np.array(self._elastic_energy()[tlo:thi])
+                continue
             if fld in self.cell_fields:
                 out[fld] = np.array((self.el_vm if fld == "von_mises" else self.el_J).to_numpy()[tlo:thi])
                 continue
@@ -567,6 +573,23 @@ class FEMSolver(Solver):
                 raise KeyError(f"unknown FEM output field {fld!r}; known: {', '.join(OUTPUT_FIELDS)}")
             out[fld] = np.array(a[lo:hi])
         return out
+
+    def _elastic_energy(self) -> np.ndarray:
+        """Per element the stored energy V_e psi(F_e) [J] of its law at the current positions (FEM.Muscle:
+        with the active fibre energy; Rayleigh damping stores none). Compiled on first use."""
+        if self.el_E is None:
+            self.el_E = ti.field(self.f, shape=self.m)
+            el_E, vol, x, m = self.el_E, self.vol_f, self.x, self.m
+            deformation, law_call = self.deformation, self.law_call
+
+            @ti.kernel
+            def energy():
+                for e in range(m):
+                    el_E[e] = vol[e] * law_call(e, deformation(e, x), "energy")
+
+            self._energy_k = energy
+        self._energy_k()
+        return self.el_E.to_numpy()
 
     def positions(self) -> np.ndarray:
         return self.x.to_numpy().astype(np.float64)
