@@ -98,3 +98,29 @@ def test_overlap_warning_says_coupled_families_push_apart(tmp_path):
     p.write_text(text + "coupling: {mpm_sph: false}\n")
     out = CliRunner().invoke(cli, ["validate", str(p)]).output
     assert "do not interact" in out
+
+
+def test_a_family_no_pair_covers_warns_that_it_passes_through(tmp_path):
+    """FEM.Cloth beside MPM sand: no coupling pair covers FEM.Cloth, so validate says, at the cloth's line,
+    that the two pass through each other (not a silent pass-through)."""
+    p = tmp_path / "cloth_sand.yaml"
+    p.write_text(
+        textwrap.dedent(
+            """\
+            version: 1
+            sim: {dim: 3, dt: 1.0e-2, substeps: auto, duration: 0.02}
+            domain: {lower: [-1, -1, 0], upper: [1, 1, 1.5]}
+            entities:
+              - name: cloth
+                material: {type: FEM.Cloth, E: 1.0e6, nu: 0.3, rho: 400, thickness: 5.0e-4}
+                morph: {type: Rectangle, center: [0, 0, 0.6], size: [1.0, 1.0], resolution: 8}
+              - name: sand
+                material: {type: MPM.Sand, E: 1.0e5, nu: 0.3, rho: 1600}
+                morph: {type: Box, center: [0, 0, 0.1], size: [0.4, 0.4, 0.1]}
+            """
+        )
+    )
+    r = CliRunner().invoke(cli, ["validate", str(p)])
+    assert r.exit_code == 0, r.output
+    line = next(x for x in r.output.splitlines() if "FEM.Cloth" in x)
+    assert line.startswith(f"{p}:5:") and "warning" in line and "MPM" in line and "pass through" in line
