@@ -130,6 +130,7 @@ class ClothSolver(Solver):
         self.g = np.asarray(self.scene.sim.gravity_vec, float)
         self.obst = Obstacles(self.scene)
         self.cm = ipctk.CollisionMesh(X, ipctk.edges(T), T)
+        self.B = ipctk.BarrierPotential(self.dhat, 1.0)  # unit stiffness: kappa multiplies it
         self.bbox = float(np.linalg.norm(np.ptp(X, axis=0))) or 1.0
         self.kappa = None
         self.free_dofs = np.nonzero(np.repeat(~self.fixed, 3))[0]
@@ -328,7 +329,6 @@ class ClothSolver(Solver):
         self.xhat = self.xn + dt * self.v + dt * dt * self.g
         self.xhat[self.fixed] = self.xn[self.fixed]
         if self.kappa is None:
-            self.B = ipctk.BarrierPotential(self.dhat, 1.0)
             # barrier stiffness: the barrier's force at half contact_distance holds ten times the heaviest
             # vertex's weight (at least 1 m/s^2 of acceleration), -kappa b'(d^2) 2 d = 10 m g; doubled later
             # whenever a gap closes below 1 % of contact_distance (IPC's adaptive update, Li et al. 2020)
@@ -491,7 +491,12 @@ class ClothSolver(Solver):
         return out
 
     def get_state(self) -> dict[str, np.ndarray]:
-        return {"x": self.x.copy(), "v": self.v.copy(), "time": np.array([self.time])}
+        # kappa: IPC's adaptive barrier stiffness is state too (doubled when a gap closes below dhat / 100);
+        # a resumed run must continue with it to equal the uninterrupted one bit for bit
+        st = {"x": self.x.copy(), "v": self.v.copy(), "time": np.array([self.time])}
+        if self.kappa is not None:
+            st["kappa"] = np.array([self.kappa, self.kappa_max])
+        return st
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         class _F:
@@ -504,6 +509,9 @@ class ClothSolver(Solver):
         for key in ("x", "v"):
             upload_state_array(_F(self, key), state, key, (self.n, 3), np.float64, "FEM.Cloth")
         self.time = float(np.asarray(state.get("time", [0.0])).reshape(-1)[0])
+        if "kappa" in state:  # absent in checkpoints written before it was saved: set at the next substep
+            k = np.asarray(state["kappa"], dtype=np.float64).reshape(-1)
+            self.kappa, self.kappa_max = float(k[0]), float(k[1])
 
     def counts(self) -> dict[str, int]:
         return {"vertices": self.n, "triangles": len(self.tris)}
