@@ -115,6 +115,8 @@ class ClothSolver(Solver):
             X, T, np.concatenate(mu), np.concatenate(lam), np.concatenate(h), np.concatenate(D)
         )
         self.mass = np.concatenate(mass)
+        self.fext = self._edge_loads(xs, ts, offs)
+        self.fext_any = bool(np.any(self.fext))
         self.fixed = np.concatenate(fixed)
         self.damp = np.concatenate(
             [np.full(offs[k + 1] - offs[k], e.material.damping) for k, e in enumerate(self.entities)]
@@ -143,6 +145,32 @@ class ClothSolver(Solver):
         self._cand = None
         self._lu = None
         self._built = True
+
+    def _edge_loads(self, xs, ts, offs):
+        """Dead loads [N] per vertex from each entity's boundary_conditions tractions: on every free edge
+        (one triangle only) with both ends in the region, traction x |e| x thickness, half to each end."""
+        from simcli.geometry.regions import points_in_shape
+
+        f = np.zeros((offs[-1], 3))
+        for k, e in enumerate(self.entities):
+            if not e.material.boundary_conditions:
+                continue
+            x, t = xs[k], ts[k] - offs[k]
+            he = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+            key = np.sort(he, axis=1)
+            uniq, cnt = np.unique(key, axis=0, return_counts=True)
+            free_edges = uniq[cnt == 1]
+            for bc in e.material.boundary_conditions:
+                inside = points_in_shape(bc.region, x)
+                sel = free_edges[inside[free_edges].all(axis=1)]
+                if len(sel) == 0:
+                    self.warnings.append(f"{e.name}: traction region holds no free edge")
+                    continue
+                le = np.linalg.norm(x[sel[:, 1]] - x[sel[:, 0]], axis=1)
+                fe = (0.5 * le * e.material.thickness)[:, None] * np.asarray(bc.traction, float)[None, :]
+                for a in range(2):
+                    np.add.at(f[offs[k] : offs[k + 1]], sel[:, a], fe)
+        return f
 
     # --------------------------------------------------------- the potential
     def _obstacle_terms(self, x, order, fr):
@@ -196,6 +224,9 @@ class ClothSolver(Solver):
         step = x - self.xn
         e += 0.5 * float(np.sum((self.damp * self.mass)[:, None] * step * step)) / dt
         g = g + (self.damp * self.mass)[:, None] * step / dt
+        if self.fext_any:  # dead loads: potential -f . x
+            e -= float(np.sum(self.fext * x))
+            g = g - self.fext
         ee, ge, He = self.model.energy_grad_hess(x, order)
         e += ee
         g = g + ge
