@@ -152,7 +152,7 @@ def test_free_fall_is_exact_backward_euler(tmp_path):
     for _ in range(5):
         s.substep(0.01)
     # backward Euler: v_k = -g k dt, z_k = z0 - g dt^2 k (k + 1) / 2
-    assert s.v[:, 2] == pytest.approx(-9.81 * 0.05, rel=1e-4)  # PCG stops at pcg_tol = 1e-4
+    assert s.v[:, 2] == pytest.approx(-9.81 * 0.05, rel=1e-4)  # to the Newton tolerance
     assert 0.5 - s.x[:, 2] == pytest.approx(9.81 * 1e-4 * 15, rel=1e-4)
 
 
