@@ -402,7 +402,6 @@ class ClothSolver(Solver):
             rhs = -g.ravel()[fd]
             pf = self._linear_solve(H, rhs)
             self.stats["solve_s"] += time.perf_counter() - t0
-            self.stats["solve_s"] += time.perf_counter() - t0
             p = np.zeros(3 * self.n)
             p[fd] = pf
             p = p.reshape(-1, 3)
