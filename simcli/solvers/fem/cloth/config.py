@@ -4,11 +4,28 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from simcli.scene.material_base import _Solid
+from simcli.scene.morphs import Region
 
 MORPHS = ("Rectangle", "Mesh")
+
+
+class ClothTraction(BaseModel):
+    """A dead-load traction on the sheet's free edges inside a region (FEM solids' boundary_conditions
+    traction, on a shell's edge faces: area = edge length x thickness)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+    region: Region = Field(
+        description="Boundary edges with both vertices inside this region (initial positions) are loaded."
+    )
+    traction: list[float] = Field(
+        min_length=3,
+        max_length=3,
+        description="Dead-load traction [Pa]: force per initial edge-face area (edge length x thickness), "
+        "constant in direction and size; a shear P [N] spread over an end of width b: P / (b thickness).",
+    )
 
 
 class FEMCloth(_Solid):
@@ -40,6 +57,12 @@ class FEMCloth(_Solid):
         0.0,
         ge=0,
         description="Mass-proportional damping [1/s]: force -damping m v on every vertex (implicit).",
+    )
+
+    boundary_conditions: list[ClothTraction] = Field(
+        default_factory=list,
+        description="Edge loads: dead-load tractions on the free edges inside a region (pinned vertices: "
+        "entity.fixed).",
     )
 
     @property

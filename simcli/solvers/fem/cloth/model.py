@@ -176,8 +176,15 @@ class ShellModel:
             dP = dF @ S + F @ dS
             dPdF[:, :, c] = dP.reshape(m, 6)
         dPdF = 0.5 * (dPdF + np.swapaxes(dPdF, 1, 2))
-        lam_e, Q = np.linalg.eigh(dPdF)
-        dPdF = (Q * np.maximum(lam_e, 0.0)[:, None, :]) @ np.swapaxes(Q, 1, 2)
+        # dF : dP = tr(dF^T dF S) + dE : C : dE; the second term is never negative (mu > 0, lambda >= 0)
+        # and the first is not where S is positive semi-definite (smaller eigenvalue of the 2x2 S >= 0):
+        # there dP/dF is already PSD, and only the compressed triangles need the eigen-projection
+        half_tr = 0.5 * (S[:, 0, 0] + S[:, 1, 1])
+        s_min = half_tr - np.hypot(0.5 * (S[:, 0, 0] - S[:, 1, 1]), S[:, 0, 1])
+        comp = np.nonzero(s_min < 0.0)[0]
+        if len(comp):
+            lam_e, Q = np.linalg.eigh(dPdF[comp])
+            dPdF[comp] = (Q * np.maximum(lam_e, 0.0)[:, None, :]) @ np.swapaxes(Q, 1, 2)
         # dF_(ij) / dx_(a,l) = G[a, j] delta_il  ->  (m, 6, 9)
         J = np.zeros((m, 3, 2, 3, 3))
         for i in range(3):

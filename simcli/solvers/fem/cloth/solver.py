@@ -7,7 +7,8 @@ Per substep (dt), with x_n, v_n the start state and x^ = x_n + dt v_n + dt^2 g:
   B: the IPC log barrier on squared distances below dhat = solvers.fem.contact_distance, over the cloth's
      point-triangle and edge-edge pairs (ipctk: broad phase, distances, barrier derivatives, CCD) and over
      (vertex, collider or domain wall) pairs through the obstacle's exact signed distance.
-  Newton: H p = -grad Phi on the free vertices (projected element Hessians, scipy sparse LU); the step
+  Newton: H p = -grad Phi on the free vertices (projected element Hessians; SuperLU factor, reused as a CG
+     preconditioner within the substep, see _linear_solve); the step
      alpha starts at min(1, CCD), CCD: ipctk's additive CCD for the cloth against itself, conservative
      advancement alpha |p_i| <= 0.9 d_i for vertices against obstacles (their distances are 1-Lipschitz),
      then halves until Phi decreases. Every accepted state is therefore intersection-free.
@@ -45,6 +46,7 @@ def _barrier(s, sh):
 
 class ClothSolver(Solver):
     family = "fem_cloth"
+    REUSE_CG_ITERS = 10  # CG iterations with the previous factor before refactoring (a few solves' cost)
     cell_fields = ("strain", "stress")  # per triangle
 
     def __init__(self, scene: Any, bodies: list[Body], scene_dir=None) -> None:
@@ -62,7 +64,15 @@ class ClothSolver(Solver):
             "max_contacts": 0,
         }
         self.stats.update(
-            {"line_search_fail": 0, "ccd_s": 0.0, "solve_s": 0.0, "pcg_capped": 0, "assemble_s": 0.0}
+            {
+                "line_search_fail": 0,
+                "ccd_s": 0.0,
+                "solve_s": 0.0,
+                "pcg_capped": 0,
+                "assemble_s": 0.0,
+                "factorizations": 0,
+                "pcg_reuse_iterations": 0,
+            }
         )
         self.warnings: list[str] = []
         self._built = False
@@ -105,6 +115,8 @@ class ClothSolver(Solver):
             X, T, np.concatenate(mu), np.concatenate(lam), np.concatenate(h), np.concatenate(D)
         )
         self.mass = np.concatenate(mass)
+        self.fext = self._edge_loads(xs, ts, offs)
+        self.fext_any = bool(np.any(self.fext))
         self.fixed = np.concatenate(fixed)
         self.damp = np.concatenate(
             [np.full(offs[k + 1] - offs[k], e.material.damping) for k, e in enumerate(self.entities)]
@@ -120,10 +132,45 @@ class ClothSolver(Solver):
         self.g = np.asarray(self.scene.sim.gravity_vec, float)
         self.obst = Obstacles(self.scene)
         self.cm = ipctk.CollisionMesh(X, ipctk.edges(T), T)
+        self.B = ipctk.BarrierPotential(self.dhat, 1.0)  # unit stiffness: kappa multiplies it
         self.bbox = float(np.linalg.norm(np.ptp(X, axis=0))) or 1.0
         self.kappa = None
         self.free_dofs = np.nonzero(np.repeat(~self.fixed, 3))[0]
+        self._dof_map = np.full(3 * self.n, -1, dtype=np.int64)
+        self._dof_map[self.free_dofs] = np.arange(len(self.free_dofs))
+        self._dof_ii = np.arange(3 * self.n)
+        blk = np.arange(self.n)[:, None, None] * 3
+        self._blk_ii = np.broadcast_to(blk + np.arange(3)[None, :, None], (self.n, 3, 3)).ravel()
+        self._blk_jj = np.broadcast_to(blk + np.arange(3)[None, None, :], (self.n, 3, 3)).ravel()
+        self._cand = None
+        self._lu = None
         self._built = True
+
+    def _edge_loads(self, xs, ts, offs):
+        """Dead loads [N] per vertex from each entity's boundary_conditions tractions: on every free edge
+        (one triangle only) with both ends in the region, traction x |e| x thickness, half to each end."""
+        from simcli.geometry.regions import points_in_shape
+
+        f = np.zeros((offs[-1], 3))
+        for k, e in enumerate(self.entities):
+            if not e.material.boundary_conditions:
+                continue
+            x, t = xs[k], ts[k] - offs[k]
+            he = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+            key = np.sort(he, axis=1)
+            uniq, cnt = np.unique(key, axis=0, return_counts=True)
+            free_edges = uniq[cnt == 1]
+            for bc in e.material.boundary_conditions:
+                inside = points_in_shape(bc.region, x)
+                sel = free_edges[inside[free_edges].all(axis=1)]
+                if len(sel) == 0:
+                    self.warnings.append(f"{e.name}: traction region holds no free edge")
+                    continue
+                le = np.linalg.norm(x[sel[:, 1]] - x[sel[:, 0]], axis=1)
+                fe = (0.5 * le * e.material.thickness)[:, None] * np.asarray(bc.traction, float)[None, :]
+                for a in range(2):
+                    np.add.at(f[offs[k] : offs[k + 1]], sel[:, a], fe)
+        return f
 
     # --------------------------------------------------------- the potential
     def _obstacle_terms(self, x, order, fr):
@@ -177,6 +224,9 @@ class ClothSolver(Solver):
         step = x - self.xn
         e += 0.5 * float(np.sum((self.damp * self.mass)[:, None] * step * step)) / dt
         g = g + (self.damp * self.mass)[:, None] * step / dt
+        if self.fext_any:  # dead loads: potential -f . x
+            e -= float(np.sum(self.fext * x))
+            g = g - self.fext
         ee, ge, He = self.model.energy_grad_hess(x, order)
         e += ee
         g = g + ge
@@ -184,7 +234,10 @@ class ClothSolver(Solver):
         e += eo
         g = g + go
         col = ipctk.NormalCollisions()
-        col.build(self.cm, x, self.dhat)
+        if self._cand is not None:  # the broad phase of this Newton step's swept segment (see substep)
+            col.build(self._cand, self.cm, x, self.dhat)
+        else:
+            col.build(self.cm, x, self.dhat)
         n_self = len(col)
         Hs = None
         if n_self:
@@ -202,23 +255,23 @@ class ClothSolver(Solver):
         if order < 2:
             return e, g, None, n_self + n_obst
         t0 = time.perf_counter()
-        ndof = 3 * self.n
         rows, cols, vals = He
         diag = np.repeat(self.mass / dt**2 + self.damp * self.mass / dt, 3)
-        idx = np.arange(ndof)
-        ii = np.repeat(np.arange(self.n), 9) * 3 + np.tile(np.repeat(np.arange(3), 3), self.n)
-        jj = np.repeat(np.arange(self.n), 9) * 3 + np.tile(np.tile(np.arange(3), 3), self.n)
-        H = sp.coo_matrix(
-            (
-                np.concatenate([vals, diag, Hd.ravel()]),
-                (np.concatenate([rows, idx, ii]), np.concatenate([cols, idx, jj])),
-            ),
-            shape=(ndof, ndof),
-        ).tocsr()
-        if Hs is not None:
-            H = H + Hs
-        if Hf is not None:
-            H = H + Hf
+        parts_r, parts_c, parts_v = [rows, self._dof_ii, self._blk_ii], [cols, self._dof_ii, self._blk_jj], []
+        parts_v += [vals, diag, Hd.ravel()]
+        for Hx in (Hs, Hf):
+            if Hx is not None:
+                Hc = Hx.tocoo()
+                parts_r.append(Hc.row)
+                parts_c.append(Hc.col)
+                parts_v.append(Hc.data)
+        # free dofs only, straight into CSC (duplicates summed by the conversion): the solve's matrix
+        r = self._dof_map[np.concatenate(parts_r)]
+        c = self._dof_map[np.concatenate(parts_c)]
+        v = np.concatenate(parts_v)
+        keep = (r >= 0) & (c >= 0)
+        nf = len(self.free_dofs)
+        H = sp.csc_matrix((v[keep], (r[keep], c[keep])), shape=(nf, nf))
         self.stats["assemble_s"] += time.perf_counter() - t0
         return e, g, H, n_self + n_obst
 
@@ -235,20 +288,71 @@ class ClothSolver(Solver):
         lam = -self.kappa * b1 * 2 * dd  # normal force magnitude [N]
         return i, lam, nrm[k, i], mu[k]
 
+    def _linear_solve(self, H, rhs):
+        """Newton direction from H p = rhs (H: free dofs, CSC, SPD by construction).
+
+        A sparse direct factorisation (SuperLU in symmetric mode, minimum-degree ordering on A^T + A, no
+        pivoting: the projected Hessian is SPD), kept through the substep: later Newton steps first run CG
+        preconditioned by the previous factor (the Hessian changes little between Newton steps), to
+        pcg_tol within REUSE_CG_ITERS iterations, and refactor when that fails. Jacobi-PCG is the fallback
+        if the factorisation fails (it should not: H is SPD)."""
+        import scipy.sparse.linalg as spl
+
+        if self._lu is not None:
+            M = spl.LinearOperator(H.shape, matvec=self._lu.solve, dtype=np.float64)
+            it = [0]
+
+            def count(_):
+                it[0] += 1
+
+            pf, info = spl.cg(
+                H, rhs, M=M, rtol=self.opts.pcg_tol, maxiter=self.REUSE_CG_ITERS, callback=count
+            )
+            self.stats["pcg_reuse_iterations"] += it[0]
+            if info == 0 and np.all(np.isfinite(pf)) and pf @ rhs > 0:
+                return pf
+        try:
+            self._lu = spl.splu(
+                H,
+                permc_spec="MMD_AT_PLUS_A",
+                diag_pivot_thresh=0.0,
+                options={"SymmetricMode": True},
+            )
+            self.stats["factorizations"] += 1
+            pf = self._lu.solve(rhs)
+            if np.all(np.isfinite(pf)) and pf @ rhs > 0:
+                return pf
+        except RuntimeError:  # exactly singular (should not happen: SPD)
+            pass
+        self._lu = None
+        Hr = H.tocsr()
+        dg = np.maximum(Hr.diagonal(), 1e-300)
+        pre = spl.LinearOperator(Hr.shape, matvec=lambda r: r / dg)
+        pf, info = spl.cg(Hr, rhs, M=pre, rtol=self.opts.pcg_tol, maxiter=self.opts.pcg_max_iter)
+        if info != 0:
+            self.stats["pcg_capped"] += 1
+        if not np.all(np.isfinite(pf)) or pf @ rhs <= 0:
+            pf = rhs / dg
+        return pf
+
     def _step_limit(self, x, p):
         """Largest alpha in (0, 1] free of intersections: CCD against itself and obstacles."""
         import ipctk
 
         t0 = time.perf_counter()
         a = min(1.0, self.obst.first_contact(x, p))
+        # one broad phase per Newton step: the segment x -> x + a p, boxes inflated by contact_distance,
+        # serves the CCD below, every line-search trial on it and the next Newton step's collision set
+        # (all their points lie on the segment; pairs within dhat have overlapping inflated boxes)
+        self._cand = ipctk.Candidates()
+        self._cand.build(self.cm, x, x + a * p, self.dhat)
         if a > 0:
-            a = min(a, float(ipctk.compute_collision_free_stepsize(self.cm, x, x + a * p)) * a)
+            a = min(a, float(self._cand.compute_collision_free_stepsize(self.cm, x, x + a * p)) * a)
         self.stats["ccd_s"] += time.perf_counter() - t0
         return a
 
     def substep(self, dt: float) -> None:
         import ipctk
-        import scipy.sparse.linalg as spl
 
         self.dt = dt
         self.xn = self.x.copy()
@@ -256,7 +360,6 @@ class ClothSolver(Solver):
         self.xhat = self.xn + dt * self.v + dt * dt * self.g
         self.xhat[self.fixed] = self.xn[self.fixed]
         if self.kappa is None:
-            self.B = ipctk.BarrierPotential(self.dhat, 1.0)
             # barrier stiffness: the barrier's force at half contact_distance holds ten times the heaviest
             # vertex's weight (at least 1 m/s^2 of acceleration), -kappa b'(d^2) 2 d = 10 m g; doubled later
             # whenever a gap closes below 1 % of contact_distance (IPC's adaptive update, Li et al. 2020)
@@ -279,6 +382,8 @@ class ClothSolver(Solver):
                 self.FP = ipctk.FrictionPotential(EPS_V)
         x = self.xn.copy()
         fd = self.free_dofs
+        self._cand = None  # broad phase and factor live within one substep (checkpoints stay exact)
+        self._lu = None
         res0 = None
         it = 0
         ncontact = 0
@@ -294,15 +399,8 @@ class ClothSolver(Solver):
                 it -= 1
                 break
             t0 = time.perf_counter()
-            Hf = H[fd][:, fd].tocsr()
             rhs = -g.ravel()[fd]
-            dg = np.maximum(Hf.diagonal(), 1e-300)
-            pre = spl.LinearOperator(Hf.shape, matvec=lambda r, dg=dg: r / dg)
-            pf, info = spl.cg(Hf, rhs, M=pre, rtol=self.opts.pcg_tol, maxiter=self.opts.pcg_max_iter)
-            if info != 0:
-                self.stats["pcg_capped"] += 1
-            if not np.all(np.isfinite(pf)) or pf @ rhs <= 0:
-                pf = rhs / dg
+            pf = self._linear_solve(H, rhs)
             self.stats["solve_s"] += time.perf_counter() - t0
             p = np.zeros(3 * self.n)
             p[fd] = pf
@@ -326,6 +424,8 @@ class ClothSolver(Solver):
                 print("    alpha %.3e ccd %.3e |p| %.3e" % (a, a0, float(np.abs(p).max())))
             if float(np.abs(a * p).max()) < 1e-12 * self.bbox:
                 break
+        self._cand = None
+        self._lu = None
         self.v = (x - self.xn) / dt
         self.x = x
         self.time += dt
@@ -421,7 +521,12 @@ class ClothSolver(Solver):
         return out
 
     def get_state(self) -> dict[str, np.ndarray]:
-        return {"x": self.x.copy(), "v": self.v.copy(), "time": np.array([self.time])}
+        # kappa: IPC's adaptive barrier stiffness is state too (doubled when a gap closes below dhat / 100);
+        # a resumed run must continue with it to equal the uninterrupted one bit for bit
+        st = {"x": self.x.copy(), "v": self.v.copy(), "time": np.array([self.time])}
+        if self.kappa is not None:
+            st["kappa"] = np.array([self.kappa, self.kappa_max])
+        return st
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         class _F:
@@ -434,6 +539,9 @@ class ClothSolver(Solver):
         for key in ("x", "v"):
             upload_state_array(_F(self, key), state, key, (self.n, 3), np.float64, "FEM.Cloth")
         self.time = float(np.asarray(state.get("time", [0.0])).reshape(-1)[0])
+        if "kappa" in state:  # absent in checkpoints written before it was saved: set at the next substep
+            k = np.asarray(state["kappa"], dtype=np.float64).reshape(-1)
+            self.kappa, self.kappa_max = float(k[0]), float(k[1])
 
     def counts(self) -> dict[str, int]:
         return {"vertices": self.n, "triangles": len(self.tris)}
@@ -444,7 +552,9 @@ class ClothSolver(Solver):
         s["newton_per_substep"] = s["newton_iterations"] / n
         s["contacts_per_substep"] = s["contacts"] / n
         return {
-            "method": "backward Euler, Newton + Jacobi-PCG, IPC barrier (ipctk) + CCD line search",
+            "method": "backward Euler, Newton + sparse LU (reused as CG preconditioner), IPC barrier (ipctk) "
+            "+ CCD "
+            "line search",
             "bending": "quadratic (flat rest)"
             if self.model.quadratic is not None
             else "discrete-shell hinges",
