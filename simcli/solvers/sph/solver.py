@@ -68,13 +68,13 @@ class SPHSolver(Solver):
     def __init__(self, scene: Any, bodies: list[Body], scene_dir: Any = None) -> None:
         if not bodies:
             raise ValueError("SPHSolver needs at least one body")
-        self.scene_dir = scene_dir  # collider motion files are relative to it
+        # (scene_dir: collider motion files are relative to it; warnings: what the placement below changed)
+        super().__init__(scene, bodies, scene_dir)
         self.time = 0.0  # simulated time at the start of the next substep [s] (moving colliders)
-        self.warnings: list[str] = []
         self.removed: dict[str, dict[str, float]] = {}
         if scene.colliders:
             bodies = self._place_inside_colliders(scene, bodies)
-        super().__init__(scene, bodies)
+            self.bodies = list(bodies)
         self.ti = ti
         self.dim = int(scene.sim.dim)
         self.precision = scene.sim.precision
