@@ -129,6 +129,11 @@ def init_taichi(
         random_seed=0,
         debug=debug,
     )
+    if "TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES" not in os.environ:
+        # Taichi's default cap is 100 MB, trimmed by a quarter (least recently used) whenever a process ends
+        # above it: one family's kernels are 20-50 MB, so a user running scenes of three families found their
+        # kernels recompiled (5-50 s each start-up). 512 MiB keeps them all; the variable overrides it.
+        kwargs["offline_cache_max_size_of_files"] = 512 * 1024 * 1024
     if threads is None:
         env = os.environ.get("SLURM_CPUS_PER_TASK") or os.environ.get("SIMCLI_THREADS")
         env_threads = None

@@ -160,7 +160,9 @@ def test_sigkill_leaves_readable_outputs(tmp_path):
 
 
 def test_sigterm_checkpoint_then_resume_matches_uninterrupted(tmp_path):
-    steps = 60
+    # long enough that the signal, sent after 4 of 101 frames, lands mid-run even with every kernel cached
+    # (60 steps let a warm-cache run reach its last step before the signal was handled)
+    steps = 300
     text = SCENE.replace("steps: 40", f"steps: {steps}").replace("every: 2", "every: 3")
     scene = _scene(tmp_path, text)
     ref = tmp_path / "ref"
