@@ -3,8 +3,8 @@
 Each must either run to the end with finite, bounded results and the invariants that should
 hold (inside the domain, out of the colliders, no energy gained), or stop with exit 70 and
 advice. Never a silent NaN, never a hang. Scenes tagged `# hard: fast` run with `pytest -m hard`
-(CI's own step); `# hard: slow` ones with `pytest -m slow`. A scene that does not pass yet carries a `# known failure:
-why` line (a strict xfail: it turns red once it passes, so the line gets removed).
+(CI's own step); `# hard: slow` ones with `pytest -m slow`. A scene that does not pass yet carries a
+`# known failure: why` line (a strict xfail: it turns red once it passes, so the line gets removed).
 """
 
 from __future__ import annotations
