@@ -17,30 +17,8 @@ import taichi as ti
 
 from simcli.coupling.grid_contact import ParticleSet
 from simcli.coupling.mpm_fem import fem_particle_set
+from simcli.coupling.mpm_sph import sph_particle_set
 from simcli.coupling.particle_contact import ParticleContact
-
-
-def sph_particle_set(sph: Any) -> ParticleSet:
-    x, mass = sph.x, sph.mass
-
-    @ti.func
-    def pos(i):
-        return x[i]
-
-    @ti.func
-    def m(i):
-        return mass[i]
-
-    return ParticleSet(
-        n=sph.n,
-        pos=pos,
-        mass=m,
-        vel=sph.couple_velocity,
-        vel_dim=sph.dim,
-        rho=min(float(mt.rho) for mt in sph.materials),
-        count=sph.count,
-        shift_x=x,
-    )
 
 
 def pbd_particle_set(pbd: Any) -> ParticleSet:
