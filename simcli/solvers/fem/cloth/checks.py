@@ -31,8 +31,13 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
         ]
     for key in ("fixed_velocity", "fixed_motion"):
         if getattr(mat, key) is not None and nreg == 0:
-            return [(("material", key), f"{key} moves the vertices held by `fixed`, but the entity has no "
-                     "`fixed` region: add one or remove it")]
+            return [
+                (
+                    ("material", key),
+                    f"{key} moves the vertices held by `fixed`, but the entity has no "
+                    "`fixed` region: add one or remove it",
+                )
+            ]
     if mat.fixed_motion is not None and len(mat.fixed_motion) not in (1, nreg):
         return [
             (

@@ -1,6 +1,6 @@
-"""Colliders (Plane, Box, Sphere, Cylinder; static or moving) and the domain walls as exact signed distances, in numpy
-(no Taichi: the scene checks use it too). Each obstacle is convex, so its signed distance is a convex
-function of position: ``first_contact`` relies on it."""
+"""Colliders (Plane, Box, Sphere, Cylinder; static or moving) and the domain walls as exact signed
+distances, in numpy (no Taichi: the scene checks use it too). Each obstacle is convex, so its signed
+distance is a convex function of position: ``first_contact`` relies on it."""
 
 from __future__ import annotations
 

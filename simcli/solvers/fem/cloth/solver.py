@@ -580,6 +580,28 @@ class ClothSolver(Solver):
     def stable_dt(self, horizon: float = 0.0) -> float:
         return math.inf
 
+    def runaway_cfl(self) -> float:
+        """The runaway guard's limit in edges per substep: the base limit, or twice what the fastest prescribed
+        motion (a moving collider's surface, moving pins) crosses in a substep when that is more (a sheet
+        carried by it moves as fast, without blowing up: the step is implicit, the contact exact)."""
+        from simcli.motion import sample_times
+
+        base = super().runaway_cfl()
+        if not getattr(self, "dirichlet", False) or not getattr(self, "dt", None):
+            return base
+        if getattr(self, "_vmax", None) is None:
+            t_end = self.scene.sim.n_steps * self.scene.sim.dt
+            reach = float(np.linalg.norm(self.obst.hi - self.obst.lo))  # any point of the domain
+            v = 0.0
+            for m in [*self.obst.motions, *self.pin_motions]:
+                if m is None:
+                    continue
+                for t in sample_times(m, t_end):
+                    P = m.pose(float(t))
+                    v = max(v, float(np.linalg.norm(P.v)) + float(np.linalg.norm(P.w)) * reach)
+            self._vmax = v
+        return max(base, 2.0 * self._vmax * self.dt / self.length_scale())
+
     def length_scale(self) -> float:
         e = self.tris
         return float(np.linalg.norm(self.X[e[:, 1]] - self.X[e[:, 0]], axis=1).mean())
