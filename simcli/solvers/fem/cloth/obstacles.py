@@ -103,6 +103,16 @@ class Obstacles:
                 amin = min(amin, 0.9 * float(a[hit].min()))
         return amin
 
+    def next_key(self, t0: float, t1: float) -> float:
+        """t1, or the first keyframe time of a moving collider inside (t0, t1) (a kink of its path)."""
+        out = t1
+        for m in self.motions:
+            if m is not None and m.times is not None:
+                k = m.times[(m.times > t0 * (1 + 1e-12) + 1e-15) & (m.times < t1)]
+                if len(k):
+                    out = min(out, float(k.min()))
+        return out
+
     def _one(self, k: int, x: np.ndarray):
         """Signed distance and outward normal of obstacle k in its body frame."""
         if k < 6:

@@ -477,11 +477,14 @@ class ClothSolver(Solver):
             # prescribed motion still to make in this step: pinned vertices' and moving colliders'
             pc = pin_to - x[self.pin_idx] if pin_to is not None else None
             pending = pc is not None and bool(np.any(pc))
-            dtau = 0.0
+            dtau, tau_to = 0.0, tau
             if tau is not None and tau < t_end:
-                dtau = t_end - tau
+                # to t_end, or to the next keyframe before it: the colliders' motion over one Newton step
+                # stays one straight piece, as the CCD takes it
+                tau_to = self.obst.next_key(tau, t_end)
+                dtau = tau_to - tau
                 pending = True
-            self._tau_to = t_end if dtau > 0 else None
+            self._tau_to = tau_to if dtau > 0 else None
             e, g, H, ncontact = self._potential(x, 2, tau)
             r = g[free] / self.mass[free, None]
             res = float(np.abs(r).max()) if r.size else 0.0
@@ -508,14 +511,21 @@ class ClothSolver(Solver):
             p.ravel()[fd] = pf
             if not pending and float(np.abs(pf).max(initial=0.0)) <= self.opts.newton_atol * dt * dt:
                 break  # the Newton step's acceleration |p| / dt^2 is below newton_atol: converged
-            a = a0 = self._step_limit(x, p, tau, t_end if dtau > 0 else tau)
+            a = a0 = self._step_limit(x, p, tau, tau_to)
             ok = False
             if pending:
                 # the prescribed motion raises the energy as it may: the step goes as far as the continuous
                 # collision check lets it (every state stays intersection-free); the next Newton steps
-                # minimise over the free vertices again
-                ok = a > 0
-                xt = x + a * p
+                # minimise over the free vertices again. A rotating collider's true pose within the step
+                # is not the straight body-frame path the CCD took: the trial state is checked exactly
+                for _ in range(40):
+                    xt = x + a * p
+                    if a <= 0:
+                        break
+                    if dtau == 0 or float(self.obst.distances(xt, tau + a * dtau)[0].min()) > 0:
+                        ok = True
+                        break
+                    a *= 0.5
             else:
                 for _ in range(40):
                     xt = x + a * p
@@ -529,7 +539,7 @@ class ClothSolver(Solver):
                 break
             x = xt
             if dtau > 0:
-                tau = t_end if a >= 1.0 else tau + a * dtau
+                tau = tau_to if a >= 1.0 else tau + a * dtau
             if _DEBUG:
                 print("    alpha %.3e ccd %.3e |p| %.3e" % (a, a0, float(np.abs(p).max())))
             if not pending and float(np.abs(a * p).max()) < 1e-12 * self.bbox:
@@ -581,9 +591,9 @@ class ClothSolver(Solver):
         return math.inf
 
     def runaway_cfl(self) -> float:
-        """The runaway guard's limit in edges per substep: the base limit, or twice what the fastest prescribed
-        motion (a moving collider's surface, moving pins) crosses in a substep when that is more (a sheet
-        carried by it moves as fast, without blowing up: the step is implicit, the contact exact)."""
+        """The runaway guard's limit in edges per substep: the base limit, or twice what the fastest
+        prescribed motion (a moving collider's surface, moving pins) crosses in a substep when that is more
+        (a sheet carried by it moves as fast, without blowing up: the step is implicit, the contact exact)."""
         from simcli.motion import sample_times
 
         base = super().runaway_cfl()
