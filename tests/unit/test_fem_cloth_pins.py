@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -159,3 +160,18 @@ def test_bad_pin_motion_exits_65(tmp_path):
         [sys.executable, "-m", "simcli", "validate", str(p)], capture_output=True, text=True, timeout=120
     )
     assert r.returncode == 65 and "3 motions for 2 fixed" in r.stderr and "cloth.yaml:" in r.stderr, r.stderr
+
+
+def test_a_mesh_collider_is_refused_with_location(tmp_path):
+    """FEM.Cloth meets the colliders it has exact distances for; a Mesh one was a traceback before."""
+    from simcli.errors import SceneError
+    from simcli.scene.loader import load_scene
+
+    col = "colliders:\n  - {type: Mesh, file: cube.obj, scale: 0.05, translate: [0, 0, -0.3]}"
+    (tmp_path / "cube.obj").write_text(
+        (Path(__file__).parents[2] / "configs" / "meshes" / "cube.obj").read_text()
+    )
+    with pytest.raises(SceneError) as ei:
+        load_scene(_scene(tmp_path, col=col))
+    msg = str(ei.value)
+    assert "colliders.0 is a Mesh" in msg and "cloth.yaml:" in msg, msg

@@ -19,6 +19,19 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
         ]
     if m.type == "Rectangle" and len(m.center) != 3:
         return [(("morph", "center"), f"expected 3 components for dim 3 (got {len(m.center)})")]
+    bad = [
+        (i, c.type)
+        for i, c in enumerate(scene.colliders)
+        if c.type not in ("Plane", "Box", "Sphere", "Cylinder")
+    ]
+    if bad:
+        return [
+            (
+                ("material", "type"),
+                f"FEM.Cloth meets Plane, Box, Sphere and Cylinder colliders (exact signed distances); "
+                f"colliders.{bad[0][0]} is a {bad[0][1]}: replace it by those shapes or use PBD.Cloth",
+            )
+        ]
     mat = e.material
     nreg = len(e.fixed_regions)
     if mat.fixed_velocity is not None and mat.fixed_motion is not None:
