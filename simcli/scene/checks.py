@@ -364,4 +364,4 @@ def _check_collider_motion(loaded, ok_dom: bool, err) -> None:
                 break
 
 
-MOVING_COLLIDER_FAMILIES = {"MPM", "PBD", "FEM", "SPH", "SF"}
+MOVING_COLLIDER_FAMILIES = {"MPM", "PBD", "FEM", "SPH", "SF", "FEMCloth"}

@@ -19,13 +19,44 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
         ]
     if m.type == "Rectangle" and len(m.center) != 3:
         return [(("morph", "center"), f"expected 3 components for dim 3 (got {len(m.center)})")]
-    moving = [i for i, c in enumerate(scene.colliders) if getattr(c, "motion", None) is not None]
-    if moving:
+    bad = [
+        (i, c.type)
+        for i, c in enumerate(scene.colliders)
+        if c.type not in ("Plane", "Box", "Sphere", "Cylinder")
+    ]
+    if bad:
         return [
             (
                 ("material", "type"),
-                f"FEM.Cloth meets static colliders only; colliders.{moving[0]} moves (motion): remove its "
-                "motion or use PBD.Cloth",
+                f"FEM.Cloth meets Plane, Box, Sphere and Cylinder colliders (exact signed distances); "
+                f"colliders.{bad[0][0]} is a {bad[0][1]}: replace it by those shapes or use PBD.Cloth",
+            )
+        ]
+    mat = e.material
+    nreg = len(e.fixed_regions)
+    if mat.fixed_velocity is not None and mat.fixed_motion is not None:
+        return [
+            (
+                ("material", "fixed_motion"),
+                "give fixed_velocity (one translation for every fixed region) or fixed_motion (one motion "
+                "per region), not both",
+            )
+        ]
+    for key in ("fixed_velocity", "fixed_motion"):
+        if getattr(mat, key) is not None and nreg == 0:
+            return [
+                (
+                    ("material", key),
+                    f"{key} moves the vertices held by `fixed`, but the entity has no "
+                    "`fixed` region: add one or remove it",
+                )
+            ]
+    if mat.fixed_motion is not None and len(mat.fixed_motion) not in (1, nreg):
+        return [
+            (
+                ("material", "fixed_motion"),
+                f"fixed_motion has {len(mat.fixed_motion)} motions for {nreg} fixed region(s): give one per "
+                "region (in the order of `fixed`) or one for all",
             )
         ]
     from simcli.solvers.fem.cloth.model import mesh_problems

@@ -28,6 +28,33 @@ class ClothTraction(BaseModel):
     )
 
 
+class PinMotion(BaseModel):
+    """A prescribed rigid motion of the vertices held by one `fixed` region (constant velocities, as a
+    collider's constant `motion`): x(t) = R(w t) (x0 - pivot) + pivot + linear_velocity t."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+    linear_velocity: list[float] = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0],
+        min_length=3,
+        max_length=3,
+        description="Velocity [m/s] of the pivot.",
+    )
+    angular_velocity: list[float] = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0],
+        min_length=3,
+        max_length=3,
+        description="Angular velocity [rad/s] about the pivot (e.g. [3.14, 0, 0]: half a turn a second "
+        "about x).",
+    )
+    pivot: list[float] | None = Field(
+        None,
+        min_length=3,
+        max_length=3,
+        description="Point the rotation is about at t = 0 [m]; default the centre of the region's held "
+        "vertices.",
+    )
+
+
 class FEMCloth(_Solid):
     """Thin shell on a triangle mesh: StVK membrane in plane stress and discrete-shell bending (Grinspun
     et al. 2003) with the rest mesh's dihedral angles; backward Euler, IPC contact."""
@@ -57,6 +84,21 @@ class FEMCloth(_Solid):
         0.0,
         ge=0,
         description="Mass-proportional damping [1/s]: force -damping m v on every vertex (implicit).",
+    )
+
+    fixed_velocity: list[float] | None = Field(
+        None,
+        min_length=3,
+        max_length=3,
+        description="Velocity [m/s] of the vertices held by `fixed` (as PBD): they move on the path x0 + "
+        "fixed_velocity t instead of staying put (default: pinned).",
+    )
+    fixed_motion: list[PinMotion] | None = Field(
+        None,
+        min_length=1,
+        description="One rigid motion per `fixed` region, in order (or one for all): the held vertices "
+        "follow it (e.g. two edges twisted in opposite senses). Prescribed positions are Dirichlet degrees "
+        "of freedom of the implicit step; the continuous collision check limits their motion as the rest.",
     )
 
     boundary_conditions: list[ClothTraction] = Field(

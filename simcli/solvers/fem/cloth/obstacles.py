@@ -1,6 +1,6 @@
-"""Colliders (static Plane, Box, Sphere, Cylinder) and the domain walls as exact signed distances, in numpy
-(no Taichi: the scene checks use it too). Each obstacle is convex, so its signed distance is a convex
-function of position: ``first_contact`` relies on it."""
+"""Colliders (Plane, Box, Sphere, Cylinder; static or moving) and the domain walls as exact signed
+distances, in numpy (no Taichi: the scene checks use it too). Each obstacle is convex, so its signed
+distance is a convex function of position: ``first_contact`` relies on it."""
 
 from __future__ import annotations
 
@@ -42,10 +42,17 @@ def _spec(c) -> Spec:
 
 
 class Obstacles:
-    """Colliders (Plane, Box, Sphere, Cylinder; static) and the domain walls as exact signed distances."""
+    """Colliders (Plane, Box, Sphere, Cylinder; static or moving on a prescribed rigid motion) and the domain
+    walls as exact signed distances. A moving collider's distance at time t is its static shape's in its
+    body frame, pose(t).to_body(x); within a step the cloth's motion relative to it is taken as linear in
+    that frame (exact for translations), which is what ``first_contact`` checks."""
 
-    def __init__(self, scene):
+    def __init__(self, scene, scene_dir=None):
+        from simcli.motion import collider_motion
+
         self.specs = [_spec(c) for c in scene.colliders]
+        self.motions = [collider_motion(c, 3, scene_dir) for c in scene.colliders]
+        self.moving = any(m is not None for m in self.motions)
         lo, hi = scene.domain.bounds(3)
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
         self.wall_mu = []
@@ -53,18 +60,31 @@ class Obstacles:
             for side in ("-", "+"):
                 self.wall_mu.append(float(scene.domain.face("xyz"[axis] + side).friction))
 
-    def first_contact(self, x: np.ndarray, p: np.ndarray, iters: int = 8) -> float:
-        """A step alpha (<= 1) below the first time any vertex x_i + alpha p_i touches an obstacle, times 0.9.
-        Every obstacle's signed distance is convex (convex shapes), so along a ray f(alpha) lies above its
-        tangents: Newton iterations from alpha = 0 increase monotonically towards the first root without
-        passing it (and a ray with f' >= 0 never reaches it)."""
-        alpha = np.zeros(len(x))
-        done = np.zeros(len(x), bool)
+    def _pose(self, k: int, t: float | None):
+        """The pose of obstacle k (>= 6: a collider) at time t, or None (static, or a wall)."""
+        if k < 6 or t is None:
+            return None
+        m = self.motions[k - 6]
+        return None if m is None else m.pose(t)
+
+    def first_contact(self, x: np.ndarray, p: np.ndarray, iters: int = 8, t0=None, t1=None) -> float:
+        """A step alpha (<= 1) below the first time any vertex x_i + alpha p_i touches an obstacle, times 0.9,
+        with moving obstacles going from their pose at t0 to that at t1 meanwhile (the relative motion linear
+        in each obstacle's body frame). Every obstacle's signed distance is convex (convex shapes), so along
+        a ray f(alpha) lies above its tangents: Newton iterations from alpha = 0 increase monotonically
+        towards the first root without passing it (and a ray with f' >= 0 never reaches it)."""
         amin = 1.0
-        d0, n0, _ = self.distances(x)
-        for k in range(d0.shape[0]):
+        for k in range(6 + len(self.specs)):
+            P0, P1 = self._pose(k, t0), self._pose(k, t1)
+            if P0 is None:
+                y, q = x, p
+            else:  # body-frame points at the start and the end of the step
+                y = P0.to_body(x)
+                q = P1.to_body(x + p) - y
             a = np.zeros(len(x))
-            f, slope = d0[k], np.einsum("ij,ij->i", n0[k], p)
+            f, nk = self._one(k, y)
+            slope0 = np.einsum("ij,ij->i", nk, q)
+            slope = slope0
             live = slope < 0
             for _ in range(iters):
                 if not live.any():
@@ -72,19 +92,29 @@ class Obstacles:
                 a = np.where(live, a + f / np.where(live, -slope, 1.0), a)
                 beyond = a >= 1.0 / 0.9
                 live &= ~beyond
-                dk, nk = self._one(k, x + a[:, None] * p)
-                f, slope = dk, np.einsum("ij,ij->i", nk, p)
+                dk, nk = self._one(k, y + a[:, None] * q)
+                f, slope = dk, np.einsum("ij,ij->i", nk, q)
                 live &= slope < 0
                 # f ~ 0: converged on a touching ray; keep a (left of the root)
                 live &= f > 1e-12
-            hit = (a < 1.0 / 0.9) & (np.einsum("ij,ij->i", n0[k], p) < 0)
+            hit = (a < 1.0 / 0.9) & (slope0 < 0)
             # rays still decreasing after the iterations: a is a lower bound of their root (safe)
             if hit.any():
                 amin = min(amin, 0.9 * float(a[hit].min()))
-        del alpha, done
         return amin
 
+    def next_key(self, t0: float, t1: float) -> float:
+        """t1, or the first keyframe time of a moving collider inside (t0, t1) (a kink of its path)."""
+        out = t1
+        for m in self.motions:
+            if m is not None and m.times is not None:
+                k = m.times[(m.times > t0 * (1 + 1e-12) + 1e-15) & (m.times < t1)]
+                if len(k):
+                    out = min(out, float(k.min()))
+        return out
+
     def _one(self, k: int, x: np.ndarray):
+        """Signed distance and outward normal of obstacle k in its body frame."""
         if k < 6:
             axis, side = divmod(k, 2)
             n = np.zeros((len(x), 3))
@@ -93,8 +123,19 @@ class Obstacles:
             return d, n
         return _sdf(self.specs[k - 6], x)
 
-    def distances(self, x: np.ndarray):
-        """(k, n) signed distances, (k, n, 3) outward unit normals and (k,) friction of every obstacle."""
+    def surface_displacement(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
+        """(k, n, 3): how far the material point of each obstacle at x moves from t0 to t1 (0 for static
+        ones and walls)."""
+        u = np.zeros((6 + len(self.specs), len(x), 3))
+        for k in range(6, 6 + len(self.specs)):
+            P0, P1 = self._pose(k, t0), self._pose(k, t1)
+            if P0 is not None:
+                u[k] = P1.to_world(P0.to_body(x)) - x
+        return u
+
+    def distances(self, x: np.ndarray, t: float | None = None):
+        """(k, n) signed distances, (k, n, 3) outward unit normals and (k,) friction of every obstacle (moving
+        ones at their pose at time t; t None: at t = 0)."""
         ds, ns, mus = [], [], []
         for axis in range(3):
             for side in (-1, 1):
@@ -104,8 +145,13 @@ class Obstacles:
                 ds.append(d)
                 ns.append(n)
         mus += self.wall_mu
-        for c in self.specs:
-            d, n = _sdf(c, x)
+        for k, c in enumerate(self.specs):
+            P = self._pose(k + 6, t)
+            if P is None:
+                d, n = _sdf(c, x)
+            else:
+                d, n = _sdf(c, P.to_body(x))
+                n = n @ P.R.T
             ds.append(d)
             ns.append(n)
             mus.append(float(c.friction))

@@ -118,6 +118,7 @@ class ClothSolver(Solver):
         self.fext = self._edge_loads(xs, ts, offs)
         self.fext_any = bool(np.any(self.fext))
         self.fixed = np.concatenate(fixed)
+        self._build_pins(xs, offs)
         self.damp = np.concatenate(
             [np.full(offs[k + 1] - offs[k], e.material.damping) for k, e in enumerate(self.entities)]
         )
@@ -129,8 +130,15 @@ class ClothSolver(Solver):
             if e.velocity is not None:
                 self.v[offs[k] : offs[k + 1]] = np.asarray(e.velocity, float)
         self.v[self.fixed] = 0.0
+        if self.moving_pins:
+            self.v[self.pin_idx] = self._pin_velocity(0.0)
         self.g = np.asarray(self.scene.sim.gravity_vec, float)
-        self.obst = Obstacles(self.scene)
+        self.obst = Obstacles(self.scene, self.scene_dir)
+        # Dirichlet steps: prescribed motion (moving pins, moving colliders) is part of each Newton step
+        self.dirichlet = self.moving_pins or self.obst.moving
+        self.tau = 0.0  # the time moving colliders are at (lags self.time only while a contact blocks them)
+        self._tau_to = None
+        self._Hc = None
         self.cm = ipctk.CollisionMesh(X, ipctk.edges(T), T)
         self.B = ipctk.BarrierPotential(self.dhat, 1.0)  # unit stiffness: kappa multiplies it
         self.bbox = float(np.linalg.norm(np.ptp(X, axis=0))) or 1.0
@@ -145,6 +153,62 @@ class ClothSolver(Solver):
         self._cand = None
         self._lu = None
         self._built = True
+
+    def _build_pins(self, xs, offs):
+        """Prescribed motion of the fixed vertices (material.fixed_velocity or fixed_motion, per region):
+        pin_idx (the moving ones), their rest positions and one simcli.motion.Motion each region."""
+        from simcli.geometry.regions import points_in_shape
+        from simcli.motion import Motion
+
+        idx, mot = [], []
+        motions = []
+        for k, e in enumerate(self.entities):
+            mat = e.material
+            fm = list(mat.fixed_motion or [])
+            if mat.fixed_velocity is not None:
+                fm = [None]  # one translation for every region
+            if not fm or not e.fixed_regions:
+                continue
+            x = xs[k]
+            taken = np.zeros(len(x), bool)
+            for j, r in enumerate(e.fixed_regions):
+                held = points_in_shape(r, x) & ~taken
+                taken |= held
+                if not held.any():
+                    continue
+                spec = fm[j] if len(fm) > 1 else fm[0]
+                if spec is None:
+                    v, w, piv = np.asarray(mat.fixed_velocity, float), np.zeros(3), np.zeros(3)
+                else:
+                    v, w = np.asarray(spec.linear_velocity, float), np.asarray(spec.angular_velocity, float)
+                    piv = x[held].mean(axis=0) if spec.pivot is None else np.asarray(spec.pivot, float)
+                if not (np.any(v) or np.any(w)):
+                    continue
+                motions.append(Motion(3, piv, None, None, None, v=v, w=w))
+                ii = np.nonzero(held)[0] + offs[k]
+                idx.append(ii)
+                mot.append(np.full(len(ii), len(motions) - 1))
+        self.moving_pins = bool(idx)
+        self.pin_idx = np.concatenate(idx) if idx else np.zeros(0, np.int64)
+        self.pin_motion = np.concatenate(mot) if mot else np.zeros(0, np.int64)
+        self.pin_motions = motions
+        self.pin_rest = self.X[self.pin_idx].copy() if idx else np.zeros((0, 3))
+
+    def _pin_target(self, t: float) -> np.ndarray:
+        """Prescribed positions of the moving pinned vertices at time t."""
+        out = np.empty_like(self.pin_rest)
+        for j, m in enumerate(self.pin_motions):
+            sel = self.pin_motion == j
+            out[sel] = m.pose(t).to_world(self.pin_rest[sel])
+        return out
+
+    def _pin_velocity(self, t: float) -> np.ndarray:
+        out = np.empty_like(self.pin_rest)
+        for j, m in enumerate(self.pin_motions):
+            sel = self.pin_motion == j
+            P = m.pose(t)
+            out[sel] = P.velocity_at(P.to_world(self.pin_rest[sel]))
+        return out
 
     def _edge_loads(self, xs, ts, offs):
         """Dead loads [N] per vertex from each entity's boundary_conditions tractions: on every free edge
@@ -173,10 +237,15 @@ class ClothSolver(Solver):
         return f
 
     # --------------------------------------------------------- the potential
-    def _obstacle_terms(self, x, order, fr):
-        """Barrier (and friction from the lagged data fr) of vertices against obstacles."""
+    def _obstacle_terms(self, x, order, fr, tau=None):
+        """Barrier (and friction from the lagged data fr) of vertices against obstacles (moving ones at time
+        tau). With a Dirichlet step pending (self._tau_to), also the Newton system's coupling to the moving
+        obstacles' remaining motion: self._obst_cross = sum over active pairs of H_pair u (u: the obstacle's
+        surface displacement at the vertex from tau to _tau_to)."""
         sh = self.dhat**2
-        d, nrm, _ = self.obst.distances(x)
+        if order >= 2:
+            self._obst_cross = None
+        d, nrm, _ = self.obst.distances(x, tau)
         act = d < self.dhat
         e = 0.0
         g = np.zeros_like(x)
@@ -192,9 +261,13 @@ class ClothSolver(Solver):
             if order >= 2:
                 c = np.maximum(self.kappa * (4 * dd**2 * b2 + 2 * b1), 0.0)
                 np.add.at(Hd, i, c[:, None, None] * nn[:, :, None] * nn[:, None, :])
+                if self._tau_to is not None and self.obst.moving:
+                    u = self.obst.surface_displacement(x, tau, self._tau_to)[k, i]
+                    self._obst_cross = np.zeros_like(x)
+                    np.add.at(self._obst_cross, i, (c * np.einsum("ij,ij->i", nn, u))[:, None] * nn)
         if fr is not None:
-            i, lam, nn, mu = fr
-            u = x[i] - self.xn[i]
+            i, lam, nn, mu, uo = fr
+            u = x[i] - self.xn[i] - uo  # relative to the obstacle's surface
             uT = u - np.einsum("ij,ij->i", u, nn)[:, None] * nn
             y = np.linalg.norm(uT, axis=1)
             eps = EPS_V * self.dt
@@ -212,7 +285,7 @@ class ClothSolver(Solver):
                 )
         return e, g, Hd, n_act
 
-    def _potential(self, x, order=2):
+    def _potential(self, x, order=2, tau=None):
         import ipctk
         import scipy.sparse as sp
 
@@ -230,7 +303,7 @@ class ClothSolver(Solver):
         ee, ge, He = self.model.energy_grad_hess(x, order)
         e += ee
         g = g + ge
-        eo, go, Hd, n_obst = self._obstacle_terms(x, order, self._fric)
+        eo, go, Hd, n_obst = self._obstacle_terms(x, order, self._fric, tau)
         e += eo
         g = g + go
         col = ipctk.NormalCollisions()
@@ -270,15 +343,18 @@ class ClothSolver(Solver):
         c = self._dof_map[np.concatenate(parts_c)]
         v = np.concatenate(parts_v)
         keep = (r >= 0) & (c >= 0)
+        if self.dirichlet:  # the free rows' coupling to prescribed dofs: H_fc (for H_fc p_c in the rhs)
+            kc = (r >= 0) & (c < 0)
+            self._Hc = (r[kc], np.concatenate(parts_c)[kc], v[kc])
         nf = len(self.free_dofs)
         H = sp.csc_matrix((v[keep], (r[keep], c[keep])), shape=(nf, nf))
         self.stats["assemble_s"] += time.perf_counter() - t0
         return e, g, H, n_self + n_obst
 
-    def _lagged_friction(self, x):
+    def _lagged_friction(self, x, tau=None, tau_end=None):
         if self.kappa is None:
             return None
-        d, nrm, mu = self.obst.distances(x)
+        d, nrm, mu = self.obst.distances(x, tau)
         act = (d < self.dhat) & (mu[:, None] > 0)
         if not act.any():
             return None
@@ -286,7 +362,10 @@ class ClothSolver(Solver):
         dd = np.maximum(d[k, i], 1e-300)
         _, b1, _ = _barrier(dd**2, self.dhat**2)
         lam = -self.kappa * b1 * 2 * dd  # normal force magnitude [N]
-        return i, lam, nrm[k, i], mu[k]
+        uo = np.zeros((len(i), 3))
+        if self.obst.moving and tau_end is not None:  # the surface's own motion over the step
+            uo = self.obst.surface_displacement(x, tau, tau_end)[k, i]
+        return i, lam, nrm[k, i], mu[k], uo
 
     def _linear_solve(self, H, rhs):
         """Newton direction from H p = rhs (H: free dofs, CSC, SPD by construction).
@@ -335,12 +414,13 @@ class ClothSolver(Solver):
             pf = rhs / dg
         return pf
 
-    def _step_limit(self, x, p):
-        """Largest alpha in (0, 1] free of intersections: CCD against itself and obstacles."""
+    def _step_limit(self, x, p, tau=None, tau_to=None):
+        """Largest alpha in (0, 1] free of intersections: CCD against itself and obstacles (moving ones going
+        from their pose at tau to that at tau_to over the step)."""
         import ipctk
 
         t0 = time.perf_counter()
-        a = min(1.0, self.obst.first_contact(x, p))
+        a = min(1.0, self.obst.first_contact(x, p, t0=tau, t1=tau_to))
         # one broad phase per Newton step: the segment x -> x + a p, boxes inflated by contact_distance,
         # serves the CCD below, every line-search trial on it and the next Newton step's collision set
         # (all their points lie on the segment; pairs within dhat have overlapping inflated boxes)
@@ -359,6 +439,12 @@ class ClothSolver(Solver):
         free = ~self.fixed
         self.xhat = self.xn + dt * self.v + dt * dt * self.g
         self.xhat[self.fixed] = self.xn[self.fixed]
+        t_end = self.time + dt
+        tau = self.tau if self.obst.moving else None  # moving colliders' time at the iterate
+        pin_to = None
+        if self.moving_pins:  # Dirichlet: the pinned vertices' prescribed positions at the step's end
+            pin_to = self._pin_target(t_end)
+            self.xhat[self.pin_idx] = pin_to
         if self.kappa is None:
             # barrier stiffness: the barrier's force at half contact_distance holds ten times the heaviest
             # vertex's weight (at least 1 m/s^2 of acceleration), -kappa b'(d^2) 2 d = 10 m g; doubled later
@@ -369,7 +455,7 @@ class ClothSolver(Solver):
             self.kappa = load / (-float(b1[0]) * 2 * d)
             self.kappa_max = 1e8 * self.kappa
         self._fric = None
-        self._fric = self._lagged_friction(self.xn)
+        self._fric = self._lagged_friction(self.xn, tau, t_end if tau is not None else None)
         self._tc = None
         if self.mu_self > 0:  # self-contact friction, normal forces and bases lagged at x_n
             col = ipctk.NormalCollisions()
@@ -388,48 +474,88 @@ class ClothSolver(Solver):
         it = 0
         ncontact = 0
         for it in range(1, self.opts.newton_max_iter + 1):
-            e, g, H, ncontact = self._potential(x, 2)
+            # prescribed motion still to make in this step: pinned vertices' and moving colliders'
+            pc = pin_to - x[self.pin_idx] if pin_to is not None else None
+            pending = pc is not None and bool(np.any(pc))
+            dtau, tau_to = 0.0, tau
+            if tau is not None and tau < t_end:
+                # to t_end, or to the next keyframe before it: the colliders' motion over one Newton step
+                # stays one straight piece, as the CCD takes it
+                tau_to = self.obst.next_key(tau, t_end)
+                dtau = tau_to - tau
+                pending = True
+            self._tau_to = tau_to if dtau > 0 else None
+            e, g, H, ncontact = self._potential(x, 2, tau)
             r = g[free] / self.mass[free, None]
             res = float(np.abs(r).max()) if r.size else 0.0
             if res0 is None:
                 res0 = res
             if _DEBUG:
-                print("  it", it, "res %.3e" % res, "e %.6e" % e, "nc", ncontact)
-            if res <= self.opts.newton_atol or res <= self.opts.newton_tol * res0:
+                print("  it", it, "res %.3e" % res, "e %.6e" % e, "nc", ncontact, "pending", pending)
+            if not pending and (res <= self.opts.newton_atol or res <= self.opts.newton_tol * res0):
                 it -= 1
                 break
             t0 = time.perf_counter()
             rhs = -g.ravel()[fd]
+            p = np.zeros((self.n, 3))
+            if pending:
+                # Dirichlet step: H_ff p_f = -g_f - H_fc p_c (+ the moving obstacles' coupling)
+                if pc is not None:
+                    p[self.pin_idx] = pc
+                    ri, cj, hv = self._Hc
+                    rhs = rhs - np.bincount(ri, weights=hv * p.ravel()[cj], minlength=len(fd))
+                if dtau > 0 and self._obst_cross is not None:
+                    rhs = rhs + self._obst_cross.ravel()[fd]
             pf = self._linear_solve(H, rhs)
             self.stats["solve_s"] += time.perf_counter() - t0
-            p = np.zeros(3 * self.n)
-            p[fd] = pf
-            p = p.reshape(-1, 3)
-            if float(np.abs(pf).max(initial=0.0)) <= self.opts.newton_atol * dt * dt:
+            p.ravel()[fd] = pf
+            if not pending and float(np.abs(pf).max(initial=0.0)) <= self.opts.newton_atol * dt * dt:
                 break  # the Newton step's acceleration |p| / dt^2 is below newton_atol: converged
-            a = a0 = self._step_limit(x, p)
+            a = a0 = self._step_limit(x, p, tau, tau_to)
             ok = False
-            for _ in range(40):
-                xt = x + a * p
-                et = self._potential(xt, 1)[0]
-                if et <= e:
-                    ok = True
-                    break
-                a *= 0.5
+            if pending:
+                # the prescribed motion raises the energy as it may: the step goes as far as the continuous
+                # collision check lets it (every state stays intersection-free); the next Newton steps
+                # minimise over the free vertices again. A rotating collider's true pose within the step
+                # is not the straight body-frame path the CCD took: the trial state is checked exactly
+                for _ in range(40):
+                    xt = x + a * p
+                    if a <= 0:
+                        break
+                    if dtau == 0 or float(self.obst.distances(xt, tau + a * dtau)[0].min()) > 0:
+                        ok = True
+                        break
+                    a *= 0.5
+            else:
+                for _ in range(40):
+                    xt = x + a * p
+                    et = self._potential(xt, 1, tau)[0]
+                    if et <= e:
+                        ok = True
+                        break
+                    a *= 0.5
             if not ok:
                 self.stats["line_search_fail"] += 1
                 break
             x = xt
+            if dtau > 0:
+                tau = tau_to if a >= 1.0 else tau + a * dtau
             if _DEBUG:
                 print("    alpha %.3e ccd %.3e |p| %.3e" % (a, a0, float(np.abs(p).max())))
-            if float(np.abs(a * p).max()) < 1e-12 * self.bbox:
+            if not pending and float(np.abs(a * p).max()) < 1e-12 * self.bbox:
                 break
+        self._tau_to = None
         self._cand = None
         self._lu = None
         self.v = (x - self.xn) / dt
         self.x = x
         self.time += dt
         s = self.stats
+        if pin_to is not None:  # prescribed positions a contact kept the pins from (caught up later)
+            s["pin_lag_max"] = max(s.get("pin_lag_max", 0.0), float(np.abs(pin_to - x[self.pin_idx]).max()))
+        if tau is not None:
+            self.tau = tau
+            s["collider_lag_max"] = max(s.get("collider_lag_max", 0.0), self.time - tau)
         s["substeps"] += 1
         s["newton_iterations"] += it
         s["max_newton"] = max(s["max_newton"], it)
@@ -438,7 +564,7 @@ class ClothSolver(Solver):
         # IPC's barrier stiffness update (Li et al. 2020, supplement): a contact closing below 1 % of dhat
         # doubles kappa (up to kappa_max), so gaps stay a resolvable fraction of contact_distance
         if ncontact:
-            dmin = float(self.obst.distances(x)[0].min())
+            dmin = float(self.obst.distances(x, tau)[0].min())
             col = ipctk.NormalCollisions()
             col.build(self.cm, x, self.dhat)
             if len(col):
@@ -463,6 +589,28 @@ class ClothSolver(Solver):
 
     def stable_dt(self, horizon: float = 0.0) -> float:
         return math.inf
+
+    def runaway_cfl(self) -> float:
+        """The runaway guard's limit in edges per substep: the base limit, or twice what the fastest
+        prescribed motion (a moving collider's surface, moving pins) crosses in a substep when that is more
+        (a sheet carried by it moves as fast, without blowing up: the step is implicit, the contact exact)."""
+        from simcli.motion import sample_times
+
+        base = super().runaway_cfl()
+        if not getattr(self, "dirichlet", False) or not getattr(self, "dt", None):
+            return base
+        if getattr(self, "_vmax", None) is None:
+            t_end = self.scene.sim.n_steps * self.scene.sim.dt
+            reach = float(np.linalg.norm(self.obst.hi - self.obst.lo))  # any point of the domain
+            v = 0.0
+            for m in [*self.obst.motions, *self.pin_motions]:
+                if m is None:
+                    continue
+                for t in sample_times(m, t_end):
+                    P = m.pose(float(t))
+                    v = max(v, float(np.linalg.norm(P.v)) + float(np.linalg.norm(P.w)) * reach)
+            self._vmax = v
+        return max(base, 2.0 * self._vmax * self.dt / self.length_scale())
 
     def length_scale(self) -> float:
         e = self.tris
@@ -526,6 +674,8 @@ class ClothSolver(Solver):
         st = {"x": self.x.copy(), "v": self.v.copy(), "time": np.array([self.time])}
         if self.kappa is not None:
             st["kappa"] = np.array([self.kappa, self.kappa_max])
+        if self.obst.moving:  # moving colliders' time (behind self.time while a contact held them back)
+            st["tau"] = np.array([self.tau])
         return st
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
@@ -539,6 +689,7 @@ class ClothSolver(Solver):
         for key in ("x", "v"):
             upload_state_array(_F(self, key), state, key, (self.n, 3), np.float64, "FEM.Cloth")
         self.time = float(np.asarray(state.get("time", [0.0])).reshape(-1)[0])
+        self.tau = float(np.asarray(state.get("tau", [self.time])).reshape(-1)[0])
         if "kappa" in state:  # absent in checkpoints written before it was saved: set at the next substep
             k = np.asarray(state["kappa"], dtype=np.float64).reshape(-1)
             self.kappa, self.kappa_max = float(k[0]), float(k[1])
