@@ -21,19 +21,51 @@ def _lattice_spacing(x0: np.ndarray, axis: int) -> float:
 
 
 @measurement("draft_fraction")
-def draft_fraction(f, entity, liquid, axis=None, spacing=0.0, margin=0.05, **_):
+def draft_fraction(f, entity, liquid, axis=None, spacing=0.0, margin=0.05, level="top", **_):
     """How much of a floating body's height is below the liquid's free surface [-], per frame: (level -
     bottom) / (top - bottom). The body's bottom and top are its lowest and highest particles, extended by half
     its particle spacing (from its initial lattice); the level is the median over the liquid's columns (bins
     of ``spacing`` [m], the liquid's particle size) farther than ``margin`` [m] from the body of the highest
-    particle, plus half the liquid's spacing."""
+    particle, plus half the liquid's spacing.
+
+    ``level: mass``: the liquid's depth above the body's bottom by its mass instead (rigid_measures.py's
+    rigid_draft, docs/RIGID.md): the rest volume of the liquid's particles above the bottom whose columns are
+    farther than ``margin`` from the body (in every horizontal direction: a ring), over the area of the
+    domain outside the body's box grown by the margin; a particle's rest volume is its entity's Box volume
+    over its initial count."""
+    from simcli.verify.rigid_measures import _mass_level, _rest_volume
+
     b = _pos(f, entity)
     w = _pos(f, liquid)
     ax = b.shape[2] - 1 if axis is None else int(axis)
     lat = [a for a in range(b.shape[2]) if a != ax]
     hb = 0.5 * _lattice_spacing(b[0], ax)
+    if level not in ("top", "mass"):
+        raise ValueError(f"draft_fraction: level must be top or mass, not {level!r}")
+    if level == "mass":
+        import yaml
+
+        from simcli.scene.models import Scene
+
+        scene = Scene.model_validate(yaml.safe_load(f.attrs["scene"]))
+        dim = scene.sim.dim
+        vol = _rest_volume(scene, liquid, w.shape[1], spacing, dim)
+        dlo, dhi = (np.asarray(v, float)[:dim] for v in scene.domain.bounds(dim))
     out = []
     for xb, xw in zip(b, w):
+        far = np.zeros(len(xw), bool)
+        for a in lat:
+            far |= (xw[:, a] < xb[:, a].min() - margin) | (xw[:, a] > xb[:, a].max() + margin)
+        bot, top = xb[:, ax].min() - hb, xb[:, ax].max() + hb
+        if level == "mass":
+            inner = 1.0
+            for a in lat:
+                lo_a = max(dlo[a], xb[:, a].min() - margin)
+                hi_a = min(dhi[a], xb[:, a].max() + margin)
+                inner *= max(0.0, hi_a - lo_a)
+            area = float(np.prod((dhi - dlo)[lat])) - inner
+            out.append(_mass_level(xw, far, ax, bot, spacing, vol, area) / (top - bot))
+            continue
         far = np.ones(len(xw), bool)
         for a in lat:
             far &= (xw[:, a] < xb[:, a].min() - margin) | (xw[:, a] > xb[:, a].max() + margin)
@@ -41,9 +73,8 @@ def draft_fraction(f, entity, liquid, axis=None, spacing=0.0, margin=0.05, **_):
         keys = np.floor(xw[far][:, lat] / spacing).astype(np.int64)
         for k, z in zip(map(tuple, keys), xw[far][:, ax]):
             cols[k] = max(cols.get(k, -np.inf), z)
-        level = float(np.median(list(cols.values()))) + 0.5 * spacing if cols else np.nan
-        bot, top = xb[:, ax].min() - hb, xb[:, ax].max() + hb
-        out.append((level - bot) / (top - bot))
+        lvl = float(np.median(list(cols.values()))) + 0.5 * spacing if cols else np.nan
+        out.append((lvl - bot) / (top - bot))
     return f["time"][...], np.asarray(out)
 
 

@@ -36,13 +36,40 @@ def rigid(f, entity, body, field="position", axis=None, **_):
     return f["time"][:n], v
 
 
+def _rest_volume(scene, entity, n0: int, spacing: float, dim: int) -> float:
+    """Rest volume of one particle of ``entity`` [m^dim]: its Box morph's volume over its initial particle
+    count (every family fills a Box with particles of equal volume), else spacing^dim."""
+    ent = next((e for e in scene.entities if e.name == entity), None)
+    if ent is not None and getattr(ent.morph, "type", None) == "Box" and n0 > 0:
+        lo, hi = (np.asarray(b, float)[:dim] for b in ent.morph.bounds())
+        return float(np.prod(hi - lo)) / n0
+    return float(spacing) ** dim
+
+
+def _mass_level(x, far, ax, y_ref, spacing, vol, area):
+    """Depth [m] of liquid above height ``y_ref`` by its mass: the rest volume of the particles ``far``
+    above y_ref (a particle within half a spacing of it counted in proportion) over the horizontal
+    ``area`` they cover."""
+    w = np.clip((x[far, ax] - y_ref) / spacing + 0.5, 0.0, 1.0)
+    return float(w.sum()) * vol / area
+
+
 @measurement("rigid_draft")
-def rigid_draft(f, entity, body, axis=None, spacing=0.0, margin=0.02, **_):
+def rigid_draft(f, entity, body, axis=None, spacing=0.0, margin=0.02, level="top", **_):
     """Draft [m] of a floating rigid body: the liquid's free surface away from the body (the mean over
     columns of width ``spacing`` of the highest particle, plus half a spacing, for columns farther than
     ``margin`` [m] from the body's extent) minus the lowest point of the body (its centre of mass less its
     half extent along the vertical ``axis``, default the last; for an upright body). ``spacing: sph``: the
-    scene's SPH particle size (so that a case refined with ``--refine`` measures at its own spacing)."""
+    scene's SPH particle size (so that a case refined with ``--refine`` measures at its own spacing).
+
+    ``level: mass``: the depth of liquid above the body's lowest point measured by its mass instead of its
+    top particles: the rest volume (mass / rho0) of the liquid farther than ``margin`` from the body and
+    above that height, over the area it covers (the domain's horizontal extent less the body's, grown by
+    the margin). The liquid's pressure there is g times that mass per area (hydrostatics), so this is
+    Archimedes' balance itself: the body's weight against the weight of the liquid it displaces. The
+    particles' top is not (docs/RIGID.md): a particle liquid's surface layer and bulk pack differently
+    from a lattice (in SPH the deficient surface layer sinks 0.15 spacing into the next, DFSPH's bulk
+    spreads), so top + half a spacing is off by 0.1-0.3 spacing; PBF's bulk is compressed."""
     scene, rb = _rb_scene(f, body)
     dim = scene.sim.dim
     if spacing == "sph":
@@ -56,12 +83,26 @@ def rigid_draft(f, entity, body, axis=None, spacing=0.0, margin=0.02, **_):
     n = min(len(pos), len(f["time"]), X.shape[0])
     lat = [a for a in range(dim) if a != ax]
     ps = float(spacing) if spacing else 0.01
+    if level not in ("top", "mass"):
+        raise ValueError(f"rigid_draft: level must be top or mass, not {level!r}")
+    if level == "mass":
+        vol = _rest_volume(scene, entity, X.shape[1], ps, dim)
+        dlo, dhi = (np.asarray(b, float)[:dim] for b in scene.domain.bounds(dim))
     out = np.empty(n)
     for i in range(n):
         x = np.asarray(X[i], dtype=np.float64)
         far = np.zeros(len(x), bool)
         for a in lat:
             far |= np.abs(x[:, a] - pos[i, a]) > half[a] + margin
+        if level == "mass":
+            inner = 1.0
+            for a in lat:
+                inner *= max(
+                    0.0, min(dhi[a], pos[i, a] + half[a] + margin) - max(dlo[a], pos[i, a] - half[a] - margin)
+                )
+            area = float(np.prod((dhi - dlo)[lat])) - inner
+            out[i] = _mass_level(x, far, ax, pos[i, ax] - half[ax], ps, vol, area)
+            continue
         xs = x[far]
         if len(xs) == 0:
             out[i] = np.nan

@@ -243,6 +243,93 @@ class PBFLiquid:
                             gw[q2 // 2] -= sgn[q2] * d2 / rho0_div
             return rw, gw
 
+        # Free rigid bodies (simcli.rigid): the same half-space of virtual particles behind each face, by the
+        # body's signed distance (its faces as walls: without it the liquid next to a body has a deficient
+        # density, carries no pressure and packs against it), and the reaction of that wall term, -m dx / dt,
+        # to the body. None without rigid bodies (the kernels are then what they were).
+        cols = solver.cols
+        rigid = [k for k, c in enumerate(cols) if getattr(c, "rigid", False)] if use_walls else []
+        poses = solver.poses
+        col_a, col_b, col_r, col_hh = solver.col_a, solver.col_b, solver.col_r, solver.col_hh
+        from simcli.colliders import sdf_cylinder, sdf_sphere
+
+        @ti.func
+        def quarter(d1, d2):
+            """The quarter-space table at distances d1, d2 behind two perpendicular planes: density and its
+            derivatives along d1 and d2 (bilinear, as walls())."""
+            i, t = coord(d1)
+            j, u = coord(d2)
+            c00, c10, c01, c11 = (1 - t) * (1 - u), t * (1 - u), (1 - t) * u, t * u
+            wq = c00 * w_q[i, j] + c10 * w_q[i + 1, j] + c01 * w_q[i, j + 1] + c11 * w_q[i + 1, j + 1]
+            g1 = c00 * w_dq1[i, j] + c10 * w_dq1[i + 1, j] + c01 * w_dq1[i, j + 1] + c11 * w_dq1[i + 1, j + 1]
+            g2 = c00 * w_dq2[i, j] + c10 * w_dq2[i + 1, j] + c01 * w_dq2[i, j + 1] + c11 * w_dq2[i + 1, j + 1]
+            return wq, g1, g2
+
+        @ti.func
+        def body_wall(k: ti.template(), xi):
+            """Density of rigid body k's virtual particles at xi and its gradient in C units (1/m). A Box: its
+            solid as the intersection of its faces' half-spaces, in the body frame: outside one face, that
+            face's half-space less the quarter-spaces beyond each neighbouring face within reach; outside
+            two (an edge), the quarter-space behind both (the corners' octants are left out, as walls()
+            leaves them). Sphere and Cylinder: the half-space behind the tangent plane at its distance."""
+            xq = poses.to_body(k, xi, 1)
+            rw = 0.0
+            gb = ti.Vector.zero(float, 3)  # in the body frame
+            if ti.static(cols[k].kind == "Box"):
+                lo_, hi_ = col_a[k], col_b[k]
+                o = ti.Vector.zero(
+                    float, 3
+                )  # distance outside along each axis (< 0: inside, to the nearer face)
+                sd = ti.Vector.zero(float, 3)  # the outward direction of that face along its axis
+                nout = 0
+                for ax in ti.static(range(3)):
+                    s_lo = lo_[ax] - xq[ax]
+                    s_hi = xq[ax] - hi_[ax]
+                    if s_lo > s_hi:
+                        o[ax], sd[ax] = s_lo, -1.0
+                    else:
+                        o[ax], sd[ax] = s_hi, 1.0
+                    if o[ax] > 0:
+                        nout += 1
+                if nout <= 1:
+                    asel = 0  # the axis it is outside (or nearest to the surface, inside)
+                    for ax in ti.static(range(1, 3)):
+                        if o[ax] > o[asel]:
+                            asel = ax
+                    for A in ti.static(range(3)):
+                        dA = ti.max(o[A], 0.0)
+                        if A == asel and dA < h:
+                            i0, t = coord(dA)
+                            rw = (1 - t) * w_half[i0] + t * w_half[i0 + 1]
+                            gb[A] += sd[A] * ((1 - t) * w_dhalf[i0] + t * w_dhalf[i0 + 1])
+                            for B in ti.static(range(3)):
+                                if ti.static(B != A):
+                                    if -o[B] < h:
+                                        wq, g1, g2 = quarter(dA, -o[B])
+                                        rw -= wq
+                                        gb[A] -= sd[A] * g1
+                                        gb[B] += sd[B] * g2  # d(-o_B)/dx = -sd_B along B
+                elif nout == 2:
+                    for A in ti.static(range(3)):
+                        for B in ti.static(range(A + 1, 3)):
+                            if o[A] > 0 and o[B] > 0 and o[A] < h and o[B] < h:
+                                wq, g1, g2 = quarter(o[A], o[B])
+                                rw = wq
+                                gb[A] += sd[A] * g1
+                                gb[B] += sd[B] * g2
+            else:
+                phi = 1.0
+                nrm = ti.Vector.zero(float, 3)
+                if ti.static(cols[k].kind == "Sphere"):
+                    phi, nrm = sdf_sphere(xq, col_a[k], col_r[k])
+                elif ti.static(cols[k].kind == "Cylinder"):
+                    phi, nrm = sdf_cylinder(xq, col_a[k], col_r[k], col_hh[k], cols[k].axis)
+                if phi < h:
+                    i0, t = coord(phi)
+                    rw = (1 - t) * w_half[i0] + t * w_half[i0 + 1]
+                    gb = nrm * ((1 - t) * w_dhalf[i0] + t * w_dhalf[i0 + 1])
+            return rw, poses.normal_to_world(k, gb, 1) / rho0_div
+
         @ti.kernel
         def neighbours():
             grid.build()
@@ -284,6 +371,10 @@ class PBFLiquid:
                     g2 += gj.norm_sqr()
                 if ti.static(use_walls):
                     rw, gw = walls(xi)
+                    for k in ti.static(rigid):
+                        rb, gb = body_wall(k, xi)
+                        rw += rb
+                        gw += gb
                     if ti.static(act):
                         r_i += m_of(a) * rw
                     else:
@@ -316,6 +407,11 @@ class PBFLiquid:
                 if ti.static(use_walls):
                     rw, gw = walls(xi)
                     dp += lam[a] * gw  # the wall moves nothing: i moves along its own constraint's gradient
+                    for k in ti.static(rigid):
+                        rb, gb = body_wall(k, xi)
+                        dp += lam[a] * gb
+                        if w[lo + a] > 0:  # the body takes the reaction of the push it gave
+                            poses.add_load(k, xi, -(m_of(a) * lam[a] / poses.dt[None]) * gb, 1)
                 dpos[a] = dp
             for a in range(npts()):
                 if w[lo + a] > 0:
