@@ -93,8 +93,8 @@ def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, fl
 
     frame_stats = build_frame_stats(params, fields, laws, dispatch, count)
 
-    def make_outputs(out):
-        return build_outputs(params, fields, dispatch, count, out)
+    def make_outputs(out, sel=None):
+        return build_outputs(params, fields, dispatch, count, out, sel)
 
     return MPMKernels(
         substep=substep,
