@@ -22,7 +22,7 @@ class ProbeView:
     ranges: dict[str, tuple[int, int]]  # entity name -> [lo, hi) of its keys
     field: Callable[[str], Any]  # output field name -> ti field by slot (scalar or vector); KeyError if none
     dtype: Any  # numpy dtype of the float fields as entity_arrays returns them
-    # fields computed from the state only where asked (MPM's J, pressure, ...): for them, derive(sel) gives
-    # a kernel k(n) that computes them at the slots sel[0:n] before they are read
+    # fields computed from the state only where asked (MPM's J, pressure, ...): derive is a ti.func(p) that
+    # computes them at slot p (into the fields ``field`` gives for them) before they are read
     derived: tuple[str, ...] = ()
-    derive: Callable[[Any], Callable[[int], None]] | None = None
+    derive: Any = None

@@ -48,14 +48,12 @@ def build_frame_stats(params: MPMParams, fields: MPMFields, laws: list, dispatch
     return frame_stats
 
 
-def build_outputs(params: MPMParams, fields: MPMFields, dispatch: LawDispatch, count, out: tuple, sel=None):
-    """The kernel ``outputs()`` writing into ``out`` = (J, von Mises stress, pressure, J_p, elastic
-    energy), five per-particle fields (solver.DERIVED_FIELDS). In 2D (plane strain) the stress includes the
-    out-of-plane normal stress tau_zz. With ``sel`` (an i32 field of particle slots): the kernel
-    ``outputs(n)`` instead, which writes them only at the slots sel[0:n] (what a probe reads, simcli.probes.
-    device), with the same per-particle code."""
+def build_derive(params: MPMParams, fields: MPMFields, dispatch: LawDispatch, out: tuple):
+    """The ti.func ``derive(p)`` writing particle p's (J, von Mises stress, pressure, J_p, elastic energy)
+    into ``out``, five per-particle fields (solver.DERIVED_FIELDS). In 2D (plane strain) the stress includes
+    the out-of-plane normal stress tau_zz. The frame outputs' kernel runs it over every particle; the probes'
+    device path (simcli/probes/device.py) only at the particles a probe reads."""
     dim, f = params.dim, params.dtype
-    N = count
     F, mid, vol = fields.F, fields.mid, fields.vol
     kirchhoff = dispatch.kirchhoff
     law_call_scalar, law_scalar, law_scalar2 = dispatch.call_scalar, dispatch.scalar, dispatch.scalar_J
@@ -94,14 +92,13 @@ def build_outputs(params: MPMParams, fields: MPMFields, dispatch: LawDispatch, c
         out_jp[p] = jp
         out_e[p] = law_scalar(p, Fp, J, m, "energy_density") * vol[p]
 
-    if sel is not None:
+    return derive
 
-        @ti.kernel
-        def outputs_at(n: ti.i32):
-            for k in range(n):
-                derive(sel[k])
 
-        return outputs_at
+def build_outputs(params: MPMParams, fields: MPMFields, dispatch: LawDispatch, count, out: tuple):
+    """The kernel ``outputs()``: :func:`build_derive`'s derive(p) over every particle."""
+    N = count
+    derive = build_derive(params, fields, dispatch, out)
 
     @ti.kernel
     def outputs():

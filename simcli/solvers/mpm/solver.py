@@ -503,7 +503,7 @@ class MPMSolver(Solver):
             field=self._probe_field,
             dtype=self.npf,
             derived=DERIVED_FIELDS,
-            derive=lambda sel: self.kernels.make_outputs(self._derived_fields(), sel),
+            derive=self.kernels.make_derive(self._derived_fields()),
         )
 
     def _derived_fields(self) -> tuple:
