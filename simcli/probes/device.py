@@ -37,6 +37,8 @@ def _ncomp(fld) -> int:
 class FamilySampler:
     """The windows of one family's probes and the kernels that read them."""
 
+    CAP0 = 256  # rows at first; grown to fit when a sample finds more particles in the windows
+
     def __init__(self, view, dim: int, windows: list[tuple[str, np.ndarray, np.ndarray]], fields: list[str]):
         """``windows``: (entity name, lower corner, upper corner) boxes; ``fields``: the output fields read
         besides position."""
@@ -55,7 +57,7 @@ class FamilySampler:
         self.lo = ti.Vector.field(dim, f, shape=nw + 1)
         self.hi = ti.Vector.field(dim, f, shape=nw + 1)
         self.total = ti.field(ti.i32, shape=())
-        self._alloc(256)
+        self._alloc(self.CAP0)
         # the boxes in the positions' precision, rounded outwards; and the box around them all, which most
         # particles fail at once
         lo = np.array([w[1] for w in windows], dtype=np.float64).reshape(nw, dim)
@@ -73,8 +75,9 @@ class FamilySampler:
         self._derive = self._make_derive() if self.derived else None
 
     def _make_sample(self):
-        """One kernel: every live particle inside a window appends its row (window, key, position, fields;
-        MPM's derived fields computed for it first) to ``out``; the count goes to out[cap, 0]."""
+        """One kernel: every live particle inside a window appends its row (window, key, position, the fields
+        that are not derived; with derived fields its slot to ``sel``) to ``out``; the count goes to
+        out[cap, 0]."""
         x, key, lo, hi, total, out, sel = (
             self.view.x,
             self.view.key,
