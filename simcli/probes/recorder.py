@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from simcli.errors import OutputError
-from simcli.probes import sampling
+from simcli.probes import device, sampling
 from simcli.probes.config import (
     UNITS,
     all_entities,
@@ -41,13 +41,30 @@ def make_recorder(scene, solvers, out_dir: Path, timings: dict | None = None):
     return ProbeRecorder(scene, solvers, out_dir, timings)
 
 
+def _point_reach(scene, entity) -> float:
+    """A point probe's kernel radius in ``entity``'s family (see ProbeRecorder._point)."""
+    if entity.family == "SPH":
+        return scene.solvers.sph.support_radius
+    if entity.family == "MPM":
+        return 2.0 * scene.solvers.mpm.spacing
+    return 2.0 * scene.solvers.pbd.particle_size
+
+
 def _fmt(v: float) -> str:
     return "" if v is None else ("nan" if math.isnan(v) else repr(float(v)))
 
 
 class ProbeRecorder:
-    def __init__(self, scene, solvers, out_dir: Path, timings: dict | None = None):
+    def __init__(self, scene, solvers, out_dir: Path, timings: dict | None = None, device: bool = True):
+        """``device``: point probes and height gauges of families with a ProbeView read only the particles
+        near them on the device (simcli/probes/device.py; the same values); False: every probe copies whole
+        fields to the host (entity_arrays), the reference the tests compare with."""
         self.scene = scene
+        self.solvers = solvers
+        self.device = device
+        self._samplers = (
+            None  # [(FamilySampler, [(probe index, entity name) per window])], built at first use
+        )
         self.dim = scene.sim.dim
         self.dt = scene.sim.dt
         self.path = Path(out_dir) / CSV_NAME
@@ -112,11 +129,72 @@ class ProbeRecorder:
         return {"series": self.series(), "series_until": until}
 
     # ------------------------------------------------------------------ sampling
-    def _arrays(self, name: str, fields: tuple, cache: dict) -> dict:
+    def _arrays(self, name: str, fields: tuple, cache: dict, i: int | None = None) -> dict:
+        """The arrays of entity ``name`` for probe ``i``: its particles near the probe when the device path
+        read them (``cache[("device", i, name)]``), else all of them (entity_arrays)."""
+        near = cache.get(("device", i, name))
+        if near is not None:
+            return near
         key = (name, fields)
         if key not in cache:
             cache[key] = self.owner[name].entity_arrays(name, list(fields))
         return cache[key]
+
+    # ------------------------------------------------------------------ device path
+    def _device_probe(self, p, ents) -> bool:
+        if p.type not in ("point", "height") or not ents:
+            return False
+        return all(e.family in ("SPH", "MPM") and self.owner[e.name].probe_view() is not None for e in ents)
+
+    def _point_fields(self, p, e) -> list[str]:
+        q = p.quantity
+        if e.family == "SPH":
+            return ["density"] + ([q] if q != "density" else [])
+        return ["J"] if q == "density" else [q]
+
+    def _window(self, p, e) -> tuple[np.ndarray, np.ndarray]:
+        """A box around what the host-side tests of sampling.py keep, a little larger."""
+        dim = self.dim
+        if p.type == "point":
+            at = np.asarray(p.position, dtype=np.float64)
+            r = _point_reach(self.scene, e) * (1.0 + device.MARGIN)
+            return at - r, at + r
+        ax = height_axis(p, dim)
+        r = self._spacing(e) * (1.0 + device.MARGIN)
+        lo, hi = np.full(dim, -device.BIG), np.full(dim, device.BIG)
+        others = [a for a in range(dim) if a != ax]
+        for a, c in zip(others, p.position):
+            lo[a], hi[a] = float(c) - r, float(c) + r
+        return lo, hi
+
+    def _build_samplers(self) -> list:
+        groups: dict[int, tuple] = {}  # id(solver) -> (solver, windows, fields, owners)
+        for i, (p, ents) in enumerate(zip(self.probes, self.entities)):
+            if not self._device_probe(p, ents):
+                continue
+            for e in ents:
+                s = self.owner[e.name]
+                g = groups.setdefault(id(s), (s, [], set(), []))
+                lo, hi = self._window(p, e)
+                g[1].append((e.name, lo, hi))
+                if p.type == "point":
+                    g[2].update(self._point_fields(p, e))
+                g[3].append((i, e.name))
+        out = []
+        for s, windows, fields, owners in groups.values():
+            fs = device.FamilySampler(s.probe_view(), self.dim, windows, sorted(fields))
+            out.append((fs, owners))
+        return out
+
+    def _read_device(self, due: list[int], cache: dict) -> None:
+        if self._samplers is None:
+            self._samplers = self._build_samplers()
+        due_set = set(due)
+        for fs, owners in self._samplers:
+            if not any(i in due_set for i, _ in owners):
+                continue
+            for (i, name), arrays in zip(owners, fs.read()):
+                cache[("device", i, name)] = arrays
 
     def _masses(self, entity) -> np.ndarray:
         name = entity.name
@@ -161,7 +239,7 @@ class ProbeRecorder:
             return 3.0 * sol.mpm.dx
         return 2.0 * sol.pbd.particle_size
 
-    def _point(self, p, ents, cache):
+    def _point(self, p, ents, cache, i=None):
         q = p.quantity
         ent0 = ents[0]
         if ent0.family == "SF":
@@ -174,21 +252,21 @@ class ProbeRecorder:
             fam = e.family
             if fam == "SPH":
                 field = q
-                a = self._arrays(e.name, ("position", "density") + ((q,) if q != "density" else ()), cache)
-                h = self.scene.solvers.sph.support_radius
+                a = self._arrays(e.name, ("position", "density") + ((q,) if q != "density" else ()), cache, i)
+                h = _point_reach(self.scene, e)
                 w = e.material.rho / np.maximum(a["density"], 1e-12)  # volume m / rho, up to V_rest
                 vals = a[field]
             elif fam == "MPM":
-                h = 2.0 * self.scene.solvers.mpm.spacing
+                h = _point_reach(self.scene, e)
                 w = None
                 if q == "density":  # rho0 / J
-                    a = self._arrays(e.name, ("position", "J"), cache)
+                    a = self._arrays(e.name, ("position", "J"), cache, i)
                     vals = e.material.rho / np.maximum(np.asarray(a["J"], dtype=np.float64), 1e-12)
                 else:
-                    a = self._arrays(e.name, ("position", q), cache)
+                    a = self._arrays(e.name, ("position", q), cache, i)
                     vals = a[q]
             else:  # PBD particles
-                h = 2.0 * self.scene.solvers.pbd.particle_size
+                h = _point_reach(self.scene, e)
                 w = None
                 a = self._arrays(e.name, ("position", q), cache)
                 vals = a[q]
@@ -203,12 +281,12 @@ class ProbeRecorder:
             den += d
         return sampling.finish(num, den)
 
-    def _height(self, p, ents, cache):
+    def _height(self, p, ents, cache, i=None):
         ax = height_axis(p, self.dim)
         best = float("nan")
         for e in ents:
             sp = self._spacing(e)
-            x = self._arrays(e.name, ("position",), cache)["position"][:, : self.dim]
+            x = self._arrays(e.name, ("position",), cache, i)["position"][:, : self.dim]
             gap = self._reach(e) if p.surface == "connected" else None
             h = sampling.surface_height(x, p.position, ax, sp, 0.5 * sp, gap)
             if not math.isnan(h) and (math.isnan(best) or h > best):
@@ -235,13 +313,15 @@ class ProbeRecorder:
     def values(self, due: list[int]) -> dict[int, np.ndarray]:
         """Probe index -> value (scalar or (dim,)) for the probes in ``due``, from the current state."""
         cache: dict = {}
+        if self.device:
+            self._read_device(due, cache)
         out = {}
         for i in due:
             p, ents = self.probes[i], self.entities[i]
             if p.type == "point":
-                v = self._point(p, ents, cache)
+                v = self._point(p, ents, cache, i)
             elif p.type == "height":
-                v = self._height(p, ents, cache)
+                v = self._height(p, ents, cache, i)
             else:
                 v = self._total(p, ents, cache)
             out[i] = (
@@ -280,7 +360,10 @@ class ProbeRecorder:
         for i in due:
             self._pending.append((self.probes[i].name, t, vals[i]))
         self.samples += 1
-        self.timings["probes_s"] += time.perf_counter() - t0
+        dt = time.perf_counter() - t0
+        if self.samples == 1:  # the first sample builds the device path: allocation and kernel compilation
+            self.timings["probes_setup_s"] = dt
+        self.timings["probes_s"] += dt
 
     def flush(self, sink, h5_flush: bool = True) -> None:
         """Append the samples taken since the last flush to sim.h5 (at frame writes, checkpoints and the last

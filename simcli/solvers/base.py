@@ -128,6 +128,11 @@ class Solver:
         """Arrays of one entity's particles for the given output field names."""
         raise NotImplementedError
 
+    def probe_view(self):
+        """A :class:`simcli.solvers.probe_view.ProbeView` of the particle fields, so that probes read only
+        the particles near them on the device; None (default): probes read :meth:`entity_arrays`."""
+        return None
+
     def get_state(self) -> dict[str, np.ndarray]:
         """Everything needed to restart bit-for-bit."""
         raise NotImplementedError

@@ -88,6 +88,7 @@ class ErrorSpec(_M):
         "period_mean_rel",
         "nmae",
         "arrival_rel",
+        "impulse_rel",
     ] = Field(
         "max_rel",
         description="How measured and reference series are compared. mean_value_*: compare the time averages "
@@ -96,7 +97,9 @@ class ErrorSpec(_M):
         "the window (the static state of an undamped oscillation). nmae: the normalised mean absolute error, "
         "mean |measured - reference| over the window / max |reference| over the window (a measured series "
         "against an experiment's time series). arrival_rel: |t_m - t_r| / t_r, the first times each series "
-        "reaches `threshold` (an impact's arrival).",
+        "reaches `threshold` (an impact's arrival). impulse_rel: |I_m - I_r| / I_r, I the time integral "
+        "of each series over the window on its own samples (an impact's pressure impulse; NaN samples, a "
+        "dry probe, count as 0).",
     )
     window: list[float] | None = Field(None, description="Time window [t0, t1] compared [s].")
     scale: float | None = Field(None, description="Normalisation for *_rel metrics (default |reference|).")
@@ -108,6 +111,8 @@ class ErrorSpec(_M):
     def _threshold(self):
         if (self.metric == "arrival_rel") != (self.threshold is not None):
             raise ValueError("threshold is required by metric arrival_rel and used by no other metric")
+        if self.metric == "impulse_rel" and self.window is None:
+            raise ValueError("metric impulse_rel integrates over a window: give window: [t0, t1]")
         return self
 
 

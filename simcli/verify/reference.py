@@ -112,11 +112,40 @@ def _arrival_error(spec: ErrorSpec, t, measured, t_ref, ref) -> dict:
     }
 
 
+def window_integral(t: np.ndarray, v: np.ndarray, t0: float, t1: float) -> float:
+    """The trapezoidal integral of ``v`` over [t0, t1] on its own samples, the ends interpolated (held
+    beyond the series); NaN samples count as 0."""
+    t = np.asarray(t, dtype=np.float64)
+    v = np.nan_to_num(np.asarray(v, dtype=np.float64), nan=0.0)
+    inner = (t > t0) & (t < t1)
+    tt = np.concatenate([[t0], t[inner], [t1]])
+    return float(np.trapezoid(np.interp(tt, t, v), tt))
+
+
+def _impulse_error(spec: ErrorSpec, t, measured, t_ref, ref) -> dict:
+    t0, t1 = spec.window
+    if t_ref.max() < t1 or t.max() < t1 - 1e-9:
+        raise ValueError(f"impulse_rel: a series ends before the window's end {t1:g} s")
+    im, ir = window_integral(t, measured, t0, t1), window_integral(t_ref, ref, t0, t1)
+    if ir == 0:
+        raise ValueError("impulse_rel: the reference's impulse over the window is 0")
+    return {
+        "error": abs(im - ir) / abs(spec.scale or ir),
+        "measured": im,
+        "reference": ir,
+        "measured_mean": im / (t1 - t0),
+        "reference_mean": ir / (t1 - t0),
+        "points": int(np.sum((t >= t0) & (t <= t1))),
+    }
+
+
 def compute_error(case: Case, t: np.ndarray, measured: np.ndarray) -> dict:
     spec: ErrorSpec = case.error
     t_ref, ref = reference_series(case, t)
     if spec.metric == "arrival_rel":  # each series' own samples: no interpolation across the jump
         return _arrival_error(spec, t, measured, t_ref, ref)
+    if spec.metric == "impulse_rel":  # each series' own samples as well
+        return _impulse_error(spec, t, measured, t_ref, ref)
     if t_ref is not t:  # a table: interpolate the measurement at the table's times
         lo, hi = t.min(), t.max()
         ok = (t_ref >= lo) & (t_ref <= hi)

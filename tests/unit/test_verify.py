@@ -124,6 +124,29 @@ def test_arrival_metric_needs_a_threshold(tmp_path):
         )
 
 
+def test_impulse_is_the_window_integral_of_each_series_on_its_own_samples(tmp_path):
+    """impulse_rel on the shipped Buchner P1 table: a measurement equal to the (normalised) table has error 0
+    whatever its sampling; scaled by 1.3 (NaN where dry counts as 0), error 0.3; a window is required."""
+    from simcli.errors import SceneError
+
+    body = (
+        "measure: {quantity: probe}\n"
+        "reference: {table: '${REFERENCE}/buchner2002_dam_break_2d_p1.csv', scale_t: 'x / 2', "
+        "scale_v: 'x * 100'}\n"
+    )
+    c = _case(tmp_path, body + "error: {metric: impulse_rel, window: [1.1, 1.75]}\ntolerance: 0.2\n")
+    tab = read_table(reference_dir() / "buchner2002_dam_break_2d_p1.csv")
+    t_ref, p_ref = tab[:, 0] / 2, tab[:, 1] * 100
+    t = np.linspace(0.0, 3.6, 72001)  # a fine sampling of the table's piecewise-linear curve
+    p = np.interp(t, t_ref, p_ref)
+    e = compute_error(c, t, p)
+    assert e["error"] < 1e-4 and e["reference"] > 0
+    p2 = np.where(t < t_ref[0], np.nan, 1.3 * p)
+    assert compute_error(c, t, p2)["error"] == pytest.approx(0.3, rel=1e-3)
+    with pytest.raises(SceneError, match="window"):
+        _case(tmp_path, body + "error: {metric: impulse_rel}\ntolerance: 0.2\n")
+
+
 def test_every_case_reads_its_table_from_inside_the_repository():
     """A clone is self-contained: every table a shipped case reads lies in the repository (the
     shipped reference_data/ is package data, so it also ships with a non-editable install), and every

@@ -19,7 +19,7 @@ from simcli.solvers.mpm.fields import MPMFields, MPMParams
 from simcli.solvers.mpm.g2p import build_g2p
 from simcli.solvers.mpm.grid_update import build_grid_update
 from simcli.solvers.mpm.laws import build_law_dispatch
-from simcli.solvers.mpm.outputs import build_frame_stats, build_outputs
+from simcli.solvers.mpm.outputs import build_derive, build_frame_stats, build_outputs
 from simcli.solvers.mpm.p2g import build_p2g
 from simcli.solvers.mpm.stencil import build_stencil
 
@@ -31,7 +31,8 @@ with stdout_to_stderr():
 class MPMKernels:
     """The solver's kernels: ``substep(dt)``, ``pre_couple(dt)``, ``stage_p2g(dt)``,
     ``stage_grid_update(dt)``, ``stage_g2p(dt)``, ``compute_bbox()`` (node boxes after a state change),
-    ``frame_stats()``, and ``make_outputs(out)`` building the derived-outputs kernel on first use."""
+    ``frame_stats()``, ``make_outputs(out)`` building the derived-outputs kernel on first use, and
+    ``make_derive(out)`` its per-particle ti.func (the probes' device path)."""
 
     substep: Any
     pre_couple: Any
@@ -41,6 +42,7 @@ class MPMKernels:
     compute_bbox: Any
     frame_stats: Any
     make_outputs: Any
+    make_derive: Any = None
 
 
 def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, flip, count) -> MPMKernels:
@@ -96,6 +98,9 @@ def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, fl
     def make_outputs(out):
         return build_outputs(params, fields, dispatch, count, out)
 
+    def make_derive(out):
+        return build_derive(params, fields, dispatch, out)
+
     return MPMKernels(
         substep=substep,
         pre_couple=pre_couple,
@@ -105,4 +110,5 @@ def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, fl
         compute_bbox=compute_bbox,
         frame_stats=frame_stats,
         make_outputs=make_outputs,
+        make_derive=make_derive,
     )

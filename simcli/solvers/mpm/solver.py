@@ -63,6 +63,7 @@ from simcli.solvers.mpm.fields import MPMFields, MPMParams
 from simcli.solvers.mpm.kernels import build_kernels
 from simcli.solvers.mpm.laws import LAWS
 from simcli.solvers.mpm.transfer import FlipTransfer
+from simcli.solvers.probe_view import ProbeView
 from simcli.solvers.sources import ActiveSet, has_sources
 
 with stdout_to_stderr():
@@ -462,9 +463,8 @@ class MPMSolver(Solver):
         elif key == "velocity":
             arr = self.v.to_numpy()
         elif key in DERIVED_FIELDS:
-            if self._out is None:  # allocated on first use: only scenes that write them pay
-                self._out = tuple(ti.field(self.f, shape=self.n) for _ in DERIVED_FIELDS)
-                self._outputs = self.kernels.make_outputs(self._out)
+            if self._outputs is None:
+                self._outputs = self.kernels.make_outputs(self._derived_fields())
             self._outputs()
             for name, fld in zip(DERIVED_FIELDS, self._out):
                 self._cache[name] = (self._version, fld.to_numpy())
@@ -490,6 +490,35 @@ class MPMSolver(Solver):
             sel = sel[np.argsort(pid[sel], kind="stable")]
             return {fld: np.array(self._full(fld)[sel]) for fld in fields}
         return {fld: np.array(self._full(fld)[lo:hi]) for fld in fields}
+
+    def probe_view(self) -> ProbeView:
+        """Positions and fields by slot for the probes' device path (simcli/probes/device.py); the derived
+        fields (J, pressure, ...) are computed only at the slots a probe reads."""
+        rng = {name: (int(self.offsets[k]), int(self.offsets[k + 1])) for name, k in self._index.items()}
+        return ProbeView(
+            x=self.x,
+            key=self.pid,
+            n_live=self.n_live,
+            ranges=rng,
+            field=self._probe_field,
+            dtype=self.npf,
+            derived=DERIVED_FIELDS,
+            derive=self.kernels.make_derive(self._derived_fields()),
+        )
+
+    def _derived_fields(self) -> tuple:
+        if self._out is None:  # allocated on first use: only scenes that write or probe them pay
+            self._out = tuple(ti.field(self.f, shape=self.n) for _ in DERIVED_FIELDS)
+        return self._out
+
+    def _probe_field(self, key: str):
+        if key == "position":
+            return self.x
+        if key == "velocity":
+            return self.v
+        if key in DERIVED_FIELDS:
+            return self._derived_fields()[DERIVED_FIELDS.index(key)]
+        raise KeyError(key)
 
     # ------------------------------------------------------------------- state
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, initial_positions
+from simcli.solvers.probe_view import ProbeView
 from simcli.solvers.sources import ActiveSet, has_sources, is_emitter
 from simcli.solvers.sph.advect import make_advect
 from simcli.solvers.sph.boundary import make_pushout, sample_boundary
@@ -695,6 +696,15 @@ class SPHSolver(Solver):
             live = np.sort(pid[(pid >= lo) & (pid < hi)])
             return {fld: np.array(self._full(fld)[live]) for fld in fields}
         return {fld: np.array(self._full(fld)[lo:hi]) for fld in fields}
+
+    def probe_view(self) -> ProbeView:
+        """Positions and fields by slot (sorted along the particles each substep; pid gives the output
+        order) for the probes' device path (simcli/probes/device.py)."""
+        fields = {"position": self.x, "velocity": self.v, "density": self.rho, "pressure": self.p}
+        rng = {name: (int(self.offsets[k]), int(self.offsets[k + 1])) for name, k in self._index.items()}
+        return ProbeView(
+            x=self.x, key=self.pid, n_live=self.n_live, ranges=rng, field=fields.__getitem__, dtype=self.npf
+        )
 
     # ------------------------------------------------------------------- state
 
