@@ -23,6 +23,7 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
     grid, grid_v, grid_m = fields.grid, fields.grid_v, fields.grid_m
     bbox, bbox_all, gravity = fields.bbox, fields.bbox_all, fields.gravity
     keep_m = grid_m is not None
+    boundary.bind_grid(grid, bbox, T, gravity)
     use_flip = flip is not None
 
     @ti.func
@@ -51,7 +52,7 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
             if pinned:
                 vI = ti.Vector.zero(f, dim)
             else:
-                vI = boundary.apply(I, vI, m)
+                vI = boundary.apply(I, vI, m, dt)
         grid_v[I] = vI
         if ti.static(keep_m):
             grid_m[I] = m
