@@ -418,15 +418,16 @@ class ColliderPoses:
                 piv[k] = m.pivot[: self.dim] if m is not None else c.centre
         self.pivot.from_numpy(piv)
         self.load.fill(0.0)
+        self._buf = np.zeros((2, nc, POSE_LEN), npf)  # the host side of ``pose``, refilled every substep
+        self._dt_last = None
         self.set_time(0.0, 0.0)
 
     def set_time(self, t: float, dt: float) -> None:
         """Upload every collider's pose for the substep [t, t + dt] (host; one small copy)."""
         if not self.needed:
             return
-        npf = np.float64 if self.dtype == ti.f64 else np.float32
         d = self.dim
-        buf = np.zeros((2, max(1, self.n), POSE_LEN), npf)
+        buf = self._buf
         for k, c in enumerate(self.specs):
             m = self.motions[k]
             for slot, ts in enumerate((t + 0.5 * dt, t + dt)):
@@ -439,9 +440,17 @@ class ColliderPoses:
                 buf[slot, k, 9 : 9 + d] = cen
                 buf[slot, k, 12 : 12 + d] = v
                 buf[slot, k, 15:18] = w
-        self.pose.from_numpy(buf)
-        self.dt[None] = dt
+        self._upload(buf)  # (a kernel with an array argument: about half of from_numpy's cost a substep)
+        if dt != self._dt_last:  # (dt rarely changes: one field write less a substep)
+            self.dt[None] = dt
+            self._dt_last = dt
         self.t = t
+
+    @ti.kernel
+    def _upload(self, a: ti.types.ndarray()):
+        ti.loop_config(serialize=True)  # 36 numbers a collider: no threads to start
+        for s, k, i in ti.ndrange(a.shape[0], a.shape[1], a.shape[2]):
+            self.pose[s, k, i] = a[s, k, i]
 
     def max_surface_speed(self, t: float) -> float:
         """Largest speed [m/s] of any point of a moving collider at time t (|v| + |w| times the distance

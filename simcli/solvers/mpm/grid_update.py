@@ -17,12 +17,18 @@ with stdout_to_stderr():
 
 def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
     """The ``ti.func`` ``grid_update(dt)``. ``boundary``: an object with a ``ti.func``
-    ``apply(I, v, m) -> v`` (boundary.GridBoundary); ``flip``: transfer.FlipTransfer or None (APIC).
+    ``apply(I, v, m) -> v``, or boundary.GridBoundary (``bind_grid`` and ``apply(I, v, m, dt)``);
+    ``flip``: transfer.FlipTransfer or None (APIC).
     Reads grid, bbox, gravity; writes bbox_all, grid_v (and grid_m when allocated)."""
     dim, f, T, gdim, has_fixed = params.dim, params.dtype, params.T, params.gdim, params.has_fixed
     grid, grid_v, grid_m = fields.grid, fields.grid_v, fields.grid_m
     bbox, bbox_all, gravity = fields.bbox, fields.bbox_all, fields.gravity
     keep_m = grid_m is not None
+    # GridBoundary's colliders read the P2G copies (their image) and take dt; a plain boundary object
+    # (apply(I, v, m) only, as the operator tests build) neither
+    with_grid = hasattr(boundary, "bind_grid")
+    if with_grid:
+        boundary.bind_grid(grid, bbox, T, gravity)
     use_flip = flip is not None
 
     @ti.func
@@ -51,7 +57,10 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
             if pinned:
                 vI = ti.Vector.zero(f, dim)
             else:
-                vI = boundary.apply(I, vI, m)
+                if ti.static(with_grid):
+                    vI = boundary.apply(I, vI, m, dt)
+                else:
+                    vI = boundary.apply(I, vI, m)
         grid_v[I] = vI
         if ti.static(keep_m):
             grid_m[I] = m
