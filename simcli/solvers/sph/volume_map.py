@@ -451,7 +451,7 @@ class VolumeMap:
                             nv[ax] = sgn
                             nn = nv.outer_product(nv)
                             Mo = v[6] * nn + v[7] * (ti.Matrix.identity(f, dim) - nn)
-                            Hy += hydrostatic(sgn * v[1] * nv, Mo, g)
+                            Hy += hydrostatic(v[1] * nv, Mo, g)
                         if ti.static(ns):
                             nv = ti.Vector.zero(f, dim)
                             nv[ax] = sgn
@@ -509,31 +509,34 @@ class VolumeMap:
                             M[j, i] += v[3 + dim + nsym + m]
             return psi, B, cnt, T, M, mw, S, Hy
 
-        @ti.func
-        def collider_terms(c: ti.template(), xi, g):
-            """Collider map c's own B, hydrostatic term (zero unless with_hyd) and no-slip matrix at xi (the
-            loads on a named collider)."""
-            s = (xi - ti.Vector(col_meta[c][0], dt=f)) * col_meta[c][1]
-            v = col_at[c](s)
-            Bo = ti.Vector.zero(f, dim)
-            for a in ti.static(range(dim)):
-                Bo[a] = v[1 + a]
-            Hc = ti.Vector.zero(f, dim)
-            nsym = ti.static(len(col_sym[c]))
-            if ti.static(with_hyd):
-                Mo = ti.Matrix.zero(f, dim, dim)
-                for m, (i, j) in ti.static(enumerate(col_sym[c])):
-                    Mo[i, j] = v[3 + dim + m]
-                    Mo[j, i] = v[3 + dim + m]
-                Hc = hydrostatic(Bo, Mo, g)
-            Mc = ti.Matrix.zero(f, dim, dim)
-            if ti.static(col_noslip[c]):
-                for m, (i, j) in ti.static(enumerate(col_sym[c])):
-                    Mc[i, j] = v[3 + dim + nsym + m]
-                    Mc[j, i] = v[3 + dim + nsym + m]
-            return Bo, Hc, Mc
+        def make_collider_terms(c):
+            @ti.func
+            def collider_terms(xi, g):
+                """Collider map c's own B, hydrostatic term (zero unless with_hyd) and no-slip matrix at xi
+                (the loads on a named collider)."""
+                s = (xi - ti.Vector(col_meta[c][0], dt=f)) * col_meta[c][1]
+                v = col_at[c](s)
+                Bo = ti.Vector.zero(f, dim)
+                for a in ti.static(range(dim)):
+                    Bo[a] = v[1 + a]
+                Hc = ti.Vector.zero(f, dim)
+                nsym = ti.static(len(col_sym[c]))
+                if ti.static(with_hyd):
+                    Mo = ti.Matrix.zero(f, dim, dim)
+                    for m, (i, j) in ti.static(enumerate(col_sym[c])):
+                        Mo[i, j] = v[3 + dim + m]
+                        Mo[j, i] = v[3 + dim + m]
+                    Hc = hydrostatic(Bo, Mo, g)
+                Mc = ti.Matrix.zero(f, dim, dim)
+                if ti.static(col_noslip[c]):
+                    for m, (i, j) in ti.static(enumerate(col_sym[c])):
+                        Mc[i, j] = v[3 + dim + nsym + m]
+                        Mc[j, i] = v[3 + dim + nsym + m]
+                return Bo, Hc, Mc
 
-        self.collider_terms = collider_terms
+            return collider_terms
+
+        self.collider_terms = [make_collider_terms(c) for c in range(len(cols))]
         return boundary
 
     def make_loads(self, P, F, fn, poses):
@@ -566,7 +569,7 @@ class VolumeMap:
             xi = x[i]
             mi = fn.mass_of(i)
             for c in ti.static(named):
-                Bo, Hc, _ = terms(c, xi, gravity[None])
+                Bo, Hc, _ = terms[c](xi, gravity[None])
                 J = ti.Vector.zero(f, dim)
                 if ti.static(dfsph):
                     gi = Bo
@@ -595,7 +598,7 @@ class VolumeMap:
             if ti.static(len(named_noslip) > 0):
                 xi = x[i]
                 for c in ti.static(named_noslip):
-                    _, _, Mc = terms(c, xi, gravity[None])
+                    _, _, Mc = terms[c](xi, gravity[None])
                     J = -dt * fn.mass_of(i) * visc_c * mat_nu[mid[i]] * (Mc @ v[i])
                     if J.norm_sqr() > 0:
                         poses.add_load(kidx[c], xi, J, 0)
