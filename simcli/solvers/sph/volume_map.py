@@ -292,7 +292,7 @@ class VolumeMap:
     def build(self, f, npf, with_noslip: bool, with_hyd: bool = False):
         """Taichi fields and the func ``boundary(xi, g) -> (psi, B, cnt, T, M, m_w, S, H)``; ``with_noslip``:
         the no-slip sums are wanted (a viscous liquid); ``with_hyd``: H, the walls' hydrostatic pressure term
-        for gravity g (DFSPH's extrapolated wall pressure, see ``hydrostatic``), else zero."""
+        for gravity g (the extrapolated wall pressure, see ``hydrostatic``), else zero."""
         from simcli.backend import stdout_to_stderr
 
         with stdout_to_stderr():
@@ -498,12 +498,14 @@ class VolumeMap:
                     Bo = ti.Vector.zero(f, dim)
                     for a in ti.static(range(dim)):
                         Bo[a] = v[1 + a]
-                    for m, (i, j) in ti.static(enumerate(col_sym[c])):
+                    for m in ti.static(range(len(col_sym[c]))):
+                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
                         Mo[i, j] = v[3 + dim + m]
                         Mo[j, i] = v[3 + dim + m]
                     Hy += hydrostatic(Bo, Mo, g)
                 if ti.static(col_noslip[c]):
-                    for m, (i, j) in ti.static(enumerate(col_sym[c])):
+                    for m in ti.static(range(len(col_sym[c]))):
+                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
                         M[i, j] += v[3 + dim + nsym + m]
                         if ti.static(i != j):
                             M[j, i] += v[3 + dim + nsym + m]
@@ -523,13 +525,15 @@ class VolumeMap:
                 nsym = ti.static(len(col_sym[c]))
                 if ti.static(with_hyd):
                     Mo = ti.Matrix.zero(f, dim, dim)
-                    for m, (i, j) in ti.static(enumerate(col_sym[c])):
+                    for m in ti.static(range(len(col_sym[c]))):
+                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
                         Mo[i, j] = v[3 + dim + m]
                         Mo[j, i] = v[3 + dim + m]
                     Hc = hydrostatic(Bo, Mo, g)
                 Mc = ti.Matrix.zero(f, dim, dim)
                 if ti.static(col_noslip[c]):
-                    for m, (i, j) in ti.static(enumerate(col_sym[c])):
+                    for m in ti.static(range(len(col_sym[c]))):
+                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
                         Mc[i, j] = v[3 + dim + nsym + m]
                         Mc[j, i] = v[3 + dim + nsym + m]
                 return Bo, Hc, Mc
