@@ -122,3 +122,33 @@ def test_volume_map_rejects_the_matrix_gradient_correction():
 
     with pytest.raises(ValidationError, match="volume_map"):
         Scene.model_validate(tank("DFSPH", boundary="volume_map", gradient_correction=True))
+
+
+BAD = """\
+version: 1
+sim: {dim: 2, dt: 2.0e-3, substeps: auto, duration: 0.1}
+domain: {lower: [0.0, 0.0], upper: [0.2, 0.2]}
+colliders:
+  - {name: wall, type: Box, lower: [0.1, -0.05], upper: [0.25, 0.25], motion: {linear_velocity: [0.1, 0.0]}}
+solvers:
+  sph: {particle_size: 0.005, pressure_solver: DFSPH, boundary: volume_map}
+entities:
+  - name: water
+    material: {type: SPH.Liquid}
+    morph: {type: Box, lower: [0.0, 0.0], upper: [0.1, 0.1]}
+"""
+
+
+def test_volume_map_bad_input_names_the_line(tmp_path):
+    """A moving collider or the matrix gradient correction with boundary: volume_map: exit 65 with the file's
+    line and column and what to change."""
+    from tests.cli.test_bad_input import _expect
+
+    _expect(tmp_path, BAD, ":5:", "colliders.0.motion", "boundary: particles")
+    fixed = BAD.replace(", motion: {linear_velocity: [0.1, 0.0]}", "")
+    _expect(
+        tmp_path,
+        fixed.replace("boundary: volume_map}", "boundary: volume_map, gradient_correction: true}"),
+        ":7:",
+        "gradient_correction: scalar",
+    )
