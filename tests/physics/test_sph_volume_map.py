@@ -51,7 +51,7 @@ def _collider_tank(boundary, kind):
     return sc
 
 
-@pytest.mark.parametrize("kind", ["Box", "Sphere"])
+@pytest.mark.parametrize("kind", ["Box", pytest.param("Sphere", marks=pytest.mark.slow)])
 def test_collider_map_gives_the_boundary_particles_density(ti_f32, kind):
     """A static collider's grid map (its boundary particles deposited and convolved once) gives the liquid
     next to it the density its boundary particles give, within 0.3% of rho0 (the deposit's smoothing), and
@@ -70,7 +70,7 @@ def test_collider_map_gives_the_boundary_particles_density(ti_f32, kind):
 
 
 @pytest.fixture(scope="module")
-def dfsph_map_tank(ti_f32):
+def dfsph_map_tank(ti_f32):  # 50 DFSPH substeps: the tests that use it are slow
     s, _ = make(tank("DFSPH", max_density_iterations=500, boundary="volume_map"))
     for _ in range(50):
         s.substep(2e-3)
@@ -79,6 +79,7 @@ def dfsph_map_tank(ti_f32):
     return ratio, speed
 
 
+@pytest.mark.slow
 def test_dfsph_volume_map_wall_layer_in_balance(dfsph_map_tank):
     """DFSPH tank at rest with volume maps and the mirrored + hydrostatic wall pressure (wall_pressure: auto):
     the floor layer reads rho0 g (H - z) within 5% after 0.1 s at 2 ms substeps, as with the particles'
@@ -93,6 +94,7 @@ def test_dfsph_volume_map_wall_layer_in_balance(dfsph_map_tank):
     "as still as on wall particles (0.51-0.56 cm/s at 0.1 s, 3.5 cm/s at 2-3 s)",
     strict=False,
 )
+@pytest.mark.slow
 def test_dfsph_volume_map_tank_stays_still(dfsph_map_tank):
     """The same tank stays still: mean speed below 0.5 cm/s at 0.1 s, as on wall particles."""
     _, speed = dfsph_map_tank
