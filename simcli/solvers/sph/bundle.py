@@ -59,6 +59,7 @@ class SPHParams:
     max_divergence_iterations: int
     max_density_iterations: int
     cpu: bool  # a CPU backend (the counting sort's serial count)
+    volume_map: bool = False  # walls and static colliders as precomputed maps (volume_map.py), nbp = 0
 
     @property
     def h2(self) -> float:
@@ -130,6 +131,8 @@ class SPHFields:
     stat_speed: Any
     stat_bad: Any
     stat_dt: Any
+    Hb: Any = None  # volume maps, extrapolated wall pressure: the walls' hydrostatic term per particle
+    pw: Any = None  # volume maps, WCSPH's extrapolated wall pressure: each particle's relaxing wall pressure
 
 
 @dataclass
@@ -159,3 +162,4 @@ class SPHFuncs:
     move_boundary: Any = None  # moving.py
     load_pressure: Any = None  # moving.py
     load_viscous: Any = None
+    boundary_map: Any = None  # volume_map.py: boundary(x) -> the walls' and static colliders' sums

@@ -90,6 +90,19 @@ class SPHOptions(_Options):
         "on the lattice so that it is exact for quadratic fields: 99.6-100% of the Laplacian on the same "
         "packings, but not angular-momentum conserving. Walls use the monaghan form either way.",
     )
+    boundary: Literal["particles", "volume_map"] = Field(
+        "particles",
+        description="How walls and static colliders enter the liquid's sums. particles: layers of boundary "
+        "particles (Akinci et al. 2012) in the neighbour search. volume_map: no boundary particles; the sums "
+        "those particles would give (density, the pressure terms' sum V_b grad W_ib, no-slip viscosity) are "
+        "precomputed once per boundary (tables against the distances to the domain's faces, a grid per "
+        "collider) and looked up per liquid particle, as SPlisHSPlasH's volume maps (Bender et al. 2019) "
+        "and density maps (Koschier & Bender 2017) do. Static colliders only (a moving collider or rigid "
+        "body needs particles). wall_pressure: extrapolated (auto with a free surface) mirrors each "
+        "particle's own pressure into the boundary (WCSPH: relaxing towards it, "
+        "wall_pressure_relaxation) plus the hydrostatic difference to it. "
+        "docs/SPH.md, volume maps.",
+    )
     wall_pressure: Literal["auto", "akinci", "extrapolated"] = Field(
         "auto",
         description="Pressure force between the liquid and walls / colliders (boundary particles). akinci: "
@@ -191,6 +204,11 @@ class SPHOptions(_Options):
                 "wall_pressure: extrapolated with DFSPH needs clamp_pressure: true (DFSPH's "
                 "conjugate-gradient "
                 "solve for clamp_pressure: false needs a symmetric operator): set wall_pressure: akinci"
+            )
+        if self.boundary == "volume_map" and self.gradient_correction is True:
+            raise ValueError(
+                "gradient_correction: true (the full matrix) is not available with boundary: volume_map: set "
+                "gradient_correction: scalar (or auto), or boundary: particles"
             )
         if self.background_pressure > 0 and self.clamp_pressure:
             raise ValueError(

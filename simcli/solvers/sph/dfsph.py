@@ -97,6 +97,10 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
     uniform = P.uniform  # one material: the pair terms in their single-material form (bitwise as before)
     wp = fn.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
+    # volume maps with the extrapolated wall pressure (volume_map.py): the boundary's k is the particle's own
+    # (each iteration's increment mirrored) plus the hydrostatic term F.Hb, applied once per substep
+    Hb = F.Hb
+    ext_map = Hb is not None
 
     @ti.func
     def corr(i, g):
@@ -188,6 +192,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
         dv = BFAC * ki * corr(i, B[i])
         if ti.static(ext):
             dv += wp.wall_sum(i, wp.bval)  # the walls' k: the average of the liquid's next to them
+        if ti.static(ext_map):
+            dv += ki * B[i]  # the map's boundary k: the particle's own (mirrored)
         v[i] -= dt * pressure_gradient(i, kk, dv)
         kacc[i] += ki
 
@@ -318,6 +324,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             a = fn.non_pressure(i, False)
             if ti.static(ext):
                 a -= wp.wall_sum(i, wp.bhyd)  # the walls' hydrostatic pressure, once per substep
+            if ti.static(ext_map):
+                a -= Hb[i]  # the boundary's hydrostatic part, once per substep with gravity
             vnew[i] = v[i] + dt * a
         if ti.static(P.named_loads):  # no-slip viscosity's reaction on named colliders (moving.py)
             for i in range(N()):

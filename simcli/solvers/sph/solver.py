@@ -238,7 +238,21 @@ class SPHSolver(Solver):
             collider_specs(self.scene, dim), collider_motions(self.scene, dim, self.scene_dir), dim, f
         )
         self.poses.allocate()
-        bp = sample_boundary(self.scene, dim, self.ps, self.support, self.poses.specs)
+        # boundary: volume_map (volume_map.py): no boundary particles; the walls' and static colliders' sums
+        # are precomputed maps each liquid particle looks up in the density pass
+        self.vmap = None
+        if self.opts.boundary == "volume_map":
+            from simcli.solvers.sph.boundary import LAYERS, BoundaryParticles
+            from simcli.solvers.sph.volume_map import VolumeMap
+
+            layers = max(LAYERS, math.ceil(self.support / self.ps - 1e-9))
+            self.vmap = VolumeMap(
+                self.scene, dim, self.ps, self.support, self.V_rest, self.poses.specs, layers
+            )
+            z = np.zeros((0, dim))
+            bp = BoundaryParticles(z, np.zeros(0), z, np.zeros(0, bool), np.zeros(0, np.int32))
+        else:
+            bp = sample_boundary(self.scene, dim, self.ps, self.support, self.poses.specs)
         keep = grid.inside_np(bp.x)
         if self.poses.any_moving:  # a moving collider's whole shell: it may enter the grid later
             keep |= np.isin(bp.col, [k for k, c in enumerate(self.poses.specs) if c.moving])
@@ -246,6 +260,8 @@ class SPHSolver(Solver):
         self.nbp = int(keep.sum())
         self.K = neighbour_capacity(dim, self.support / self.ps)
         self.has_noslip = bool(np.any(bp.no_slip[keep])) and self.has_viscosity
+        if self.vmap is not None:
+            self.has_noslip = self.vmap.no_slip and self.has_viscosity
 
         # particles, in cell order
         vec = lambda: ti.Vector.field(dim, f, shape=n)
@@ -275,6 +291,11 @@ class SPHSolver(Solver):
         # reaches, so
         # that only those list their liquid neighbours
         self.ext_walls = self.opts.wall_model == "extrapolated"
+        # volume maps with DFSPH's extrapolated wall pressure: each particle's hydrostatic wall term (once
+        # per substep; volume_map.py)
+        self.Hb = vec() if self.vmap is not None and self.ext_walls else None
+        # ... WCSPH: each particle's mirrored wall pressure, relaxing towards its own (wcsph.py)
+        self.pw = scal() if self.Hb is not None and not dfsph else None
         self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
         self.bflag = ti.field(ti.i32, shape=max(1, self.nbp)) if self.ext_walls else None
         # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves
@@ -300,6 +321,9 @@ class SPHSolver(Solver):
             ti.field(ti.i32, shape=n),
             ti.field(ti.i32, shape=n),
         ] + ([scal(), scal()] if dfsph else [])
+        if self.pw is not None:
+            move.append(self.pw)
+            move_tmp.append(scal())
         self.cell_id = ti.field(ti.i32, shape=n)
         self.rank = ti.field(ti.i32, shape=n)
         self.count = ti.field(ti.i32, shape=grid.ncells)
@@ -343,7 +367,7 @@ class SPHSolver(Solver):
             self.bx0.from_numpy(bp.x[keep][order].astype(npf))
             self.bcol.from_numpy(bp.col[keep][order].astype(np.int32))
         self.moving_boundary = self.poses.any_moving and self.nbp > 0
-        self.named_loads = self.poses.any_named and self.nbp > 0
+        self.named_loads = self.poses.any_named and (self.nbp > 0 or self.vmap is not None)
         if self.moving_boundary:  # every cell may have a moving boundary particle in reach
             self.bnear.fill(1)
 
@@ -522,6 +546,8 @@ class SPHSolver(Solver):
         )
         fn.Wk, fn.gradW, fn.Ckern, fn.W_gradW = make_kernels(P.h, P.dim, P.f)
         fn.rows, fn.row_cell, fn.mass_of, fn.volume_of = make_stencil(P, F, fn)
+        if self.vmap is not None:
+            fn.boundary_map = self.vmap.build(self.f, self.npf, self.has_noslip, self.Hb is not None)
         fn.neighbours_density = make_neighbours_density(P, F, fn)
         fn.non_pressure = make_non_pressure(P, F, fn)
         fn.advect = make_advect(P, F, fn)
@@ -530,7 +556,9 @@ class SPHSolver(Solver):
         self.wall_pressure = fn.wall_pressure
         if P.moving_boundary:
             fn.move_boundary = make_moving_boundary(P, F, fn, self.poses, self.grid)
-        if P.named_loads:
+        if P.named_loads and self.vmap is not None:  # the named static colliders' maps (volume_map.py)
+            fn.load_pressure, fn.load_viscous = self.vmap.make_loads(P, F, fn, self.poses)
+        elif P.named_loads:
             fn.load_pressure, fn.load_viscous = make_loads(P, F, fn, self.poses)
         self._frame_stats, self._density_only, self._dt_stats = make_outputs(P, F, fn, len(self.bodies))
         if P.dfsph:
@@ -578,6 +606,7 @@ class SPHSolver(Solver):
             max_divergence_iterations=o.max_divergence_iterations,
             max_density_iterations=o.max_density_iterations,
             cpu=self.arch in ("x64", "arm64"),
+            volume_map=self.vmap is not None,
         )
 
     def _fields(self) -> SPHFields:
@@ -714,6 +743,8 @@ class SPHSolver(Solver):
         d = {"x": self.x, "v": self.v, "mass": self.mass, "mid": self.mid, "pid": self.pid, "rho": self.rho}
         if self.kappa is not None:
             d.update(kappa=self.kappa, kappav=self.kappav)
+        if self.pw is not None:
+            d["wall_pressure"] = self.pw  # volume maps, WCSPH: the particles' relaxing wall pressure
         if self.wall_pressure is not None and self.wall_pressure.pbar is not None:
             d["wall_pressure"] = self.wall_pressure.pbar  # WCSPH's relaxing wall pressure (wall_pressure.py)
         if self.moving_boundary:  # the boundary particles' order (re-sorted every substep) and place
@@ -823,7 +854,11 @@ class SPHSolver(Solver):
             "inside_colliders": self.opts.inside_collider_mode,
             "removed_inside_colliders": self.removed,
             "boundary": (
-                f"{self.nbp} boundary particles (Akinci et al. 2012), wall pressure: {self.opts.wall_model}"
+                f"volume map (no boundary particles): {self.vmap.describe()}; wall pressure: "
+                f"{self.opts.wall_model}"
+                if self.vmap is not None
+                else f"{self.nbp} boundary particles (Akinci et al. 2012), wall pressure: "
+                f"{self.opts.wall_model}"
                 + (
                     " (Adami et al. 2012 / Band et al. 2018)"
                     if self.opts.wall_model == "extrapolated"

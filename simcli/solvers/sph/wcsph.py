@@ -48,12 +48,26 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     wp = fn.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
 
+    # volume maps with the extrapolated wall pressure (volume_map.py): the boundary's pressure seen by
+    # particle i is its own mirrored, relaxing towards p_i as the boundary particles' does towards the
+    # extrapolation (wall_pressure.py: why it relaxes), plus the hydrostatic difference F.Hb
+    Hb, pw = F.Hb, F.pw
+    ext_map = pw is not None
+    tau = float(P.wall_pressure_relaxation)
+
     @ti.func
-    def boundary_pressure_acceleration(i):
+    def boundary_pressure_acceleration(i, dt):
         ri = rho[i]
-        a = -mat_rho0[mid[i]] * (p[i] / (ri * ri)) * B[i]  # Akinci et al. 2012, eq. 10
+        m = mid[i]
+        rho0 = mat_rho0[m]
+        a = -rho0 * (p[i] / (ri * ri)) * B[i]  # Akinci et al. 2012, eq. 10
         if ti.static(ext):
             a += wp.wcsph_wall_force(i)  # the walls' own pressure (Adami et al. 2012)
+        if ti.static(ext_map):
+            pb = pw[i] + dt / (tau + dt) * (p[i] - pw[i])
+            pw[i] = pb
+            rb = rho0 * ti.pow(ti.max(pb, 0.0) / mat_k[m] + 1.0, 1.0 / mat_n[m])
+            a -= (rho0 / (rb * rb)) * (pb * B[i] + rho0 * Hb[i])
         return a
 
     @ti.kernel
@@ -76,7 +90,7 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             wp.wcsph_pressure(dt)
         for i in range(N()):
             # non_pressure and the liquid's pressure force in one pass over the neighbour list
-            vnew[i] = v[i] + dt * (fn.non_pressure(i, True) + boundary_pressure_acceleration(i))
+            vnew[i] = v[i] + dt * (fn.non_pressure(i, True) + boundary_pressure_acceleration(i, dt))
         if ti.static(P.named_loads):  # the reaction on named colliders (moving.py), from the same state
             for i in range(N()):
                 fn.load_pressure(i, dt)

@@ -1,0 +1,610 @@
+"""Walls and static colliders without boundary particles (``solvers.sph.boundary: volume_map``): each
+boundary's contribution to a liquid particle's sums is precomputed once, as a function of the particle's
+position, and looked up per particle in the density pass instead of walking boundary particles.
+
+What a boundary contributes (density.py) is a handful of sums over its particles b, each a smooth function
+of the liquid particle's position x only (for a static boundary)::
+
+    psi(x)  = sum_b V_b W(x - x_b)                (density: rho_i += rho0_i psi)
+    B(x)    = sum_b V_b grad W(x - x_b) = grad psi (pressure terms, DFSPH's alpha)
+    cnt(x)  = #{b : |x - x_b| < h}                (DFSPH's neighbour count test)
+    T(x)    = -sum_b V_b W'(r) r                  (gradient_correction: scalar, the moment's trace)
+    M(x)    = sum_b V_b / (r^2 + eps) grad W (x - x_b)^T   (no-slip viscosity)
+
+so this is a density map (Koschier & Bender 2017, "Density maps for improved SPH boundary handling") of
+the boundary the particle model samples: B is the exact gradient of psi (the pressure force of the walls is
+the gradient of the density they add), rather than Bender et al.'s (2019, "Volume maps: an implicit
+boundary representation for SPH") volume V_b(x) at the closest point x_b, whose force is not the gradient
+of its density term. The boundary itself is the one ``boundary: particles`` samples (boundary.py: layers of
+spacing particle_size outside each face, volume V_rest each), so a liquid lattice next to a wall is at rest
+density as with particles.
+
+* Domain walls: the box's faces are planes, so the sums depend on the distances d_a to the faces within the
+  support only. A face's layers, averaged over their tangential offset (the lattice sum taken as an
+  integral along the face, a lattice in the normal direction), give a table in d (``H``). The walls are
+  the union of the faces' half-spaces; inclusion-exclusion removes the edges' lattice counted twice
+  (``Q``, a table in two distances: lattice in both normals) and restores the corners' (3D: ``O``, a lattice
+  sum in three distances). Exact to the tables' interpolation for any box; no-slip viscosity takes the
+  faces' terms without the edge correction.
+* Static colliders: the collider's boundary particles (boundary.collider_particles, the same sampling) are
+  deposited on a grid of spacing particle_size / 4 (2D) or / 3 (3D) by cloud-in-cell weights and
+  convolved with the kernel's stencils (FFT), once at build; each liquid particle interpolates the grid
+  (multilinear). Moving colliders keep boundary particles for now (an error says so).
+
+Cost per liquid particle: nothing unless it lies within a support radius of a wall (a few distance tests);
+then one table lookup per face, edge and corner in reach. No boundary particles in the neighbour lists or
+the cell sort.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from simcli.solvers.sph.kernels import VISC_EPS, kernel_constant
+
+# table resolutions: points per support radius (face: 1D, edge: 2D, corner: 3D)
+N_FACE = 256
+N_EDGE = 64
+N_CORNER = 32
+
+
+def _W(r: np.ndarray, h: float, dim: int) -> np.ndarray:
+    """W(r) (numpy; kernels.cubic_W without float powers: the tables evaluate it millions of times)."""
+    q = np.asarray(r, dtype=np.float64) / h
+    k = kernel_constant(h, dim)
+    t = np.maximum(1.0 - q, 0.0)
+    return np.where(q <= 0.5, k * (6.0 * q * q * (q - 1.0) + 1.0), 2.0 * k * t * t * t)
+
+
+def _dW(r: np.ndarray, h: float, dim: int) -> np.ndarray:
+    """W'(r) [1/m^(dim+1)] (numpy)."""
+    q = np.asarray(r, dtype=np.float64) / h
+    k = kernel_constant(h, dim)
+    t = np.maximum(1.0 - q, 0.0)
+    return np.where(q <= 0.5, 6.0 * k * q * (3.0 * q - 2.0), -6.0 * k * t * t) / h
+
+
+def _integrands(a: list[np.ndarray], t2: np.ndarray, h: float, dim: int, eps: float) -> dict[str, np.ndarray]:
+    """The sums' integrands at normal offsets a (one array per normal, u_a = a) with t2 the squared
+    tangential offset (0 where there is none): psi, the gradient along each normal, cnt, T, and the
+    no-slip matrix's normal-normal and tangential parts (one tangential component: t2 / (dim - len(a)))."""
+    r2 = sum(x * x for x in a) + t2
+    r = np.sqrt(r2)
+    dw = _dW(r, h, dim)
+    safe = np.where(r > 1e-12 * h, r, 1.0)
+    out = {"psi": _W(r, h, dim), "cnt": (r < h).astype(np.float64), "T": -dw * r}
+    for k, x in enumerate(a):
+        out[f"g{k}"] = np.where(r > 1e-12 * h, dw * x / safe, 0.0)
+    c = np.where(r > 1e-12 * h, dw / (safe * (r2 + eps)), 0.0)
+    out["ann"] = c * a[0] * a[0]
+    ntan = dim - len(a)
+    out["att"] = c * (t2 / ntan if ntan else 0.0 * t2)
+    m = np.where(r > 1e-12 * h, dw / safe, 0.0)  # the moment sum_b V_b grad W (x - x_b)^T
+    out["mnn"] = m * a[0] * a[0]
+    out["mtt"] = m * (t2 / ntan if ntan else 0.0 * t2)
+    return out
+
+
+@dataclass
+class WallTables:
+    """Tables of the domain walls' sums against the distances to the faces [0, h]."""
+
+    h: float
+    face: np.ndarray  # (N_FACE + 1, 8): psi, g, cnt, T, ann, att (no-slip), mnn, mtt (moment)
+    edge: np.ndarray  # (N_EDGE + 1, N_EDGE + 1, 5): psi, g0, g1, cnt, T
+    corner: np.ndarray | None  # 3D: (N_CORNER + 1,) * 3 + (6,): psi, g0, g1, g2, cnt, T
+
+
+def wall_tables(ps: float, h: float, dim: int, V: float) -> WallTables:
+    """The walls' tables (numpy): each boundary particle has volume V, layers at (k + 1/2) ps beyond a face.
+    Along a face the lattice is summed as a particle aligned with it sees it. Computed once per (dim,
+    h / ps, V / ps^dim) at unit spacing and scaled (psi, cnt and T are scale-free, the gradient scales
+    as 1 / ps, the no-slip matrix as 1 / ps^2)."""
+    t = _unit_wall_tables(dim, round(h / ps, 12), round(V / ps**dim, 12))
+    face = t.face * np.array([1.0, 1.0 / ps, 1.0, 1.0, ps**-2, ps**-2, 1.0, 1.0])
+    edge = t.edge * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0, 1.0])
+    corner = None if t.corner is None else t.corner * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0 / ps, 1.0, 1.0])
+    return WallTables(h, face, edge, corner)
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_wall_tables(dim: int, h: float, V: float) -> WallTables:
+    ps = 1.0
+    eps = VISC_EPS * h * h
+    L = int(math.ceil(h / ps)) + 1  # layers in reach
+    layers = (np.arange(L) + 0.5) * ps
+    # along the faces: the lattice sum of a particle aligned with the wall's lattice (a liquid lattice
+    # next to a wall then sits at rho0 as with wall particles; the integral along the face, the average over
+    # the tangential offset, differs from it by 0.15% in 2D)
+    kt = np.arange(-L - 1, L + 2, dtype=np.float64) * ps
+    if dim == 2:
+        t2_1, w_1 = kt * kt, np.full(kt.size, ps)
+    else:
+        t2_1 = (kt[:, None] ** 2 + kt[None, :] ** 2).ravel()
+        w_1 = np.full(t2_1.size, ps * ps)
+    # face: a lattice in the normal, the tangential dim - 1 integrated
+    d = np.linspace(0.0, h, N_FACE + 1)
+    a = (d[:, None] + layers[None, :])[..., None]  # (nd, L, 1)
+    it = _integrands([a], t2_1[None, None, :], h, dim, eps)
+    fac = V / ps ** (dim - 1)
+    face = np.stack(
+        [
+            fac * (it[k] * w_1).sum(axis=(1, 2)) * (1.0 / V if k == "cnt" else 1.0)
+            for k in ("psi", "g0", "cnt", "T", "ann", "att", "mnn", "mtt")
+        ],
+        axis=-1,
+    )
+    # edge: a lattice in both normals; 3D: the third axis integrated (row by row: bounded memory)
+    d2 = np.linspace(0.0, h, N_EDGE + 1)
+    fac = V / ps ** (dim - 2)
+    keys = ("psi", "g0", "g1", "cnt", "T")
+    edge = np.zeros((d2.size, d2.size, len(keys)))
+    if dim == 3:
+        tl = kt
+        w_t = ps
+    for i0, x0 in enumerate(d2):
+        a0 = np.broadcast_to((x0 + layers)[None, :, None], (d2.size, L, L))
+        a1 = np.broadcast_to(d2[:, None, None] + layers[None, None, :], (d2.size, L, L))
+        if dim == 2:
+            it = _integrands([a0, a1], np.zeros(1), h, dim, eps)
+            row = [it[k].sum(axis=(1, 2)) for k in keys]
+        else:
+            it = _integrands([a0[..., None], a1[..., None]], (tl * tl)[None, None, None, :], h, dim, eps)
+            row = [it[k].sum(axis=(1, 2, 3)) * w_t for k in keys]
+        edge[i0] = np.stack([fac * r * (1.0 / V if k == "cnt" else 1.0) for k, r in zip(keys, row)], axis=-1)
+    corner = None
+    if dim == 3:
+        d3 = np.linspace(0.0, h, N_CORNER + 1)
+        A = [
+            d3.reshape([-1 if i == k else 1 for i in range(3)] + [1, 1, 1])
+            + layers.reshape([1, 1, 1] + [-1 if i == k else 1 for i in range(3)])
+            for k in range(3)
+        ]
+        it = _integrands(A, np.zeros(1), h, dim, eps)
+        corner = np.stack(
+            [
+                V * it[k].sum(axis=(3, 4, 5)) * (1.0 / V if k == "cnt" else 1.0)
+                for k in ("psi", "g0", "g1", "g2", "cnt", "T")
+            ],
+            axis=-1,
+        )
+    return WallTables(h, face, edge, corner)
+
+
+@dataclass
+class ColliderMap:
+    """A static collider's sums on a grid: origin, spacing, channels (psi, g (dim), cnt, T[, M sym])."""
+
+    origin: np.ndarray
+    spacing: float
+    values: np.ndarray  # dims + (channels,): psi, g (dim), cnt, T, moment (sym), no-slip matrix (sym)
+    no_slip: bool
+    nparticles: int = 0
+    sym: list = field(default_factory=list)  # (i, j) of the moment's and the no-slip matrix's channels
+
+
+def collider_map(spec, lo, hi, ps: float, h: float, dim: int, V: float, layers: int) -> ColliderMap | None:
+    """The collider's boundary particles (boundary.collider_particles, each with its sampled volume times
+    V / ps^dim, as boundary: particles gives them) deposited on a grid and convolved with the kernel's
+    stencils; None if none lies in reach of the domain."""
+    from scipy.signal import fftconvolve
+
+    from simcli.solvers.sph.boundary import collider_particles
+
+    bp = collider_particles(spec, lo, hi, ps, dim, layers)
+    if bp.n == 0:
+        return None
+    dx = ps / (4.0 if dim == 2 else 3.0)
+    K = int(math.ceil(h / dx))
+    origin = bp.x.min(axis=0) - (K + 2) * dx
+    dims = np.ceil((bp.x.max(axis=0) + (K + 2) * dx - origin) / dx).astype(np.int64) + 1
+    # cloud-in-cell deposit of V_b (and of 1, the count)
+    s = (bp.x - origin) / dx
+    i0 = np.floor(s).astype(np.int64)
+    fr = s - i0
+    vol = bp.volume * (V / ps**dim)
+    dep = np.zeros(tuple(dims))
+    depc = np.zeros(tuple(dims))
+    for corner in range(2**dim):
+        off = np.array([(corner >> k) & 1 for k in range(dim)])
+        w = np.prod(np.where(off, fr, 1.0 - fr), axis=1)
+        idx = tuple((i0 + off).T)
+        np.add.at(dep, idx, vol * w)
+        np.add.at(depc, idx, w)
+    # stencils: u = node - x_b on the offsets k dx, |k| <= K
+    ax = np.arange(-K, K + 1) * dx
+    U = np.stack(np.meshgrid(*[ax] * dim, indexing="ij"), axis=-1)
+    r2 = (U * U).sum(-1)
+    r = np.sqrt(r2)
+    dw = _dW(r, h, dim)
+    safe = np.where(r > 1e-12 * h, r, 1.0)
+    eps = VISC_EPS * h * h
+    chans = [fftconvolve(dep, _W(r, h, dim), mode="same")]
+    for k in range(dim):
+        chans.append(fftconvolve(dep, np.where(r > 1e-12 * h, dw * U[..., k] / safe, 0.0), mode="same"))
+    chans.append(fftconvolve(depc, (r < h).astype(np.float64), mode="same"))
+    chans.append(fftconvolve(dep, -dw * r, mode="same"))
+    sym = [(i, j) for i in range(dim) for j in range(i, dim)]
+    m = np.where(r > 1e-12 * h, dw / safe, 0.0)
+    for i, j in sym:  # the moment sum_b V_b grad W (x - x_b)^T (the walls' hydrostatic pressure)
+        chans.append(fftconvolve(dep, m * U[..., i] * U[..., j], mode="same"))
+    no_slip = bool(spec.contact == "sticky")
+    if no_slip:
+        c = np.where(r > 1e-12 * h, dw / (safe * (r2 + eps)), 0.0)
+        for i, j in sym:
+            chans.append(fftconvolve(dep, c * U[..., i] * U[..., j], mode="same"))
+    return ColliderMap(origin, dx, np.stack(chans, axis=-1), no_slip, bp.n, sym)
+
+
+class VolumeMap:
+    """Host side: the tables and grids of a scene's static boundaries, their Taichi fields, and the Taichi
+    func ``boundary(xi)`` that density.py calls per liquid particle."""
+
+    def __init__(self, scene, dim: int, ps: float, h: float, V: float, specs, layers: int) -> None:
+        from simcli.colliders import wall_specs
+
+        self.dim, self.ps, self.h = dim, ps, h
+        lo, hi = scene.domain.bounds(dim)
+        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
+        moving = [c for c in specs if c.moving]
+        if moving:
+            raise ValueError(
+                "solvers.sph.boundary: volume_map supports static colliders only; collider(s) "
+                + ", ".join(repr(getattr(c, "name", None) or "?") for c in moving)
+                + " move: set solvers.sph.boundary: particles"
+            )
+        self.walls = wall_specs(scene, dim)
+        self.wall_tables = wall_tables(ps, h, dim, V)
+        self.colliders = []
+        self.spec_index = []  # the collider index (ColliderPoses) of each map
+        for k, spec in enumerate(specs):
+            m = collider_map(spec, lo, hi, ps, h, dim, V, layers)
+            if m is not None:
+                self.colliders.append(m)
+                self.spec_index.append(k)
+        self.named = [c for c, k in enumerate(self.spec_index) if specs[k].name is not None]
+        self.no_slip = any(w.contact == "sticky" for w in self.walls) or any(
+            m.no_slip for m in self.colliders
+        )
+
+    def nbytes(self) -> int:
+        t = self.wall_tables
+        n = t.face.nbytes + t.edge.nbytes + (0 if t.corner is None else t.corner.nbytes)
+        return n + sum(m.values.nbytes for m in self.colliders)
+
+    def describe(self) -> str:
+        parts = [f"domain walls: tables of {N_FACE + 1} (faces), {N_EDGE + 1}^2 (edges)"]
+        if self.dim == 3:
+            parts[-1] += f", {N_CORNER + 1}^3 (corners)"
+        for k, m in enumerate(self.colliders):
+            parts.append(
+                f"collider {k}: grid {tuple(int(s) for s in m.values.shape[:-1])} of {m.spacing:.3g} m "
+                f"({m.nparticles} boundary particles deposited)"
+            )
+        return "; ".join(parts)
+
+    # ---------------------------------------------------------------- Taichi side
+
+    def build(self, f, npf, with_noslip: bool, with_hyd: bool = False):
+        """Taichi fields and the func ``boundary(xi, g) -> (psi, B, cnt, T, M, m_w, S, H)``; ``with_noslip``:
+        the no-slip sums are wanted (a viscous liquid); ``with_hyd``: H, the walls' hydrostatic pressure term
+        for gravity g (the extrapolated wall pressure, see ``hydrostatic``), else zero."""
+        from simcli.backend import stdout_to_stderr
+
+        with stdout_to_stderr():
+            import taichi as ti
+
+        dim, h = self.dim, self.h
+        t = self.wall_tables
+        face = ti.Vector.field(t.face.shape[-1], f, shape=t.face.shape[0])
+        face.from_numpy(t.face.astype(npf))
+        edge = ti.Vector.field(t.edge.shape[-1], f, shape=t.edge.shape[:2])
+        edge.from_numpy(t.edge.astype(npf))
+        corner = None
+        if t.corner is not None:
+            corner = ti.Vector.field(t.corner.shape[-1], f, shape=t.corner.shape[:3])
+            corner.from_numpy(t.corner.astype(npf))
+        cols = []
+        for m in self.colliders:
+            fld = ti.Vector.field(m.values.shape[-1], f, shape=m.values.shape[:-1])
+            fld.from_numpy(m.values.astype(npf))
+            cols.append(fld)
+        self._fields = (face, edge, corner, cols)  # keep them alive
+        col_meta = [
+            (tuple(float(o) for o in m.origin), 1.0 / m.spacing, tuple(int(s) for s in m.values.shape[:-1]))
+            for m in self.colliders
+        ]
+        col_noslip = [m.no_slip and with_noslip for m in self.colliders]
+        col_sym = [m.sym for m in self.colliders]
+        lo = tuple(float(v) for v in self.lo)
+        hi = tuple(float(v) for v in self.hi)
+        # faces: (axis, side, inward normal sign, no-slip, velocity)
+        faces = [
+            (w.axis, w.side, -w.side, w.contact == "sticky" and with_noslip, tuple(w.velocity))
+            for w in self.walls
+        ]
+        any_vel = [any(abs(c) > 0 for c in fc[4]) for fc in faces]
+        sF, sE, sC = N_FACE / h, N_EDGE / h, N_CORNER / h
+
+        def make_lerp1(tab, n):
+            @ti.func
+            def lerp1(s):
+                u = ti.min(ti.max(s, 0.0), ti.cast(n, f) - 1e-4)
+                k = ti.min(ti.cast(ti.floor(u), ti.i32), n - 1)
+                w = u - k
+                return tab[k] * (1.0 - w) + tab[k + 1] * w
+
+            return lerp1
+
+        def make_lerp2(tab, n):
+            @ti.func
+            def lerp2(s0, s1):
+                u0 = ti.min(ti.max(s0, 0.0), ti.cast(n, f) - 1e-4)
+                u1 = ti.min(ti.max(s1, 0.0), ti.cast(n, f) - 1e-4)
+                k0 = ti.min(ti.cast(ti.floor(u0), ti.i32), n - 1)
+                k1 = ti.min(ti.cast(ti.floor(u1), ti.i32), n - 1)
+                w0, w1 = u0 - k0, u1 - k1
+                return (tab[k0, k1] * (1.0 - w1) + tab[k0, k1 + 1] * w1) * (1.0 - w0) + (
+                    tab[k0 + 1, k1] * (1.0 - w1) + tab[k0 + 1, k1 + 1] * w1
+                ) * w0
+
+            return lerp2
+
+        def make_lerp3(tab, n):
+            @ti.func
+            def lerp3(s0, s1, s2):
+                u0 = ti.min(ti.max(s0, 0.0), ti.cast(n, f) - 1e-4)
+                u1 = ti.min(ti.max(s1, 0.0), ti.cast(n, f) - 1e-4)
+                u2 = ti.min(ti.max(s2, 0.0), ti.cast(n, f) - 1e-4)
+                k0 = ti.min(ti.cast(ti.floor(u0), ti.i32), n - 1)
+                k1 = ti.min(ti.cast(ti.floor(u1), ti.i32), n - 1)
+                k2 = ti.min(ti.cast(ti.floor(u2), ti.i32), n - 1)
+                w0, w1, w2 = u0 - k0, u1 - k1, u2 - k2
+                res = tab[k0, k1, k2] * 0.0
+                for c in ti.static(range(8)):
+                    a0, a1, a2 = c & 1, (c >> 1) & 1, (c >> 2) & 1
+                    wt = (w0 if a0 else 1.0 - w0) * (w1 if a1 else 1.0 - w1) * (w2 if a2 else 1.0 - w2)
+                    res += wt * tab[k0 + a0, k1 + a1, k2 + a2]
+                return res
+
+            return lerp3
+
+        def make_grid_lerp(fld, dims):
+            @ti.func
+            def grid_lerp(s):
+                """Multilinear interpolation at grid coordinates s; zero outside the grid."""
+                res = fld[(0,) * dim] * 0.0
+                inside = True
+                for a in ti.static(range(dim)):
+                    if s[a] < 0.0 or s[a] >= dims[a] - 1:
+                        inside = False
+                if inside:
+                    k = ti.Vector([ti.cast(ti.floor(s[a]), ti.i32) for a in ti.static(range(dim))])
+                    w = s - k
+                    for c in ti.static(range(2**dim)):
+                        wt = ti.cast(1.0, f)
+                        off = ti.Vector([(c >> a) & 1 for a in ti.static(range(dim))])
+                        for a in ti.static(range(dim)):
+                            wt *= w[a] if (c >> a) & 1 else 1.0 - w[a]
+                        res += wt * fld[k + off]
+                return res
+
+            return grid_lerp
+
+        face_at = make_lerp1(face, N_FACE)
+        edge_at = make_lerp2(edge, N_EDGE)
+        corner_at = make_lerp3(corner, N_CORNER) if corner is not None else None
+        col_at = [make_grid_lerp(cols[c], col_meta[c][2]) for c in range(len(cols))]
+
+        @ti.func
+        def hydrostatic(Bo, Mo, g):
+            """One boundary's hydrostatic term sum_b V_b kh_b grad W_ib with kh_b = g . (x_b - x_i), the
+            stiffness difference of a liquid at rest between the boundary point and the particle: -Mo g
+            with Mo = sum_b V_b grad W_ib (x_i - x_b)^T. Its part along the boundary's normal (-Bo) may only
+            push the liquid off the boundary (Adami et al. 2012 clamp the hydrostatic part at zero: a wall
+            above the liquid never pulls)."""
+            Hv = -(Mo @ g)
+            bn = Bo.norm()
+            if bn > 0:
+                nh = -Bo / bn
+                hn = Hv.dot(nh)
+                if hn > 0:
+                    Hv -= hn * nh
+            return Hv
+
+        @ti.func
+        def boundary(xi, g):
+            Hy = ti.Vector.zero(f, dim)
+            psi = ti.cast(0.0, f)
+            B = ti.Vector.zero(f, dim)
+            cnt = ti.cast(0.0, f)
+            T = ti.cast(0.0, f)
+            M = ti.Matrix.zero(f, dim, dim)
+            mw = ti.Vector.zero(f, dim)
+            S = ti.cast(0.0, f)
+            # distances to the faces (inward), in the walls' order (x-, x+, y-, ...)
+            dist = ti.Vector.zero(f, 2 * dim)
+            near = False
+            for a in ti.static(range(dim)):
+                dist[2 * a] = xi[a] - lo[a]
+                dist[2 * a + 1] = hi[a] - xi[a]
+                if dist[2 * a] < h or dist[2 * a + 1] < h:
+                    near = True
+            if near:
+                for k in ti.static(range(2 * dim)):
+                    ax, sgn, ns, vel = ti.static(faces[k][0], faces[k][2], faces[k][3], faces[k][4])
+                    if dist[k] < h:
+                        v = face_at(dist[k] * sF)
+                        psi += v[0]
+                        B[ax] += sgn * v[1]
+                        cnt += v[2]
+                        T += v[3]
+                        if ti.static(any_vel[k]):
+                            vw = ti.Vector(vel, dt=f)
+                            S += sgn * vw[ax] * v[1]
+                        if ti.static(with_hyd):
+                            nv = ti.Vector.zero(f, dim)
+                            nv[ax] = sgn
+                            nn = nv.outer_product(nv)
+                            Mo = v[6] * nn + v[7] * (ti.Matrix.identity(f, dim) - nn)
+                            Hy += hydrostatic(v[1] * nv, Mo, g)
+                        if ti.static(ns):
+                            nv = ti.Vector.zero(f, dim)
+                            nv[ax] = sgn
+                            Mf = v[4] * nv.outer_product(nv) + v[5] * (
+                                ti.Matrix.identity(f, dim) - nv.outer_product(nv)
+                            )
+                            M += Mf
+                            if ti.static(any_vel[k]):
+                                mw += Mf @ ti.Vector(vel, dt=f)
+                # edges: the lattice beyond two faces of different axes was counted twice
+                for k0 in ti.static(range(2 * dim)):
+                    for k1 in ti.static(range(2 * dim)):
+                        if ti.static(k0 // 2 < k1 // 2):
+                            if dist[k0] < h and dist[k1] < h:
+                                q = edge_at(dist[k0] * sE, dist[k1] * sE)
+                                psi -= q[0]
+                                B[k0 // 2] -= faces[k0][2] * q[1]
+                                B[k1 // 2] -= faces[k1][2] * q[2]
+                                cnt -= q[3]
+                                T -= q[4]
+                if ti.static(dim == 3):  # corners: counted three times, removed three times
+                    for c in ti.static(range(8)):
+                        k0, k1, k2 = ti.static(c & 1, 2 + ((c >> 1) & 1), 4 + ((c >> 2) & 1))
+                        if dist[k0] < h and dist[k1] < h and dist[k2] < h:
+                            o = corner_at(dist[k0] * sC, dist[k1] * sC, dist[k2] * sC)
+                            psi += o[0]
+                            B[0] += faces[k0][2] * o[1]
+                            B[1] += faces[k1][2] * o[2]
+                            B[2] += faces[k2][2] * o[3]
+                            cnt += o[4]
+                            T += o[5]
+            for c in ti.static(range(len(cols))):
+                org, inv = ti.static(col_meta[c][0], col_meta[c][1])
+                s = (xi - ti.Vector(org, dt=f)) * inv
+                v = col_at[c](s)
+                psi += v[0]
+                for a in ti.static(range(dim)):
+                    B[a] += v[1 + a]
+                cnt += v[1 + dim]
+                T += v[2 + dim]
+                nsym = ti.static(len(col_sym[c]))
+                if ti.static(with_hyd):
+                    Mo = ti.Matrix.zero(f, dim, dim)
+                    Bo = ti.Vector.zero(f, dim)
+                    for a in ti.static(range(dim)):
+                        Bo[a] = v[1 + a]
+                    for m in ti.static(range(len(col_sym[c]))):
+                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
+                        Mo[i, j] = v[3 + dim + m]
+                        Mo[j, i] = v[3 + dim + m]
+                    Hy += hydrostatic(Bo, Mo, g)
+                if ti.static(col_noslip[c]):
+                    for m in ti.static(range(len(col_sym[c]))):
+                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
+                        M[i, j] += v[3 + dim + nsym + m]
+                        if ti.static(i != j):
+                            M[j, i] += v[3 + dim + nsym + m]
+            return psi, B, cnt, T, M, mw, S, Hy
+
+        def make_collider_terms(c):
+            @ti.func
+            def collider_terms(xi, g):
+                """Collider map c's own B, hydrostatic term (zero unless with_hyd) and no-slip matrix at xi
+                (the loads on a named collider)."""
+                s = (xi - ti.Vector(col_meta[c][0], dt=f)) * col_meta[c][1]
+                v = col_at[c](s)
+                Bo = ti.Vector.zero(f, dim)
+                for a in ti.static(range(dim)):
+                    Bo[a] = v[1 + a]
+                Hc = ti.Vector.zero(f, dim)
+                nsym = ti.static(len(col_sym[c]))
+                if ti.static(with_hyd):
+                    Mo = ti.Matrix.zero(f, dim, dim)
+                    for m in ti.static(range(len(col_sym[c]))):
+                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
+                        Mo[i, j] = v[3 + dim + m]
+                        Mo[j, i] = v[3 + dim + m]
+                    Hc = hydrostatic(Bo, Mo, g)
+                Mc = ti.Matrix.zero(f, dim, dim)
+                if ti.static(col_noslip[c]):
+                    for m in ti.static(range(len(col_sym[c]))):
+                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
+                        Mc[i, j] = v[3 + dim + nsym + m]
+                        Mc[j, i] = v[3 + dim + nsym + m]
+                return Bo, Hc, Mc
+
+            return collider_terms
+
+        self.collider_terms = [make_collider_terms(c) for c in range(len(cols))]
+        return boundary
+
+    def make_loads(self, P, F, fn, poses):
+        """Taichi funcs ``(pressure(i, dt), viscous(i, dt))`` that add the liquid's loads on the named static
+        colliders to ``poses`` (as moving.make_loads does with boundary particles): the impulse the collider's
+        map gave liquid particle i this substep, reversed, applied at x_i. DFSPH: dt m_i (k_i L_i B_c +
+        k_i B_c + H_c) with the substep's total stiffness in F.kk (the mirrored wall stiffness and the
+        hydrostatic term with the extrapolated wall pressure, else Akinci's term alone); WCSPH: dt m_i rho0
+        p_i / rho_i^2 B_c (plus rho0 / rho_w^2 (p_w B_c + rho0 H_c) with the extrapolated wall pressure);
+        no-slip: -dt m_i 2 (dim + 2) nu M_c v_i."""
+        from simcli.backend import stdout_to_stderr
+
+        with stdout_to_stderr():
+            import taichi as ti
+
+        f, dim = P.f, P.dim
+        x, v, rho, p, mid, kk = F.x, F.v, F.rho, F.p, F.mid, F.kk
+        mat_rho0, mat_nu, gravity, mat_k, mat_n, pw = F.mat_rho0, F.mat_nu, F.gravity, F.mat_k, F.mat_n, F.pw
+        kgc, kgc_scalar, Lm, Lc = P.kgc, P.kgc_scalar, F.Lm, F.Lc
+        dfsph = P.pressure_solver == "DFSPH"
+        ext_map = F.Hb is not None
+        named = self.named
+        named_noslip = [c for c in named if self.colliders[c].no_slip] if P.has_noslip else []
+        kidx = self.spec_index
+        terms = self.collider_terms
+        visc_c = 2.0 * (dim + 2)
+
+        @ti.func
+        def pressure(i, dt):
+            xi = x[i]
+            mi = fn.mass_of(i)
+            for c in ti.static(named):
+                Bo, Hc, _ = terms[c](xi, gravity[None])
+                J = ti.Vector.zero(f, dim)
+                if ti.static(dfsph):
+                    gi = Bo
+                    if ti.static(kgc_scalar):
+                        gi = Lc[i] * Bo
+                    elif ti.static(kgc):
+                        gi = Lm[i] @ Bo
+                    J = kk[i] * gi
+                    if ti.static(ext_map):
+                        J += kk[i] * Bo + Hc
+                    J *= dt * mi
+                else:
+                    ri = rho[i]
+                    m = mid[i]
+                    rho0 = mat_rho0[m]
+                    J = (dt * mi * rho0 * p[i] / (ri * ri)) * Bo
+                    if ti.static(ext_map):  # the mirrored, relaxing wall pressure (wcsph.py)
+                        pb = pw[i]
+                        rb = rho0 * ti.pow(ti.max(pb, 0.0) / mat_k[m] + 1.0, 1.0 / mat_n[m])
+                        J += (dt * mi * rho0 / (rb * rb)) * (pb * Bo + rho0 * Hc)
+                if J.norm_sqr() > 0:
+                    poses.add_load(kidx[c], xi, J, 0)
+
+        @ti.func
+        def viscous(i, dt):
+            if ti.static(len(named_noslip) > 0):
+                xi = x[i]
+                for c in ti.static(named_noslip):
+                    _, _, Mc = terms[c](xi, gravity[None])
+                    J = -dt * fn.mass_of(i) * visc_c * mat_nu[mid[i]] * (Mc @ v[i])
+                    if J.norm_sqr() > 0:
+                        poses.add_load(kidx[c], xi, J, 0)
+
+        return pressure, viscous
