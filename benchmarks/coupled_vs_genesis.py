@@ -28,6 +28,31 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENES = {  # id -> (simcli scene, genesis_coupling_bench.py arguments or None, simcli --set overrides)
     "C1": ("configs/bench/c1_sph_mpm.yaml", ["sph_mpm"], []),
     "C2": ("configs/bench/c2_sand_wheel.yaml", ["sand_wheel", "--sway", "0"], []),
+    # C1's families alone (simcli only): where its substep goes
+    "C1sph": (
+        "configs/bench/c1_sph_mpm.yaml",
+        None,
+        [
+            "entities=[{name: water, material: {type: SPH.Liquid, rho: 1000, stiffness: 50000, exponent: 7, "
+            "mu: 0.005, gamma: 0.01}, morph: {type: Box, center: [0.4, 0.5, 0.25], size: [0.7, 0.9, 0.5]}}]"
+        ],
+    ),
+    "C1mpm": (
+        "configs/bench/c1_sph_mpm.yaml",
+        None,
+        [
+            "entities=[{name: duck, material: {type: MPM.Elastic, E: 3.0e5, nu: 0.2, rho: 200, "
+            "model: corotation}, morph: {type: Mesh, file: genesis_duck.ply, scale: 0.07, "
+            "rotate: [90, 0, 90], "
+            "translate: [0.5, 0.5, 0.7]}}]"
+        ],
+    ),
+    # C2 with its wheels still (no motion: no per-substep pose upload)
+    "C2still": (
+        "configs/bench/c2_sand_wheel.yaml",
+        None,
+        [f"colliders.{k}.motion=null" for k in (1, 2, 3, 4)],
+    ),
     # C2 without its four wheels (the plane kept): simcli only, for the wheels' share of the substep
     "C2nw": (
         "configs/bench/c2_sand_wheel.yaml",

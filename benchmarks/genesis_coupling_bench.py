@@ -192,4 +192,7 @@ try:
         )
 except Exception as ex:
     info["sanity_error"] = repr(ex)[:200]
+import resource  # noqa: E402
+
+info["peak_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
 print("RESULT " + json.dumps(info), flush=True)
