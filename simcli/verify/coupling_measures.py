@@ -42,6 +42,8 @@ def draft_fraction(f, entity, liquid, axis=None, spacing=0.0, margin=0.05, level
     hb = 0.5 * _lattice_spacing(b[0], ax)
     if level not in ("top", "mass"):
         raise ValueError(f"draft_fraction: level must be top or mass, not {level!r}")
+    if level == "mass" and not float(spacing) > 0:
+        raise ValueError("draft_fraction: level mass needs the liquid's particle spacing (spacing > 0)")
     if level == "mass":
         import yaml
 

@@ -744,7 +744,7 @@ class SPHSolver(Solver):
         if self.kappa is not None:
             d.update(kappa=self.kappa, kappav=self.kappav)
         if self.pw is not None:
-            d["wall_pressure"] = self.pw  # volume maps, WCSPH: the particles' relaxing wall pressure
+            d["wall_pressure_map"] = self.pw  # volume maps, WCSPH: the particles' relaxing wall pressure
         if self.wall_pressure is not None and self.wall_pressure.pbar is not None:
             d["wall_pressure"] = self.wall_pressure.pbar  # WCSPH's relaxing wall pressure (wall_pressure.py)
         if self.moving_boundary:  # the boundary particles' order (re-sorted every substep) and place
@@ -773,6 +773,12 @@ class SPHSolver(Solver):
         for k, fld in self._state_fields().items():
             if k == "rho" and k not in state:  # checkpoints written before session 6: computed below
                 continue
+            if k == "wall_pressure_map" and k not in state:  # a checkpoint of another boundary
+                raise ValueError(
+                    "SPH state: the checkpoint has no volume-map wall pressure (it was written with "
+                    "solvers.sph.boundary: particles, or with DFSPH); resume it with the boundary it was "
+                    "written with"
+                )
             if k == "wall_pressure" and k not in state:  # a checkpoint of another wall model
                 raise ValueError(
                     "SPH state: the checkpoint has no wall pressure (it was written with Akinci's walls: "

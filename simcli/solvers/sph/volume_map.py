@@ -552,6 +552,7 @@ class VolumeMap:
         p_i / rho_i^2 B_c (plus rho0 / rho_w^2 (p_w B_c + rho0 H_c) with the extrapolated wall pressure);
         no-slip: -dt m_i 2 (dim + 2) nu M_c v_i."""
         from simcli.backend import stdout_to_stderr
+        from simcli.solvers.sph.dfsph import BFAC
 
         with stdout_to_stderr():
             import taichi as ti
@@ -581,7 +582,7 @@ class VolumeMap:
                         gi = Lc[i] * Bo
                     elif ti.static(kgc):
                         gi = Lm[i] @ Bo
-                    J = kk[i] * gi
+                    J = BFAC * kk[i] * gi  # as the velocity update (dfsph.py) and moving.py's loads
                     if ti.static(ext_map):
                         J += kk[i] * Bo + Hc
                     J *= dt * mi

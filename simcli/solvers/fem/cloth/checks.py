@@ -59,6 +59,7 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
                 "region (in the order of `fixed`) or one for all",
             )
         ]
+    from simcli.motion import MotionError
     from simcli.solvers.fem.cloth.model import mesh_problems
     from simcli.solvers.fem.cloth.obstacles import Obstacles
     from simcli.solvers.fem.cloth.topology import cloth_mesh
@@ -91,7 +92,10 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
                 "thin the shell",
             )
         )
-    d, _, _ = Obstacles(scene).distances(x)
+    try:  # the colliders at their pose at t = 0 (a bad motion is reported by the collider checks)
+        d, _, _ = Obstacles(scene, scene_dir).distances(x, 0.0)
+    except MotionError:
+        return out
     bad = d <= 0
     if bad.any():
         k, i = np.argwhere(bad)[0]
