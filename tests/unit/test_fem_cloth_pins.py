@@ -203,3 +203,23 @@ colliders:
     st["tau"] = np.array([0.015])  # a collider held back by a contact: it catches up from there
     b.set_state(st)
     assert b.tau == 0.015
+
+
+def test_moving_collider_checks_read_the_scene_folder_and_report_bad_motion(tmp_path):
+    """The start-inside check takes the colliders at their pose at t = 0 with the scene's own folder: a CSV
+    motion next to the scene validates from anywhere, and a bad keyframe list is a located error (both were
+    tracebacks: the check read the CSV relative to the working directory and raised on bad keyframes)."""
+    from simcli.errors import SceneError
+    from simcli.scene.loader import load_scene
+
+    (tmp_path / "m.csv").write_text("t,x,y,z,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0,0,-0.1,1,0,0,0\n")
+    col = "colliders:\n  - {type: Sphere, center: [0, 0, 0.2], radius: 0.05, motion: {file: m.csv}}"
+    load_scene(_scene(tmp_path, col=col))  # no error, from the test's working directory
+    col = (
+        "colliders:\n  - {type: Sphere, center: [0, 0, 0.2], radius: 0.05,\n"
+        "     motion: {keyframes: {times: [0, 1], translate: [[0, 0, 0]]}}}"
+    )
+    with pytest.raises(SceneError) as ei:
+        load_scene(_scene(tmp_path, col=col))
+    msg = str(ei.value)
+    assert "translate needs one entry per time" in msg and "cloth.yaml:" in msg, msg
