@@ -42,6 +42,9 @@ class MPMParams:
     gdim: int  # channels per grid node
     has_fixed: bool  # some particles are fixed (pinned): a fixed-mass channel and zero velocity
     n_bodies: int  # entities (per-entity frame statistics)
+    # first of ``dim`` channels holding the nodes' mass-weighted particle position (the material's
+    # position for the frictional colliders' gap test, boundary.GridBoundary.gap_test); -1: none
+    gap_ch: int = -1
 
     @property
     def inv_dx(self) -> float:

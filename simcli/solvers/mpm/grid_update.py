@@ -17,10 +17,11 @@ with stdout_to_stderr():
 
 def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
     """The ``ti.func`` ``grid_update(dt)``. ``boundary``: an object with a ``ti.func``
-    ``apply(I, v, m) -> v``, or boundary.GridBoundary (``bind_grid`` and ``apply(I, v, m, dt)``);
+    ``apply(I, v, m) -> v``, or boundary.GridBoundary (``bind_grid`` and ``apply(I, v, m, dt, xm)``);
     ``flip``: transfer.FlipTransfer or None (APIC).
     Reads grid, bbox, gravity; writes bbox_all, grid_v (and grid_m when allocated)."""
     dim, f, T, gdim, has_fixed = params.dim, params.dtype, params.T, params.gdim, params.has_fixed
+    gap_ch = params.gap_ch
     grid, grid_v, grid_m = fields.grid, fields.grid_v, fields.grid_m
     bbox, bbox_all, gravity = fields.bbox, fields.bbox_all, fields.gravity
     keep_m = grid_m is not None
@@ -58,7 +59,11 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
                 vI = ti.Vector.zero(f, dim)
             else:
                 if ti.static(with_grid):
-                    vI = boundary.apply(I, vI, m, dt)
+                    xm = ti.Vector.zero(f, dim)  # the node's material position (gap test)
+                    if ti.static(gap_ch >= 0):
+                        for d in ti.static(range(dim)):
+                            xm[d] = g[gap_ch + d] / m
+                    vI = boundary.apply(I, vI, m, dt, xm)
                 else:
                     vI = boundary.apply(I, vI, m)
         grid_v[I] = vI

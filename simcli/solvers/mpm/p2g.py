@@ -33,7 +33,7 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
     """``kirchhoff(p, F, J, update)``: the particle's Kirchhoff stress (laws.LawDispatch.kirchhoff);
     ``flip``: the FLIP transfer (transfer.FlipTransfer) or None (APIC); ``count``: ti.func, the particle
     loop's bound. Reads x, v, C, F, mass, vol, fixed, bbox, chunk_start; writes grid."""
-    dim, f, T, gdim = params.dim, params.dtype, params.T, params.gdim
+    dim, f, T, gdim, gap_ch = params.dim, params.dtype, params.T, params.gdim, params.gap_ch
     chunked, has_fixed = params.chunked, params.has_fixed
     dx, inv_dx = params.dx, params.inv_dx
     N = count
@@ -51,8 +51,11 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
     bspline, cols = stencil.bspline, stencil.cols
 
     @ti.func
-    def node_value(val, weight, m, fm, mv):
+    def node_value(val, weight, m, fm, mv, xp):
         c = ti.Vector.zero(f, gdim)
+        if ti.static(gap_ch >= 0):  # the material's position (the frictional colliders' gap test)
+            for d in ti.static(range(dim)):
+                c[gap_ch + d] = weight * m * xp[d]
         for d in ti.static(range(dim)):
             c[d] = weight * val[d]
         c[dim] = weight * m
@@ -87,14 +90,14 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
                 qij = qi + A[1] * j
                 wij = wi * w[j][1]
                 if ti.static(dim == 2):
-                    c = node_value(qij, wij, m, fm, mv)
+                    c = node_value(qij, wij, m, fm, mv, x[p])
                     if ti.static(chunked):  # chunk t owns copy t: plain read-add-write
                         grid[t, base[0] + i, base[1] + j] = grid[t, base[0] + i, base[1] + j] + c
                     else:
                         grid[0, base[0] + i, base[1] + j] += c
                 else:
                     for k in ti.static(range(3)):
-                        c = node_value(qij + A[2] * k, wij * w[k][2], m, fm, mv)
+                        c = node_value(qij + A[2] * k, wij * w[k][2], m, fm, mv, x[p])
                         if ti.static(chunked):
                             grid[t, base[0] + i, base[1] + j, base[2] + k] = (
                                 grid[t, base[0] + i, base[1] + j, base[2] + k] + c

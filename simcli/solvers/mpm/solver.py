@@ -220,6 +220,13 @@ class MPMSolver(Solver):
         )
         if self.flip is not None:
             self.gdim = self.flip.allocate(self.gdim)
+        self.boundary = GridBoundary(
+            self.scene, dim, f, self.origin, self.dx, self.lo_node, self.hi_node, self.scene_dir
+        )
+        self.gap_ch = -1  # the material position channels of the frictional colliders' gap test
+        if self.boundary.uses_gap:
+            self.gap_ch = self.gdim
+            self.gdim += dim
         self.grid = ti.Vector.field(self.gdim, f, shape=(T,) + self.grid_shape)
         self.grid_v = ti.Vector.field(dim, f, shape=self.grid_shape)
         self.grid_m = ti.field(f, shape=self.grid_shape) if self.store_node_mass else None
@@ -246,9 +253,6 @@ class MPMSolver(Solver):
         for law in self.laws:
             law.allocate(n)
             law.allocate_materials(self.materials)
-        self.boundary = GridBoundary(
-            self.scene, dim, f, self.origin, self.dx, self.lo_node, self.hi_node, self.scene_dir
-        )
         self.boundary.allocate()
 
         self._upload()
@@ -366,6 +370,7 @@ class MPMSolver(Solver):
             gdim=self.gdim,
             has_fixed=self.has_fixed,
             n_bodies=len(self.bodies),
+            gap_ch=self.gap_ch,
         )
         fields = MPMFields(
             x=self.x,
