@@ -35,6 +35,19 @@ MPM_HOST_FACTOR = 1.05
 MPM_PRIVATE_GRID_BYTES = 1 << 30
 
 
+def _gap_test(c) -> bool:
+    """A collider whose contact acts on a node only once its material reaches the surface: a frictional,
+    static, unnamed slip or separate surface of an analytic shape (simcli/solvers/mpm/boundary.py,
+    GridBoundary.gap_test), which adds dim channels to every grid node."""
+    return (
+        c.type != "Mesh"
+        and c.boundary != "sticky"
+        and float(c.friction or 0.0) > 0
+        and getattr(c, "motion", None) is None
+        and not getattr(c, "name", None)
+    )
+
+
 def estimate(scene, scene_dir, lo, hi) -> Part | None:
     dim = scene.sim.dim
     mpm = scene.solvers.mpm
@@ -46,6 +59,8 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
         cnt(math.ceil(min((hi[a] - lo[a]) * mpm.grid_density, 1e30) - 1e-6)) + 7 for a in range(dim)
     )
     gdim = dim + 2
+    if any(_gap_test(c) for c in scene.colliders):  # the nodes' material position (boundary.gap_test)
+        gdim += dim
     copy = nodes * gdim * 4 * fp
     t = threads_for(scene)
     copies = t if t * copy <= MPM_PRIVATE_GRID_BYTES and scene.sim.backend in ("cpu", "auto") else 1
