@@ -154,3 +154,28 @@ def test_volume_map_bad_input_names_the_line(tmp_path):
         ":7:",
         "gradient_correction: scalar",
     )
+
+
+def test_wcsph_volume_map_resumes_with_its_wall_pressure(ti_f32):
+    """WCSPH with maps carries each particle's relaxing wall pressure (its own checkpoint key,
+    ``wall_pressure_map``): a solver restored from a mid-run state continues exactly as the one that wrote it
+    (a state without the field would restart the relaxation and move the particles next to the walls)."""
+    sc = tank("WCSPH", boundary="volume_map")
+    # a column half the tank wide: it slumps, so the walls' pressure changes while it runs
+    sc["entities"][0]["morph"] = {"type": "Box", "lower": [0.0, 0.0], "upper": [0.1, 0.1]}
+    a, _ = make(sc)
+    for _ in range(30):
+        a.substep(2e-4)
+    state = a.get_state()
+    assert "wall_pressure_map" in state and np.abs(state["wall_pressure_map"]).max() > 0
+    for _ in range(20):
+        a.substep(2e-4)
+    b, _ = make(sc)
+    b.set_state(state)
+    for _ in range(20):
+        b.substep(2e-4)
+    np.testing.assert_array_equal(a.x.to_numpy(), b.x.to_numpy())
+    bad = {k: v for k, v in state.items() if k != "wall_pressure_map"}
+    c, _ = make(sc)
+    with pytest.raises(ValueError, match="volume-map wall pressure"):
+        c.set_state(bad)
