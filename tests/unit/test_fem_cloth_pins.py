@@ -16,6 +16,7 @@ pytest.importorskip("ipctk")
 pytest.importorskip("scipy")
 
 from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections  # noqa: E402
+from tests.unit.test_fem_cloth import _solver  # noqa: E402
 
 HEAD = """\
 version: 1
@@ -41,21 +42,21 @@ EDGES = """\
       - {type: Box, lower: [0.14, -0.2, -0.01], upper: [0.16, 0.2, 0.01]}
 """
 
+# a sphere falling 18 cm in 18 ms (10 m/s) from 10 cm above the sheet: its keyframed motion within a step is
+# part of the Newton step
+FAST_SPHERE = """\
+colliders:
+  - type: Sphere
+    center: [0.0, 0.0, 0.1]
+    radius: 0.04
+    motion: {keyframes: {times: [0, 0.018], translate: [[0, 0, 0], [0, 0, -0.18]]}}
+"""
+
 
 def _scene(tmp_path, g="[0, 0, -9.81]", col="", mat="", fixed=EDGES):
     p = tmp_path / "cloth.yaml"
     p.write_text(textwrap.dedent(HEAD % dict(g=g, col=col, mat=mat, fixed=fixed)))
     return p
-
-
-def _solver(path):
-    from simcli.scene.loader import load_scene
-    from simcli.solvers.fem.cloth.solver import ClothSolver
-
-    ld = load_scene(path)
-    s = ClothSolver(ld.scene, [], scene_dir=ld.scene_dir)
-    s.build()
-    return s
 
 
 def _rot_x(a):
@@ -107,14 +108,7 @@ def test_a_fast_moving_sphere_never_gets_inside_the_sheet(tmp_path):
     """A sphere at 10 m/s (10 cm a substep, 50 contact distances) into a sheet pinned at its two edges,
     stopping 8 cm below them: its motion within the step is part of the Newton step, so the CCD stops it
     at the sheet, which is carried along; at every substep every vertex is outside the sphere at its pose."""
-    col = """\
-colliders:
-  - type: Sphere
-    center: [0.0, 0.0, 0.1]
-    radius: 0.04
-    motion: {keyframes: {times: [0, 0.018], translate: [[0, 0, 0], [0, 0, -0.18]]}}
-"""
-    s = _solver(_scene(tmp_path, g="[0, 0, 0]", col=col))
+    s = _solver(_scene(tmp_path, g="[0, 0, 0]", col=FAST_SPHERE))
     for k in range(1, 4):
         s.substep(0.01)
         c = np.array([0, 0, 0.1 - min(10.0 * 0.01 * k, 0.18)])
@@ -180,14 +174,7 @@ def test_a_mesh_collider_is_refused_with_location(tmp_path):
 def test_state_round_trip_keeps_the_colliders_time(tmp_path):
     """Checkpoints carry the moving colliders' own time (tau): a solver restored mid-run continues as the
     uninterrupted one (to round-off), whatever tau is."""
-    col = """\
-colliders:
-  - type: Sphere
-    center: [0.0, 0.0, 0.1]
-    radius: 0.04
-    motion: {keyframes: {times: [0, 0.018], translate: [[0, 0, 0], [0, 0, -0.18]]}}
-"""
-    p = _scene(tmp_path, g="[0, 0, 0]", col=col)
+    p = _scene(tmp_path, g="[0, 0, 0]", col=FAST_SPHERE)
     a = _solver(p)
     for _ in range(2):
         a.substep(0.01)
