@@ -2,11 +2,13 @@
 
 Each body's surface is represented by sample points in its body frame (a Box: its corners, edge and face
 points; a Sphere: exact against planes and spheres, points otherwise; a Cylinder: points on its rims and
-caps). A contact is a sample point of one body inside (or, within the substep, reaching) the domain's walls
-or another body's signed distance; a pair of spheres is exact. Each contact gets a normal impulse that
-removes the approaching normal velocity (restitution e: reverses e of it; a penetration is pushed out at
-ERP of its depth per substep), and a Coulomb friction impulse of at most mu times it, applied to both bodies
-(equal and opposite: momentum is conserved between bodies); a few Gauss-Seidel sweeps over the contacts.
+caps; a Mesh: its vertices, edge midpoints and face centroids, and against the walls the vertices of its
+convex hull; its signed distance is its grid's, as the materials see it). A contact is a sample point of one
+body inside (or, within the substep, reaching) the domain's walls or another body's signed distance; a pair
+of spheres is exact. Each contact gets a normal impulse that removes the approaching normal velocity
+(restitution e: reverses e of it; a penetration is pushed out at ERP of its depth per substep), and a
+Coulomb friction impulse of at most mu times it, applied to both bodies (equal and opposite: momentum is
+conserved between bodies); a few Gauss-Seidel sweeps over the contacts.
 """
 
 from __future__ import annotations
@@ -21,6 +23,14 @@ ERP = 0.2  # share of a penetration depth removed per substep (Baumgarte)
 
 def surface_points(spec, dim: int, n: int = 4) -> np.ndarray:
     """Sample points (k, dim) on a body's surface in its body frame."""
+    if spec.kind == "Mesh":
+        V = np.asarray(spec.mesh.vertices, float)
+        if n <= 1:
+            return V
+        T = np.asarray(spec.mesh.triangles, np.int64)
+        e = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
+        e = np.unique(e, axis=0)
+        return np.concatenate([V, 0.5 * (V[e[:, 0]] + V[e[:, 1]]), V[T].mean(axis=1)])
     a = np.asarray(spec.a, float)
     if spec.kind == "Box":
         b = np.asarray(spec.b, float)
@@ -70,6 +80,14 @@ def wall_points(spec, dim: int) -> np.ndarray:
         P = surface_points(spec, dim, n=4)
         k = 8 * 4  # points per ring; rings 0 and 3 are the two rims (see surface_points)
         return np.concatenate([P[:k], P[3 * k : 4 * k]])
+    if spec.kind == "Mesh":  # a plane meets a solid first at a vertex of its convex hull
+        from scipy.spatial import ConvexHull
+
+        V = np.asarray(spec.mesh.vertices, float)
+        try:
+            return V[ConvexHull(V).vertices]
+        except Exception:  # flat or degenerate hull (validate refuses those meshes): every vertex
+            return V
     return surface_points(spec, dim)
 
 
@@ -80,6 +98,17 @@ def bounding_radius(spec, dim: int) -> float:
 
 def sdf_local(spec, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(phi (k,), outward normal (k, dim)) of a body-frame shape at body-frame points x (k, dim)."""
+    if spec.kind == "Mesh":  # the grid's trilinear phi and its central-difference gradient
+        sdf = spec.mesh
+        x = np.asarray(x, float).reshape(-1, 3)
+        phi = sdf.sample(x)
+        g = np.zeros_like(x)
+        eps = 0.5 * sdf.h
+        for ax in range(3):
+            d = np.zeros(3)
+            d[ax] = eps
+            g[:, ax] = sdf.sample(x + d) - sdf.sample(x - d)
+        return phi, g / np.maximum(np.linalg.norm(g, axis=1), 1e-300)[:, None]
     a = np.asarray(spec.a, float)
     if spec.kind == "Sphere":
         d = x - a

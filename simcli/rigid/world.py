@@ -27,14 +27,15 @@ from .contact import bounding_radius, find_contacts, solve_contacts, surface_poi
 _WORLDS: dict[int, tuple[Any, RigidWorld]] = {}
 
 
-def world_for(scene: Any) -> RigidWorld | None:
-    """The scene's rigid bodies (one shared instance per scene object); None without any."""
+def world_for(scene: Any, scene_dir: Any = None) -> RigidWorld | None:
+    """The scene's rigid bodies (one shared instance per scene object); None without any. ``scene_dir``:
+    Mesh bodies' files are relative to it (the first caller builds the world)."""
     if not getattr(scene, "rigid_bodies", None):
         return None
     hit = _WORLDS.get(id(scene))
     if hit is not None and hit[0] is scene:
         return hit[1]
-    w = RigidWorld(scene)
+    w = RigidWorld(scene, scene_dir)
     _WORLDS[id(scene)] = (scene, w)
     return w
 
@@ -49,10 +50,10 @@ def solver_poses(solver: Any):
 
 
 class RigidWorld:
-    def __init__(self, scene: Any):
+    def __init__(self, scene: Any, scene_dir: Any = None):
         self.scene = scene
         self.dim = dim = int(scene.sim.dim)
-        self.bodies = [RigidBodyModel(rb, dim) for rb in scene.rigid_bodies]
+        self.bodies = [RigidBodyModel(rb, dim, scene, scene_dir) for rb in scene.rigid_bodies]
         self.n_colliders = len(scene.colliders)  # rigid body k is collider n_colliders + k of every family
         self.gravity = np.asarray(scene.sim.gravity_vec, float)[:dim]
         lo, hi = scene.domain.bounds(dim)
