@@ -316,7 +316,9 @@ def sdf_cylinder(x, center, radius, half_height, axis: ti.template()):
 
 def sdf_np(spec: ColliderSpec, x: np.ndarray) -> np.ndarray:
     """Signed distance (negative inside) of a collider spec at points x (n, dim) [m]: the numpy half of
-    the ``sdf_*`` Taichi functions above (the same formulas)."""
+    the ``sdf_*`` Taichi functions above (the same formulas; a Mesh: its grid's trilinear phi, body frame)."""
+    if spec.kind == "Mesh":
+        return spec.mesh.sample(x)
     a = np.asarray(spec.a, dtype=np.float64)
     if spec.kind == "Plane":
         return (x - a) @ np.asarray(spec.b, dtype=np.float64)
@@ -339,6 +341,8 @@ def sdf_np(spec: ColliderSpec, x: np.ndarray) -> np.ndarray:
 def inside_normal_np(spec: ColliderSpec, x: np.ndarray) -> np.ndarray:
     """The push-out direction of points inside a collider, as the ``sdf_*`` Taichi functions above choose
     it (ties included), so that the host can tell where a push-out sends a particle."""
+    if spec.kind == "Mesh":  # the grid's gradient (simcli.collider_mesh_kernels samples the same grid)
+        return spec.mesh.normal(x)
     a = np.asarray(spec.a, dtype=np.float64)
     n = np.zeros_like(x)
     if spec.kind == "Plane":

@@ -35,12 +35,11 @@ def _check_mesh_body(loaded: Any, rb, base: tuple, err):
     if s.sim.dim != 3:
         err(path + ("type",), "Mesh rigid bodies need dim 3 (use a Box or a Sphere in 2D)")
         return None
-    bad = sorted(s.families & {"SPH", "SF"})
-    if bad:
+    if "SF" in s.families:
         err(
             path + ("type",),
-            f"Mesh rigid bodies meet MPM, PBD and FEM entities only (as Mesh colliders do); this scene has "
-            f"{', '.join(bad)} entities: use a Box, Sphere or Cylinder body",
+            "Mesh rigid bodies meet MPM, PBD, FEM and SPH entities (as Mesh colliders do); this scene has SF "
+            "entities: use a Box, Sphere or Cylinder body",
         )
         return None
     mats = [getattr(getattr(e, "material", None), "type", "") for e in list(s.entities) + list(s.emitters)]

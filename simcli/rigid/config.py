@@ -23,16 +23,17 @@ class RigidBody(BaseModel):
     )
     morph: RigidShape = Field(
         description="Shape at t = 0: Box (axis-aligned), Sphere (a disk in 2D), Cylinder (3D) or Mesh (3D: a "
-        "closed triangle surface, scaled, rotated and translated as a Mesh morph; MPM, PBD and FEM scenes). "
-        "Mass, centre of mass and inertia follow from it and rho (a Mesh: exact polyhedral integrals)."
+        "closed triangle surface, scaled, rotated and translated as a Mesh morph; not with SF or "
+        "PBD.Liquid). Mass, centre of mass and inertia follow from it and rho (a Mesh: exact polyhedral "
+        "integrals)."
     )
     rho: float = Field(gt=0, description="Density [kg/m^3] (2D: per metre of depth).")
     sdf_cell: float | None = Field(
         None,
         gt=0,
         description="Mesh bodies: cell [m] of the signed-distance grid the materials meet (default, as for "
-        "Mesh colliders: half the finest of the MPM grid cell, the PBD particle_size and the FEM element "
-        "size).",
+        "Mesh colliders: half the finest of the MPM grid cell, the PBD and SPH particle_size and the FEM "
+        "element size).",
     )
     velocity: list[float] | None = Field(None, description="Initial velocity of the centre of mass [m/s].")
     angular_velocity: list[float] | None = Field(

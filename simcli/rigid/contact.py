@@ -99,16 +99,8 @@ def bounding_radius(spec, dim: int) -> float:
 def sdf_local(spec, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(phi (k,), outward normal (k, dim)) of a body-frame shape at body-frame points x (k, dim)."""
     if spec.kind == "Mesh":  # the grid's trilinear phi and its central-difference gradient
-        sdf = spec.mesh
         x = np.asarray(x, float).reshape(-1, 3)
-        phi = sdf.sample(x)
-        g = np.zeros_like(x)
-        eps = 0.5 * sdf.h
-        for ax in range(3):
-            d = np.zeros(3)
-            d[ax] = eps
-            g[:, ax] = sdf.sample(x + d) - sdf.sample(x - d)
-        return phi, g / np.maximum(np.linalg.norm(g, axis=1), 1e-300)[:, None]
+        return spec.mesh.sample(x), spec.mesh.normal(x)
     a = np.asarray(spec.a, float)
     if spec.kind == "Sphere":
         d = x - a
