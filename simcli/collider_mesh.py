@@ -268,11 +268,14 @@ def _build_cached(path: str, mtime_ns: int, size: int, scale, rotate, translate,
 
 def default_cell(scene: Any) -> float | None:
     """Half the finest length of the families present (MPM grid cell, PBD and SPH particle_size, FEM
-    1/resolution)."""
+    1/resolution, the SF cell)."""
     fams = getattr(scene, "families", set())
     cands = []
     if "SPH" in fams:
         cands.append(scene.solvers.sph.particle_size)
+    if "SF" in fams:
+        lo, hi = scene.domain.bounds(scene.sim.dim)
+        cands.append(min(scene.solvers.sf.cells(lo, hi)[1]))
     if "MPM" in fams:
         cands.append(scene.solvers.mpm.dx)
     if "PBD" in fams:
@@ -374,15 +377,6 @@ def check_collider(c: Any, scene: Any, scene_dir: Any) -> list[tuple[tuple, str]
         return out
     if dim != 3:
         out.append((("type",), "Mesh colliders need dim 3 (use Box, Sphere or Plane colliders in 2D)"))
-        return out
-    if "SF" in scene.families:
-        out.append(
-            (
-                ("type",),
-                "Mesh colliders act on MPM, PBD, FEM and SPH entities; this scene has SF entities (stable "
-                "fluids take Box, Sphere and Cylinder obstacles: use a primitive collider)",
-            )
-        )
         return out
     for key, n in (("rotate", 3), ("translate", 3)):
         if len(getattr(c, key)) != n:
