@@ -42,14 +42,6 @@ def _check_mesh_body(loaded: Any, rb, base: tuple, err):
             "entities: use a Box, Sphere or Cylinder body",
         )
         return None
-    mats = [getattr(getattr(e, "material", None), "type", "") for e in list(s.entities) + list(s.emitters)]
-    if "PBD.Liquid" in mats:
-        err(
-            path + ("type",),
-            "Mesh rigid bodies do not enter the PBD.Liquid density (only Box, Sphere and Cylinder bodies "
-            "do): use a primitive body with PBD.Liquid",
-        )
-        return None
     for key in ("rotate", "translate"):
         if len(getattr(rb.morph, key)) != 3:
             err(path + (key,), f"expected 3 components (got {len(getattr(rb.morph, key))})")

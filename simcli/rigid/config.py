@@ -23,8 +23,8 @@ class RigidBody(BaseModel):
     )
     morph: RigidShape = Field(
         description="Shape at t = 0: Box (axis-aligned), Sphere (a disk in 2D), Cylinder (3D) or Mesh (3D: a "
-        "closed triangle surface, scaled, rotated and translated as a Mesh morph; not with SF or "
-        "PBD.Liquid). Mass, centre of mass and inertia follow from it and rho (a Mesh: exact polyhedral "
+        "closed triangle surface, scaled, rotated and translated as a Mesh morph; not with SF). Mass, "
+        "centre of mass and inertia follow from it and rho (a Mesh: exact polyhedral "
         "integrals)."
     )
     rho: float = Field(gt=0, description="Density [kg/m^3] (2D: per metre of depth).")
