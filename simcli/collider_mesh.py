@@ -69,6 +69,17 @@ class MeshSDF:
             out[inside] = map_coordinates(self.phi, g[inside].T, order=1, mode="nearest")
         return out
 
+    def normal(self, x: np.ndarray) -> np.ndarray:
+        """Unit outward normals (k, 3) at body-frame points x: the trilinear phi's central differences over
+        half a cell (zero where the grid gives no gradient, e.g. outside it)."""
+        x = np.asarray(x, float).reshape(-1, 3)
+        g = np.zeros_like(x)
+        for ax in range(3):
+            d = np.zeros(3)
+            d[ax] = 0.5 * self.h
+            g[:, ax] = self.sample(x + d) - self.sample(x - d)
+        return g / np.maximum(np.linalg.norm(g, axis=1), 1e-300)[:, None]
+
 
 # ------------------------------------------------------------------ exact distances
 
@@ -256,9 +267,15 @@ def _build_cached(path: str, mtime_ns: int, size: int, scale, rotate, translate,
 
 
 def default_cell(scene: Any) -> float | None:
-    """Half the finest length of the families present (MPM grid cell, PBD particle_size, FEM 1/resolution)."""
+    """Half the finest length of the families present (MPM grid cell, PBD and SPH particle_size, FEM
+    1/resolution, the SF cell)."""
     fams = getattr(scene, "families", set())
     cands = []
+    if "SPH" in fams:
+        cands.append(scene.solvers.sph.particle_size)
+    if "SF" in fams:
+        lo, hi = scene.domain.bounds(scene.sim.dim)
+        cands.append(min(scene.solvers.sf.cells(lo, hi)[1]))
     if "MPM" in fams:
         cands.append(scene.solvers.mpm.dx)
     if "PBD" in fams:
@@ -360,15 +377,6 @@ def check_collider(c: Any, scene: Any, scene_dir: Any) -> list[tuple[tuple, str]
         return out
     if dim != 3:
         out.append((("type",), "Mesh colliders need dim 3 (use Box, Sphere or Plane colliders in 2D)"))
-        return out
-    if scene.families & {"SPH", "SF"}:
-        out.append(
-            (
-                ("type",),
-                "Mesh colliders act on MPM, PBD and FEM entities only; this scene has "
-                f"{', '.join(sorted(scene.families & {'SPH', 'SF'}))} entities (use a primitive collider)",
-            )
-        )
         return out
     for key, n in (("rotate", 3), ("translate", 3)):
         if len(getattr(c, key)) != n:

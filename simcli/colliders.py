@@ -62,24 +62,24 @@ def collider_specs(scene: Any, dim: int, scene_dir: Any = None) -> list[Collider
                 name=c.name,
                 centre=tuple(float(x) for x in collider_centre(c, dim)),
             )
-    return specs + _rigid(scene, "specs")
+    return specs + _rigid(scene, "specs", scene_dir)
 
 
-def _rigid(scene: Any, what: str) -> list:
+def _rigid(scene: Any, what: str, scene_dir: Any = None) -> list:
     """Free rigid bodies (simcli.rigid) follow the colliders: moving, named colliders whose pose is
     integrated instead of prescribed (none without ``rigid_bodies``)."""
     if not getattr(scene, "rigid_bodies", None):
         return []
     from simcli.rigid.world import world_for
 
-    return getattr(world_for(scene), what)()
+    return getattr(world_for(scene, scene_dir), what)()
 
 
 def collider_motions(scene: Any, dim: int, scene_dir: Any = None) -> list:
     """simcli.motion.Motion (or None) of every collider, in scene order."""
     from simcli.motion import collider_motion
 
-    return [collider_motion(c, dim, scene_dir) for c in scene.colliders] + _rigid(scene, "motions")
+    return [collider_motion(c, dim, scene_dir) for c in scene.colliders] + _rigid(scene, "motions", scene_dir)
 
 
 def _collider_spec(c: Any, dim: int, scene: Any = None, scene_dir: Any = None) -> ColliderSpec:
@@ -316,7 +316,9 @@ def sdf_cylinder(x, center, radius, half_height, axis: ti.template()):
 
 def sdf_np(spec: ColliderSpec, x: np.ndarray) -> np.ndarray:
     """Signed distance (negative inside) of a collider spec at points x (n, dim) [m]: the numpy half of
-    the ``sdf_*`` Taichi functions above (the same formulas)."""
+    the ``sdf_*`` Taichi functions above (the same formulas; a Mesh: its grid's trilinear phi, body frame)."""
+    if spec.kind == "Mesh":
+        return spec.mesh.sample(x)
     a = np.asarray(spec.a, dtype=np.float64)
     if spec.kind == "Plane":
         return (x - a) @ np.asarray(spec.b, dtype=np.float64)
@@ -339,6 +341,8 @@ def sdf_np(spec: ColliderSpec, x: np.ndarray) -> np.ndarray:
 def inside_normal_np(spec: ColliderSpec, x: np.ndarray) -> np.ndarray:
     """The push-out direction of points inside a collider, as the ``sdf_*`` Taichi functions above choose
     it (ties included), so that the host can tell where a push-out sends a particle."""
+    if spec.kind == "Mesh":  # the grid's gradient (simcli.collider_mesh_kernels samples the same grid)
+        return spec.mesh.normal(x)
     a = np.asarray(spec.a, dtype=np.float64)
     n = np.zeros_like(x)
     if spec.kind == "Plane":
@@ -561,4 +565,5 @@ def collider_vtk_items(scene: Any, scene_dir: Any = None) -> list[tuple[str, Any
             continue
         spec = _collider_spec(c, dim, scene, scene_dir)
         out.append((c.name or f"collider{k}", spec, collider_motion(c, dim, scene_dir)))
-    return out + [(s.name, s, m) for s, m in zip(_rigid(scene, "specs"), _rigid(scene, "motions"))]
+    specs, motions = _rigid(scene, "specs", scene_dir), _rigid(scene, "motions", scene_dir)
+    return out + [(s.name, s, m) for s, m in zip(specs, motions)]

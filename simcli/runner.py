@@ -440,7 +440,7 @@ class Runner:
         t0 = time.perf_counter()
         from simcli.rigid.run import rigid_run  # free rigid bodies (None without rigid_bodies)
 
-        self._rigid = rigid_run(scene)
+        self._rigid = rigid_run(scene, self.loaded.scene_dir)
         if solver_factory is None:
             from simcli.solvers import make_solvers
 

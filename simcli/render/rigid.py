@@ -1,5 +1,6 @@
 """Rigid bodies in pictures: each body's surface (simcli.io.collider_vtk.collider_surface of its shape at
-t = 0) moved to its pose at the frame (sim.h5 /rigid_bodies/<name>/position, /orientation)."""
+t = 0; a Mesh body's triangles as sim.h5 keeps them, /rigid_bodies/<name>/surface_points and
+surface_triangles) moved to its pose at the frame (sim.h5 /rigid_bodies/<name>/position, /orientation)."""
 
 from __future__ import annotations
 
@@ -29,7 +30,13 @@ def rigid_surfaces(run, k: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
                 g = f["rigid_bodies"].get(rb.name)
                 if g is None or g["position"].shape[0] <= k:
                     continue
-                pts, cells = collider_surface(body_spec(rb, dim), dim, 1.0)
+                if "surface_points" in g:  # a Mesh body: its triangles about the centre of mass
+                    pts = np.asarray(g["surface_points"], float)
+                    cells = np.asarray(g["surface_triangles"], np.int64)
+                    centre = np.zeros(dim)
+                else:
+                    pts, cells = collider_surface(body_spec(rb, dim), dim, 1.0)
+                    centre = morph_centre(rb.morph, dim)
                 x = np.asarray(g["position"][k], float)
                 o = np.asarray(g["orientation"][k], float)
                 if dim == 2:
@@ -37,7 +44,7 @@ def rigid_surfaces(run, k: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
                     R = np.array([[c, -s], [s, c]])
                 else:
                     R = quat_to_matrix(o / np.linalg.norm(o))
-                out.append((rb.name, (pts - morph_centre(rb.morph, dim)) @ R.T + x, cells))
+                out.append((rb.name, (pts - centre) @ R.T + x, cells))
     except (OSError, KeyError, ValueError):
         return []
     return out

@@ -4,8 +4,10 @@ motion object through which every family sees it (simcli.colliders.ColliderPoses
 moving, named collider whose pose comes from here instead of a prescribed simcli.motion.Motion).
 
 The body frame is the body's placement at t = 0: its collider spec is the morph as given (a Box
-axis-aligned, a Cylinder along its axis), and the pose maps it to the world with R(q) about the centre
-of mass. No Taichi here.
+axis-aligned, a Cylinder along its axis, a Mesh its file scaled, rotated and translated), and the pose
+maps it to the world with R(q) about the centre of mass. A Mesh body is the signed-distance grid of a
+Mesh collider (simcli.collider_mesh), with its mass, centre of mass and inertia integrated exactly over
+the closed polyhedron (:func:`mesh_mass_properties`). No Taichi here.
 """
 
 from __future__ import annotations
@@ -49,7 +51,48 @@ def mass_properties(morph, rho: float, dim: int) -> tuple[float, np.ndarray]:
         d = np.full(3, i_perp)
         d[ax] = 0.5 * m * r * r
         return m, np.diag(d)
-    raise ValueError(f"rigid bodies take Box, Sphere or Cylinder morphs, not {morph.type}")
+    raise ValueError(f"rigid bodies take Box, Sphere, Cylinder or Mesh morphs, not {morph.type}")
+
+
+def mesh_mass_properties(V: np.ndarray, T: np.ndarray, rho: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """(mass [kg], centre of mass (3,) [m], inertia about it (3, 3) [kg m^2]) of the solid bounded by the
+    closed, outward-oriented triangle surface (V, T) at density rho: the exact volume integrals of
+    1, x and x x^T, summed over the signed tetrahedra (origin, a, b, c) of the faces (the divergence
+    theorem; e.g. Eberly, "Polyhedral mass properties", 2002). The second moment of such a tetrahedron is
+    det / 120 (a a^T + b b^T + c c^T + s s^T), s = a + b + c, det = a . (b x c) = 6 x its signed volume."""
+    V = np.asarray(V, float)
+    T = np.asarray(T, np.int64)
+    a, b, c = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
+    det = np.einsum("ij,ij->i", a, np.cross(b, c))
+    vol = float(det.sum()) / 6.0
+    if not vol > 0:
+        raise ValueError(f"the mesh encloses no positive volume ({vol:.3g} m^3): is it closed and outward?")
+    ssum = a + b + c
+    com = (det[:, None] * ssum).sum(axis=0) / (24.0 * vol)
+    C = np.einsum("k,ki,kj->ij", det, a, a) + np.einsum("k,ki,kj->ij", det, b, b)
+    C += np.einsum("k,ki,kj->ij", det, c, c) + np.einsum("k,ki,kj->ij", det, ssum, ssum)
+    C = C / 120.0 - vol * np.outer(com, com)  # about the centre of mass
+    inertia = rho * (np.trace(C) * np.eye(3) - C)
+    return rho * vol, com, 0.5 * (inertia + inertia.T)
+
+
+class _MeshModel:
+    """The fields simcli.collider_mesh.build_sdf reads, from a rigid body's Mesh morph."""
+
+    type = "Mesh"
+    restitution = 0.0
+
+    def __init__(self, rb):
+        m = rb.morph
+        self.file, self.scale, self.rotate, self.translate = m.file, m.scale, m.rotate, m.translate
+        self.sdf_cell = getattr(rb, "sdf_cell", None)
+
+
+def mesh_sdf(rb, scene=None, scene_dir=None):
+    """The signed-distance grid (simcli.collider_mesh.MeshSDF, cached per file) of a Mesh rigid body."""
+    from simcli.collider_mesh import build_sdf
+
+    return build_sdf(_MeshModel(rb), scene, scene_dir)
 
 
 def morph_centre(morph, dim: int) -> np.ndarray:
@@ -111,6 +154,28 @@ def body_spec(rb, dim: int) -> ColliderSpec:
     )
 
 
+def mesh_body_spec(rb, sdf, com: np.ndarray) -> ColliderSpec:
+    """The collider record of a Mesh rigid body: its signed-distance grid (body frame = the pose at t = 0),
+    a = the bounding box's centre and radius = half its diagonal (as a Mesh collider's), centre = the
+    centre of mass (the pivot of its pose)."""
+    lo, hi = sdf.bounds
+    return ColliderSpec(
+        "Mesh",
+        rb.boundary,
+        0,
+        tuple(float(v) for v in 0.5 * (lo + hi)),
+        (0.0, 0.0, 0.0),
+        0.5 * float(np.linalg.norm(hi - lo)),
+        0.0,
+        rb.friction,
+        True,
+        rb.name,
+        tuple(float(v) for v in com),
+        mesh=sdf,
+        rigid=True,
+    )
+
+
 @dataclass
 class BodyState:
     x: np.ndarray  # (dim,) centre of mass [m]
@@ -122,11 +187,17 @@ class BodyState:
 class RigidBodyModel:
     """Mass, inertia, state and fixed degrees of freedom of one body."""
 
-    def __init__(self, rb, dim: int):
+    def __init__(self, rb, dim: int, scene=None, scene_dir=None):
         self.cfg, self.name, self.dim = rb, rb.name, dim
-        self.mass, self.inertia = mass_properties(rb.morph, float(rb.rho), dim)
-        self.pivot = morph_centre(rb.morph, dim)  # the centre of mass in the body frame
-        self.spec = body_spec(rb, dim)
+        if rb.morph.type == "Mesh":
+            sdf = mesh_sdf(rb, scene, scene_dir)
+            self.mass, com, self.inertia = mesh_mass_properties(sdf.vertices, sdf.triangles, float(rb.rho))
+            self.pivot = com  # the centre of mass in the body frame
+            self.spec = mesh_body_spec(rb, sdf, com)
+        else:
+            self.mass, self.inertia = mass_properties(rb.morph, float(rb.rho), dim)
+            self.pivot = morph_centre(rb.morph, dim)  # the centre of mass in the body frame
+            self.spec = body_spec(rb, dim)
         v0 = np.zeros(dim) if rb.velocity is None else np.asarray(rb.velocity, float)[:dim]
         w0 = np.zeros(3)
         if rb.angular_velocity is not None:

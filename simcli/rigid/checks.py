@@ -18,9 +18,56 @@ def _lattice(lo, hi, n: int) -> np.ndarray:
     return np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
 
 
-def check_rigid_bodies(loaded: Any, err) -> None:
+def _inside(morph, sdf, x: np.ndarray) -> np.ndarray:
+    """Points x inside a body's shape: a primitive's exact test, a Mesh's signed-distance grid."""
     from simcli.geometry.regions import points_in_shape
 
+    if sdf is not None:
+        return sdf.sample(x) < 0
+    return points_in_shape(morph, x)
+
+
+def _check_mesh_body(loaded: Any, rb, base: tuple, err):
+    """A Mesh body's own checks (dim 3, families that meet a Mesh, a closed readable surface thicker than two
+    cells of its grid); returns its signed-distance grid, or None after an error."""
+    s = loaded.scene
+    path = base + ("morph",)
+    if s.sim.dim != 3:
+        err(path + ("type",), "Mesh rigid bodies need dim 3 (use a Box or a Sphere in 2D)")
+        return None
+    if "SF" in s.families:
+        err(
+            path + ("type",),
+            "Mesh rigid bodies meet MPM, PBD, FEM and SPH entities (as Mesh colliders do); this scene has SF "
+            "entities: use a Box, Sphere or Cylinder body",
+        )
+        return None
+    for key in ("rotate", "translate"):
+        if len(getattr(rb.morph, key)) != 3:
+            err(path + (key,), f"expected 3 components (got {len(getattr(rb.morph, key))})")
+            return None
+    from simcli.rigid.body import mesh_mass_properties, mesh_sdf
+
+    try:
+        sdf = mesh_sdf(rb, s, loaded.scene_dir)
+        mesh_mass_properties(sdf.vertices, sdf.triangles, float(rb.rho))
+    except (ValueError, OSError) as ex:
+        msg = str(ex).replace("Filling a mesh with particles needs", "A Mesh rigid body needs")
+        err(path + ("file",), msg.replace(" or use a tetrahedral mesh", ""))
+        return None
+    lo, hi = sdf.bounds
+    if np.min(hi - lo) < 2 * sdf.h:
+        err(
+            path + ("file",),
+            f"the mesh is thinner ({np.min(hi - lo):.3g} m) than two cells of its signed-distance grid "
+            f"({sdf.h:.3g} m): material would pass through it; thicken it or set sdf_cell below "
+            f"{np.min(hi - lo) / 2:.3g}",
+        )
+        return None
+    return sdf
+
+
+def check_rigid_bodies(loaded: Any, err) -> None:
     s = loaded.scene
     dim = s.sim.dim
     if not s.rigid_bodies:
@@ -69,6 +116,10 @@ def check_rigid_bodies(loaded: Any, err) -> None:
         if m.type == "Cylinder" and dim == 2:
             err(base + ("morph", "type"), "Cylinder rigid bodies need dim 3 (a Sphere is a disk in 2D)")
             ok = False
+        sdf = None
+        if m.type == "Mesh":
+            sdf = _check_mesh_body(loaded, rb, base, err)
+            ok = ok and sdf is not None
         if rb.velocity is not None and len(rb.velocity) != dim:
             err(base + ("velocity",), f"expected {dim} components for dim {dim} (got {len(rb.velocity)})")
         na = 1 if dim == 2 else 3
@@ -87,33 +138,38 @@ def check_rigid_bodies(loaded: Any, err) -> None:
                 )
         if not ok:
             continue
-        blo, bhi = (np.asarray(b, float)[:dim] for b in m.bounds())
+        blo, bhi = (np.asarray(b, float)[:dim] for b in (sdf.bounds if sdf is not None else m.bounds()))
         if np.any(blo < lo) or np.any(bhi > hi):
             err(
                 base + ("morph",),
                 f"the body ({blo.tolist()} .. {bhi.tolist()}) is not inside the domain ({lo.tolist()} .. "
                 f"{hi.tolist()}): move it or enlarge the domain",
             )
-        ok_shapes.append((i, rb, blo, bhi))
+        ok_shapes.append((i, rb, blo, bhi, sdf))
     n = 24 if dim == 3 else 96
-    for k, (i, rb, blo, bhi) in enumerate(ok_shapes):
+    for k, (i, rb, blo, bhi, sdf) in enumerate(ok_shapes):
         base = ("rigid_bodies", i, "morph")
         others = [
             (f"entity '{e.name}' (entities.{j})", e.morph)
             for j, e in enumerate(s.entities)
             if e.morph is not None and e.morph.type in ("Box", "Sphere", "Cylinder") and e.family != "SF"
         ]
-        others += [(f"rigid body '{o.name}' (rigid_bodies.{j})", o.morph) for j, o, *_ in ok_shapes[k + 1 :]]
-        for what, om in others:
-            try:
-                olo, ohi = (np.asarray(b, float)[:dim] for b in om.bounds())
-            except (TypeError, ValueError):
-                continue
+        others = [(what, om, None, None, None) for what, om in others]
+        others += [
+            (f"rigid body '{o.name}' (rigid_bodies.{j})", o.morph, olo, ohi, osdf)
+            for j, o, olo, ohi, osdf in ok_shapes[k + 1 :]
+        ]
+        for what, om, olo, ohi, osdf in others:
+            if olo is None:
+                try:
+                    olo, ohi = (np.asarray(b, float)[:dim] for b in om.bounds())
+                except (TypeError, ValueError):
+                    continue
             a, b = np.maximum(blo, olo), np.minimum(bhi, ohi)
             if np.any(b <= a):
                 continue
             x = _lattice(a, b, n)
-            both = points_in_shape(rb.morph, x) & points_in_shape(om, x)
+            both = _inside(rb.morph, sdf, x) & _inside(om, osdf, x)
             vol = float(both.mean() * np.prod(b - a))
             if vol > 1e-6 * float(np.prod(bhi - blo)):  # touching is not overlapping
                 err(
@@ -122,7 +178,7 @@ def check_rigid_bodies(loaded: Any, err) -> None:
                     f"{'m^3' if dim == 3 else 'm^2'}): move one of them apart",
                 )
         x = _lattice(blo, bhi, n)
-        x = x[points_in_shape(rb.morph, x)]
+        x = x[_inside(rb.morph, sdf, x)]
         from simcli.scene.limits import _collider_inside
 
         for ci, c in enumerate(s.colliders):

@@ -6,11 +6,11 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from simcli.scene.morphs import BoxShape, CylinderShape, SphereShape
+from simcli.scene.morphs import BoxShape, CylinderShape, MeshShape, SphereShape
 
 DOFS = ("x", "y", "z", "rx", "ry", "rz")
 
-RigidShape = Annotated[BoxShape | SphereShape | CylinderShape, Field(discriminator="type")]
+RigidShape = Annotated[BoxShape | SphereShape | CylinderShape | MeshShape, Field(discriminator="type")]
 
 
 class RigidBody(BaseModel):
@@ -22,10 +22,19 @@ class RigidBody(BaseModel):
         "sim.h5 /rigid_bodies/<name>/..., vtk/<name>.pvd.",
     )
     morph: RigidShape = Field(
-        description="Shape at t = 0: Box (axis-aligned), Sphere (a disk in 2D) or Cylinder (3D). Mass and "
-        "inertia follow from it and rho; the centre of mass is its centre."
+        description="Shape at t = 0: Box (axis-aligned), Sphere (a disk in 2D), Cylinder (3D) or Mesh (3D: a "
+        "closed triangle surface, scaled, rotated and translated as a Mesh morph; not with SF). Mass, "
+        "centre of mass and inertia follow from it and rho (a Mesh: exact polyhedral "
+        "integrals)."
     )
     rho: float = Field(gt=0, description="Density [kg/m^3] (2D: per metre of depth).")
+    sdf_cell: float | None = Field(
+        None,
+        gt=0,
+        description="Mesh bodies: cell [m] of the signed-distance grid the materials meet (default, as for "
+        "Mesh colliders: half the finest of the MPM grid cell, the PBD and SPH particle_size and the FEM "
+        "element size).",
+    )
     velocity: list[float] | None = Field(None, description="Initial velocity of the centre of mass [m/s].")
     angular_velocity: list[float] | None = Field(
         None, description="Initial angular velocity [rad/s] (3 components in 3D, 1 about z in 2D)."

@@ -2,11 +2,13 @@
 
 Each body's surface is represented by sample points in its body frame (a Box: its corners, edge and face
 points; a Sphere: exact against planes and spheres, points otherwise; a Cylinder: points on its rims and
-caps). A contact is a sample point of one body inside (or, within the substep, reaching) the domain's walls
-or another body's signed distance; a pair of spheres is exact. Each contact gets a normal impulse that
-removes the approaching normal velocity (restitution e: reverses e of it; a penetration is pushed out at
-ERP of its depth per substep), and a Coulomb friction impulse of at most mu times it, applied to both bodies
-(equal and opposite: momentum is conserved between bodies); a few Gauss-Seidel sweeps over the contacts.
+caps; a Mesh: its vertices, edge midpoints and face centroids, and against the walls the vertices of its
+convex hull; its signed distance is its grid's, as the materials see it). A contact is a sample point of one
+body inside (or, within the substep, reaching) the domain's walls or another body's signed distance; a pair
+of spheres is exact. Each contact gets a normal impulse that removes the approaching normal velocity
+(restitution e: reverses e of it; a penetration is pushed out at ERP of its depth per substep), and a
+Coulomb friction impulse of at most mu times it, applied to both bodies (equal and opposite: momentum is
+conserved between bodies); a few Gauss-Seidel sweeps over the contacts.
 """
 
 from __future__ import annotations
@@ -21,6 +23,14 @@ ERP = 0.2  # share of a penetration depth removed per substep (Baumgarte)
 
 def surface_points(spec, dim: int, n: int = 4) -> np.ndarray:
     """Sample points (k, dim) on a body's surface in its body frame."""
+    if spec.kind == "Mesh":
+        V = np.asarray(spec.mesh.vertices, float)
+        if n <= 1:
+            return V
+        T = np.asarray(spec.mesh.triangles, np.int64)
+        e = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
+        e = np.unique(e, axis=0)
+        return np.concatenate([V, 0.5 * (V[e[:, 0]] + V[e[:, 1]]), V[T].mean(axis=1)])
     a = np.asarray(spec.a, float)
     if spec.kind == "Box":
         b = np.asarray(spec.b, float)
@@ -70,6 +80,14 @@ def wall_points(spec, dim: int) -> np.ndarray:
         P = surface_points(spec, dim, n=4)
         k = 8 * 4  # points per ring; rings 0 and 3 are the two rims (see surface_points)
         return np.concatenate([P[:k], P[3 * k : 4 * k]])
+    if spec.kind == "Mesh":  # a plane meets a solid first at a vertex of its convex hull
+        from scipy.spatial import ConvexHull
+
+        V = np.asarray(spec.mesh.vertices, float)
+        try:
+            return V[ConvexHull(V).vertices]
+        except Exception:  # flat or degenerate hull (validate refuses those meshes): every vertex
+            return V
     return surface_points(spec, dim)
 
 
@@ -80,6 +98,13 @@ def bounding_radius(spec, dim: int) -> float:
 
 def sdf_local(spec, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(phi (k,), outward normal (k, dim)) of a body-frame shape at body-frame points x (k, dim)."""
+    if spec.kind == "Plane":  # a scene collider (simcli.rigid.world: bodies against colliders)
+        nrm = np.asarray(spec.b, float)
+        x = np.asarray(x, float)
+        return (x - np.asarray(spec.a, float)) @ nrm, np.broadcast_to(nrm, x.shape).copy()
+    if spec.kind == "Mesh":  # the grid's trilinear phi and its central-difference gradient
+        x = np.asarray(x, float).reshape(-1, 3)
+        return spec.mesh.sample(x), spec.mesh.normal(x)
     a = np.asarray(spec.a, float)
     if spec.kind == "Sphere":
         d = x - a
@@ -134,12 +159,50 @@ def _moment(dim, r, f):
 
 
 class Contact:
-    __slots__ = ("a", "b", "p", "n", "depth", "e", "mu", "jn", "target")
+    __slots__ = ("a", "b", "p", "n", "depth", "e", "mu", "jn", "target", "vb")
 
-    def __init__(self, a, b, p, n, depth, e, mu):
+    def __init__(self, a, b, p, n, depth, e, mu, vb=None):
         self.a, self.b, self.p, self.n, self.depth, self.e, self.mu = a, b, p, n, depth, e, mu
         self.jn = 0.0
         self.target = 0.0
+        self.vb = vb  # b is None: the velocity of the wall or collider surface at p (None: at rest)
+
+
+def collider_contacts(bodies, pts_local, colliders, t: float, dt: float) -> list[Contact]:
+    """Contacts of every body with the scene's colliders (``colliders``: (ColliderSpec, Motion or None)
+    pairs, still or in prescribed motion, at their pose at time t): a collider is a body of infinite mass
+    moving as prescribed, met like another body (a Sphere body by its centre's distance less its radius,
+    others by their sample points; against a Plane by the points that can touch a plane first). The
+    friction is the geometric mean of the body's and the collider's, the restitution the body's."""
+    dim = bodies[0].dim if bodies else 0
+    out = []
+    for i, bd in enumerate(bodies):
+        R, x, piv = bd.R(), bd.state.x, bd.pivot
+        e = bd.cfg.restitution
+        for spec, motion in colliders:
+            pose = motion.pose(t) if motion is not None else None
+            mu = math.sqrt(bd.cfg.friction * spec.friction)
+            if bd.spec.kind == "Sphere":
+                P = x[None, :]
+            else:
+                P = (bd.wall_pts if spec.kind == "Plane" else pts_local[i]) - piv
+                P = P @ R.T + x
+            xb = pose.to_body(P) if pose is not None else P
+            phi, nb = sdf_local(spec, xb)
+            if bd.spec.kind == "Sphere":
+                phi = phi - bd.spec.radius
+            n = nb @ pose.R.T if pose is not None else nb
+            r = P - x
+            if dim == 2:
+                vP = bd.state.v + bd.state.w[2] * np.stack([-r[:, 1], r[:, 0]], axis=1)
+            else:
+                vP = bd.state.v + np.cross(bd.state.w, r)
+            vc = pose.velocity_at(P) if pose is not None else np.zeros_like(P)
+            margin = (np.linalg.norm(vP - vc, axis=1) + 1e-12) * dt
+            for k in np.nonzero(phi < margin)[0]:
+                p = P[k] - n[k] * bd.spec.radius if bd.spec.kind == "Sphere" else P[k].copy()
+                out.append(Contact(i, None, p, n[k].copy(), -phi[k], e, mu, vc[k].copy()))
+    return out
 
 
 def find_contacts(bodies, pts_local, lo, hi, dt) -> list[Contact]:
@@ -251,7 +314,7 @@ def solve_contacts(bodies, contacts: list[Contact], dt: float) -> np.ndarray:
     for c in contacts:
         ra = c.p - xs[c.a]
         rb = c.p - xs[c.b] if c.b is not None else None
-        vr = vel(c.a, ra) - (vel(c.b, rb) if rb is not None else 0.0)
+        vr = vel(c.a, ra) - (vel(c.b, rb) if rb is not None else (c.vb if c.vb is not None else 0.0))
         vn = float(vr @ c.n)
         if c.depth < 0:  # speculative: an approach up to the gap is allowed within the substep
             target = c.depth / dt
@@ -268,7 +331,7 @@ def solve_contacts(bodies, contacts: list[Contact], dt: float) -> np.ndarray:
             c, ra, rb, target, kn, t, kt, jn, jt = row
             if kn <= 0:
                 continue
-            vr = vel(c.a, ra) - (vel(c.b, rb) if rb is not None else 0.0)
+            vr = vel(c.a, ra) - (vel(c.b, rb) if rb is not None else (c.vb if c.vb is not None else 0.0))
             vn = float(vr @ c.n)
             jn_new = max(jn + (target - vn) / kn, 0.0)
             J = (jn_new - jn) * c.n

@@ -21,8 +21,8 @@ FIELDS = (  # name, components in 2D, in 3D, unit
 )
 
 
-def rigid_run(scene: Any) -> RigidRun | None:
-    w = world_for(scene)
+def rigid_run(scene: Any, scene_dir: Any = None) -> RigidRun | None:
+    w = world_for(scene, scene_dir)
     return None if w is None else RigidRun(w)
 
 
@@ -58,6 +58,14 @@ class RigidRun:
                 self._ds.append((d, b.name, name))
             bg.attrs["mass"] = b.mass
             bg.attrs["shape"] = b.spec.kind
+            if b.spec.kind == "Mesh":  # its surface relative to the centre of mass (body frame), for pictures
+                for key, arr in (
+                    ("surface_points", np.asarray(b.spec.mesh.vertices, "f8") - b.pivot),
+                    ("surface_triangles", np.asarray(b.spec.mesh.triangles, "i8")),
+                ):
+                    if key in bg:
+                        del bg[key]
+                    bg.create_dataset(key, data=arr)
 
     def write_frame(self, frame: int) -> None:
         vals = self.world.frame_values()

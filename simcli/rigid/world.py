@@ -22,19 +22,27 @@ import numpy as np
 from simcli.motion import quat_from_rotvec, quat_mul, quat_to_matrix
 
 from .body import RigidBodyModel
-from .contact import bounding_radius, find_contacts, solve_contacts, surface_points, wall_points
+from .contact import (
+    bounding_radius,
+    collider_contacts,
+    find_contacts,
+    solve_contacts,
+    surface_points,
+    wall_points,
+)
 
 _WORLDS: dict[int, tuple[Any, RigidWorld]] = {}
 
 
-def world_for(scene: Any) -> RigidWorld | None:
-    """The scene's rigid bodies (one shared instance per scene object); None without any."""
+def world_for(scene: Any, scene_dir: Any = None) -> RigidWorld | None:
+    """The scene's rigid bodies (one shared instance per scene object); None without any. ``scene_dir``:
+    Mesh bodies' files are relative to it (the first caller builds the world)."""
     if not getattr(scene, "rigid_bodies", None):
         return None
     hit = _WORLDS.get(id(scene))
     if hit is not None and hit[0] is scene:
         return hit[1]
-    w = RigidWorld(scene)
+    w = RigidWorld(scene, scene_dir)
     _WORLDS[id(scene)] = (scene, w)
     return w
 
@@ -49,10 +57,12 @@ def solver_poses(solver: Any):
 
 
 class RigidWorld:
-    def __init__(self, scene: Any):
+    def __init__(self, scene: Any, scene_dir: Any = None):
         self.scene = scene
+        self.scene_dir = scene_dir
+        self._colliders = None  # (spec, motion) of the scene's colliders, built at the first step
         self.dim = dim = int(scene.sim.dim)
-        self.bodies = [RigidBodyModel(rb, dim) for rb in scene.rigid_bodies]
+        self.bodies = [RigidBodyModel(rb, dim, scene, scene_dir) for rb in scene.rigid_bodies]
         self.n_colliders = len(scene.colliders)  # rigid body k is collider n_colliders + k of every family
         self.gravity = np.asarray(scene.sim.gravity_vec, float)[:dim]
         lo, hi = scene.domain.bounds(dim)
@@ -75,6 +85,17 @@ class RigidWorld:
 
     def motions(self) -> list:
         return [b.motion for b in self.bodies]
+
+    def colliders(self) -> list:
+        """(ColliderSpec, Motion or None) of the scene's colliders (not the bodies), for body-collider
+        contact; built on first use (simcli.colliders asks this world for the bodies' specs)."""
+        if self._colliders is None:
+            from simcli.colliders import collider_motions, collider_specs
+
+            n, dim = self.n_colliders, self.dim
+            specs = collider_specs(self.scene, dim, self.scene_dir)[:n]
+            self._colliders = list(zip(specs, collider_motions(self.scene, dim, self.scene_dir)[:n]))
+        return self._colliders
 
     # ------------------------------------------------------------------ stepping
     def _loads(self, solvers) -> np.ndarray:
@@ -109,6 +130,8 @@ class RigidWorld:
             w[b.ang_fixed] = b.w_hold[b.ang_fixed]
             s.v, s.w = v, w
         contacts = find_contacts(self.bodies, self.pts, self.lo, self.hi, dt)
+        if self.n_colliders:
+            contacts += collider_contacts(self.bodies, self.pts, self.colliders(), self.t, dt)
         self.contacts_last = len(contacts)
         C = solve_contacts(self.bodies, contacts, dt) if contacts else None
         for k, b in enumerate(self.bodies):

@@ -274,7 +274,8 @@ class MeshCollider(_ColliderBase):
         None,
         gt=0,
         description="Cell [m] of the signed-distance grid (default: half the finest of the MPM grid cell, "
-        "the PBD particle_size and the FEM element size 1/resolution of the families present).",
+        "the PBD and SPH particle_size, the FEM element size 1/resolution and the SF cell of the families "
+        "present).",
     )
 
 

@@ -59,7 +59,8 @@ def rigid_draft(f, entity, body, axis=None, spacing=0.0, margin=0.02, level="top
     """Draft [m] of a floating rigid body: the liquid's free surface away from the body (the mean over
     columns of width ``spacing`` of the highest particle, plus half a spacing, for columns farther than
     ``margin`` [m] from the body's extent) minus the lowest point of the body (its centre of mass less its
-    half extent along the vertical ``axis``, default the last; for an upright body). ``spacing: sph``: the
+    half extent along the vertical ``axis``, default the last; a Mesh body: its lowest vertex; for an
+    upright body). ``spacing: sph``: the
     scene's SPH particle size (so that a case refined with ``--refine`` measures at its own spacing).
 
     ``level: mass``: the depth of liquid above the body's lowest point measured by its mass instead of its
@@ -75,9 +76,15 @@ def rigid_draft(f, entity, body, axis=None, spacing=0.0, margin=0.02, level="top
     if spacing == "sph":
         spacing = float(scene.solvers.sph.particle_size)
     ax = dim - 1 if axis is None else axis
-    lo, hi = (np.asarray(b, float)[:dim] for b in rb.morph.bounds())
-    half = 0.5 * (hi - lo)
-    pos = np.asarray(_body(f, body)["position"][...], dtype=np.float64)
+    bg = _body(f, body)
+    if "surface_points" in bg:  # a Mesh body: its extent about the centre of mass (body frame)
+        sp = np.asarray(bg["surface_points"][...], dtype=np.float64)[:, :dim]
+        rlo, rhi = sp.min(axis=0), sp.max(axis=0)
+    else:
+        lo, hi = (np.asarray(b, float)[:dim] for b in rb.morph.bounds())
+        rhi = 0.5 * (hi - lo)
+        rlo = -rhi
+    pos = np.asarray(bg["position"][...], dtype=np.float64)
     _, g = entity_group(f, entity)
     X = g["position"]
     n = min(len(pos), len(f["time"]), X.shape[0])
@@ -93,15 +100,15 @@ def rigid_draft(f, entity, body, axis=None, spacing=0.0, margin=0.02, level="top
         x = np.asarray(X[i], dtype=np.float64)
         far = np.zeros(len(x), bool)
         for a in lat:
-            far |= np.abs(x[:, a] - pos[i, a]) > half[a] + margin
+            far |= (x[:, a] < pos[i, a] + rlo[a] - margin) | (x[:, a] > pos[i, a] + rhi[a] + margin)
         if level == "mass":
             inner = 1.0
             for a in lat:
                 inner *= max(
-                    0.0, min(dhi[a], pos[i, a] + half[a] + margin) - max(dlo[a], pos[i, a] - half[a] - margin)
+                    0.0, min(dhi[a], pos[i, a] + rhi[a] + margin) - max(dlo[a], pos[i, a] + rlo[a] - margin)
                 )
             area = float(np.prod((dhi - dlo)[lat])) - inner
-            out[i] = _mass_level(x, far, ax, pos[i, ax] - half[ax], ps, vol, area)
+            out[i] = _mass_level(x, far, ax, pos[i, ax] + rlo[ax], ps, vol, area)
             continue
         xs = x[far]
         if len(xs) == 0:
@@ -112,7 +119,7 @@ def rigid_draft(f, entity, body, axis=None, spacing=0.0, margin=0.02, level="top
         tops = np.full(inv.max() + 1, -np.inf)
         np.maximum.at(tops, inv.ravel(), xs[:, ax])
         surface = float(np.mean(tops)) + 0.5 * float(spacing)
-        out[i] = surface - (pos[i, ax] - half[ax])
+        out[i] = surface - (pos[i, ax] + rlo[ax])
     return f["time"][:n], out
 
 

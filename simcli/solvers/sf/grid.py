@@ -111,8 +111,9 @@ def make_layout(scene, opts) -> Layout:
 # ----------------------------------------------------------------------------- colliders
 
 
-def collider_mask(scene, layout: Layout) -> np.ndarray:
-    """Cells whose centre lies inside a collider (shape n)."""
+def collider_mask(scene, layout: Layout, scene_dir=None) -> np.ndarray:
+    """Cells whose centre lies inside a collider (shape n); ``scene_dir``: Mesh colliders' files are
+    relative to it."""
     if not scene.colliders:
         return np.zeros(layout.n, dtype=bool)
     x = np.stack([c.ravel() for c in layout.cell_centres()], axis=1)
@@ -120,7 +121,7 @@ def collider_mask(scene, layout: Layout) -> np.ndarray:
 
     solid = np.zeros(len(x), dtype=bool)
     for c in scene.colliders:
-        solid |= sdf_np(_collider_spec(c, layout.dim), x) < 0
+        solid |= sdf_np(_collider_spec(c, layout.dim, scene, scene_dir), x) < 0
     return solid.reshape(layout.n)
 
 

@@ -31,7 +31,7 @@ class SFColliders:
 
         self.layout = L = layout
         self.dim = dim = L.dim
-        self.specs = collider_specs(scene, dim)
+        self.specs = collider_specs(scene, dim, scene_dir)
         self.motions = collider_motions(scene, dim, scene_dir)
         self.any_moving = any(m is not None for m in self.motions)
         self.named = [k for k, c in enumerate(self.specs) if c.name is not None]

@@ -116,7 +116,7 @@ class SFSolver(Solver):
         self.moving = self.cols is not None and self.cols.any_moving
         self.named = self.cols is not None and bool(self.cols.named)
         self._own = self.cols.owner(0.0) if self.moving or self.named else None
-        compute_flags(L, self._own >= 0 if self.moving else collider_mask(self.scene, L))
+        compute_flags(L, self._own >= 0 if self.moving else collider_mask(self.scene, L, self.scene_dir))
         face_shape = (dim,) + tuple(c + 3 for c in L.n)
         cell_shape = tuple(c + 2 for c in L.n)
         off = (-1,) * dim

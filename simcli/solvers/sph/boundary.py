@@ -181,6 +181,11 @@ def make_pushout(scene, dim: int, f, col_fields, poses=None, specs=None):
     nc = len(specs)
     col_a, col_b, col_r, col_hh = col_fields
     moving = [c.moving and poses is not None for c in specs]
+    mesh_f = [None] * nc
+    if any(c.kind == "Mesh" for c in specs):  # their signed-distance grids (simcli.collider_mesh_kernels)
+        from simcli.collider_mesh_kernels import mesh_fields
+
+        mesh_f = mesh_fields(specs, f, normal_below=0.0)  # the guard uses normals inside only
 
     @ti.func
     def sdf(k: ti.template(), x):
@@ -194,6 +199,8 @@ def make_pushout(scene, dim: int, f, col_fields, poses=None, specs=None):
             phi, n = sdf_box(x, col_a[k], col_b[k])
         elif ti.static(specs[k].kind == "Cylinder"):
             phi, n = sdf_cylinder(x, col_a[k], col_r[k], col_hh[k], specs[k].axis)
+        elif ti.static(specs[k].kind == "Mesh"):
+            phi, n = mesh_f[k].sample(x)
         return phi, n
 
     @ti.func

@@ -55,6 +55,8 @@ def moving_bounds(spec, lo, hi) -> tuple[np.ndarray, np.ndarray]:
     if spec.kind == "Cylinder":
         r = max(spec.radius, spec.half_height)
         return a - r, a + r
+    if spec.kind == "Mesh":
+        return spec.mesh.bounds
     ext = float(np.linalg.norm(hi - lo))
     return lo - ext, hi + ext
 

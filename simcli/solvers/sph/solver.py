@@ -137,7 +137,7 @@ class SPHSolver(Solver):
         from simcli.colliders import sdf_np as sdf_numpy
 
         dim = int(scene.sim.dim)
-        specs = collider_specs(scene, dim)
+        specs = collider_specs(scene, dim, self.scene_dir)
         pose0 = [None if m is None else m.pose(0.0) for m in collider_motions(scene, dim, self.scene_dir)]
         lo, hi = (np.asarray(v, dtype=np.float64) for v in scene.domain.bounds(dim))
         push = scene.solvers.sph.inside_collider_mode == "push_out"
@@ -235,7 +235,10 @@ class SPHSolver(Solver):
         from simcli.colliders import ColliderPoses, collider_motions, collider_specs
 
         self.poses = ColliderPoses(
-            collider_specs(self.scene, dim), collider_motions(self.scene, dim, self.scene_dir), dim, f
+            collider_specs(self.scene, dim, self.scene_dir),
+            collider_motions(self.scene, dim, self.scene_dir),
+            dim,
+            f,
         )
         self.poses.allocate()
         # boundary: volume_map (volume_map.py): no boundary particles; the walls' and static colliders' sums
