@@ -45,6 +45,9 @@ class MPMParams:
     # first of ``dim`` channels holding the nodes' mass-weighted particle position (the material's
     # position for the frictional colliders' gap test, boundary.GridBoundary.gap_test); -1: none
     gap_ch: int = -1
+    # the gap test's nodes also gather the particles' affine (APIC) momentum, in the dim channels after
+    # gap_ch's: the contact acts on the material's velocity at its position (boundary.GridBoundary._node)
+    gap_aff: bool = False
 
     @property
     def inv_dx(self) -> float:

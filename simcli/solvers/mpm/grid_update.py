@@ -21,7 +21,7 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
     ``flip``: transfer.FlipTransfer or None (APIC).
     Reads grid, bbox, gravity; writes bbox_all, grid_v (and grid_m when allocated)."""
     dim, f, T, gdim, has_fixed = params.dim, params.dtype, params.T, params.gdim, params.has_fixed
-    gap_ch = params.gap_ch
+    gap_ch, gap_aff = params.gap_ch, params.gap_aff
     grid, grid_v, grid_m = fields.grid, fields.grid_v, fields.grid_m
     bbox, bbox_all, gravity = fields.bbox, fields.bbox_all, fields.gravity
     keep_m = grid_m is not None
@@ -63,7 +63,11 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
                     if ti.static(gap_ch >= 0):
                         for d in ti.static(range(dim)):
                             xm[d] = g[gap_ch + d] / m
-                    vI = boundary.apply(I, vI, m, dt, xm)
+                    va = ti.Vector.zero(f, dim)  # the node's affine velocity (APIC), see boundary._node
+                    if ti.static(gap_aff):
+                        for d in ti.static(range(dim)):
+                            va[d] = g[gap_ch + dim + d] / m
+                    vI = boundary.apply(I, vI, m, dt, xm, va)
                 else:
                     vI = boundary.apply(I, vI, m)
         grid_v[I] = vI

@@ -34,6 +34,7 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
     ``flip``: the FLIP transfer (transfer.FlipTransfer) or None (APIC); ``count``: ti.func, the particle
     loop's bound. Reads x, v, C, F, mass, vol, fixed, bbox, chunk_start; writes grid."""
     dim, f, T, gdim, gap_ch = params.dim, params.dtype, params.T, params.gdim, params.gap_ch
+    gap_aff = params.gap_aff
     chunked, has_fixed = params.chunked, params.has_fixed
     dx, inv_dx = params.dx, params.inv_dx
     N = count
@@ -51,11 +52,14 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
     bspline, cols = stencil.bspline, stencil.cols
 
     @ti.func
-    def node_value(val, weight, m, fm, mv, xp):
+    def node_value(val, weight, m, fm, mv, xp, aff):
         c = ti.Vector.zero(f, gdim)
         if ti.static(gap_ch >= 0):  # the material's position (the frictional colliders' gap test)
             for d in ti.static(range(dim)):
                 c[gap_ch + d] = weight * m * xp[d]
+        if ti.static(gap_aff):  # its affine momentum m C (x_i - x_p) (APIC), see boundary._node
+            for d in ti.static(range(dim)):
+                c[gap_ch + dim + d] = weight * aff[d]
         for d in ti.static(range(dim)):
             c[d] = weight * val[d]
         c[dim] = weight * m
@@ -80,24 +84,31 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
         mv = m * v[p]
         q0 = mv - affine @ (fx * dx)
         A = cols(affine * dx)
+        mC = ti.Matrix.zero(f, dim, dim)
+        if ti.static(gap_aff):
+            mC = m * C[p]
+        a0 = -mC @ (fx * dx)
+        Ac = cols(mC * dx)
         fm = 0.0
         if ti.static(has_fixed):
             fm = m * ti.cast(fixed[p], f)
         for i in ti.static(range(3)):
             qi = q0 + A[0] * i
+            ai = a0 + Ac[0] * i
             wi = w[i][0]
             for j in ti.static(range(3)):
                 qij = qi + A[1] * j
+                aij = ai + Ac[1] * j
                 wij = wi * w[j][1]
                 if ti.static(dim == 2):
-                    c = node_value(qij, wij, m, fm, mv, x[p])
+                    c = node_value(qij, wij, m, fm, mv, x[p], aij)
                     if ti.static(chunked):  # chunk t owns copy t: plain read-add-write
                         grid[t, base[0] + i, base[1] + j] = grid[t, base[0] + i, base[1] + j] + c
                     else:
                         grid[0, base[0] + i, base[1] + j] += c
                 else:
                     for k in ti.static(range(3)):
-                        c = node_value(qij + A[2] * k, wij * w[k][2], m, fm, mv, x[p])
+                        c = node_value(qij + A[2] * k, wij * w[k][2], m, fm, mv, x[p], aij + Ac[2] * k)
                         if ti.static(chunked):
                             grid[t, base[0] + i, base[1] + j, base[2] + k] = (
                                 grid[t, base[0] + i, base[1] + j, base[2] + k] + c

@@ -38,7 +38,7 @@ MPM_PRIVATE_GRID_BYTES = 1 << 30
 def _gap_test(c) -> bool:
     """A collider whose contact acts on a node only once its material reaches the surface: a frictional,
     static, unnamed slip or separate surface of an analytic shape (simcli/solvers/mpm/boundary.py,
-    GridBoundary.gap_test), which adds dim channels to every grid node."""
+    GridBoundary.gap_test), which adds dim channels to every grid node (2 dim under APIC)."""
     return (
         c.type != "Mesh"
         and c.boundary != "sticky"
@@ -61,6 +61,8 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
     gdim = dim + 2
     if any(_gap_test(c) for c in scene.colliders):  # the nodes' material position (boundary.gap_test)
         gdim += dim
+        if getattr(mpm, "transfer", "apic") != "flip":  # and their affine momentum (APIC)
+            gdim += dim
     copy = nodes * gdim * 4 * fp
     t = threads_for(scene)
     copies = t if t * copy <= MPM_PRIVATE_GRID_BYTES and scene.sim.backend in ("cpu", "auto") else 1

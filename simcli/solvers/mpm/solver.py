@@ -223,10 +223,15 @@ class MPMSolver(Solver):
         self.boundary = GridBoundary(
             self.scene, dim, f, self.origin, self.dx, self.lo_node, self.hi_node, self.scene_dir
         )
+        self.gap_aff = False
         self.gap_ch = -1  # the material position channels of the frictional colliders' gap test
         if self.boundary.uses_gap:
             self.gap_ch = self.gdim
             self.gdim += dim
+            if self.transfer != "flip":  # APIC: the nodes' affine momentum too (boundary._node)
+                self.gap_aff = True
+                self.boundary.material_velocity = True
+                self.gdim += dim
         self.grid = ti.Vector.field(self.gdim, f, shape=(T,) + self.grid_shape)
         self.grid_v = ti.Vector.field(dim, f, shape=self.grid_shape)
         self.grid_m = ti.field(f, shape=self.grid_shape) if self.store_node_mass else None
@@ -371,6 +376,7 @@ class MPMSolver(Solver):
             has_fixed=self.has_fixed,
             n_bodies=len(self.bodies),
             gap_ch=self.gap_ch,
+            gap_aff=self.gap_aff,
         )
         fields = MPMFields(
             x=self.x,
