@@ -36,6 +36,32 @@ def rigid(f, entity, body, field="position", axis=None, **_):
     return f["time"][:n], v
 
 
+def _extent(bg, rb, dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """A body's extent about its centre of mass in its body frame (lowest, highest corner): a Mesh body's
+    from its surface in sim.h5, a primitive's from its morph (centred)."""
+    if "surface_points" in bg:
+        sp = np.asarray(bg["surface_points"][...], dtype=np.float64)[:, :dim]
+        return sp.min(axis=0), sp.max(axis=0)
+    lo, hi = (np.asarray(b, float)[:dim] for b in rb.morph.bounds())
+    return -0.5 * (hi - lo), 0.5 * (hi - lo)
+
+
+@measurement("rigid_penetration")
+def rigid_penetration(f, entity, body, surface, axis=None, **_):
+    """Depth [m] of a body's lowest point below the height ``surface`` [m] along ``axis`` (default the
+    vertical, the last): an impactor's penetration into a bed whose free surface was at ``surface`` (its
+    rotation taken as the initial one: a sphere's lowest point is its centre less its radius whatever it
+    does)."""
+    scene, rb = _rb_scene(f, body)
+    dim = scene.sim.dim
+    ax = dim - 1 if axis is None else axis
+    bg = _body(f, body)
+    rlo, _ = _extent(bg, rb, dim)
+    pos = np.asarray(bg["position"][...], dtype=np.float64)
+    n = min(len(pos), len(f["time"]))
+    return f["time"][:n], float(surface) - (pos[:n, ax] + rlo[ax])
+
+
 def _rest_volume(scene, entity, n0: int, spacing: float, dim: int) -> float:
     """Rest volume of one particle of ``entity`` [m^dim]: its Box morph's volume over its initial particle
     count (every family fills a Box with particles of equal volume), else spacing^dim."""
@@ -77,13 +103,7 @@ def rigid_draft(f, entity, body, axis=None, spacing=0.0, margin=0.02, level="top
         spacing = float(scene.solvers.sph.particle_size)
     ax = dim - 1 if axis is None else axis
     bg = _body(f, body)
-    if "surface_points" in bg:  # a Mesh body: its extent about the centre of mass (body frame)
-        sp = np.asarray(bg["surface_points"][...], dtype=np.float64)[:, :dim]
-        rlo, rhi = sp.min(axis=0), sp.max(axis=0)
-    else:
-        lo, hi = (np.asarray(b, float)[:dim] for b in rb.morph.bounds())
-        rhi = 0.5 * (hi - lo)
-        rlo = -rhi
+    rlo, rhi = _extent(bg, rb, dim)
     pos = np.asarray(bg["position"][...], dtype=np.float64)
     _, g = entity_group(f, entity)
     X = g["position"]
