@@ -1,0 +1,423 @@
+"""Work-precision studies: several options of one validation case on one plot.
+
+A *variant* is a label plus ``key=value`` scene overrides (``--set`` syntax, values YAML-typed)
+applied on top of a case's own overrides; a *study* runs one case at several resolutions
+(``run_refinement``, the machinery of ``simcli verify --refine``) once per variant and overlays
+the results: error against resolution and error against stepping wall time (compile excluded).
+Studies are data (``benchmarks/work_precision.yaml``); ``benchmarks/work_precision.py`` runs them.
+
+    mpm_transfers_sulsky:
+      case: mpm_disk_sulsky_flip_energy     # a configs/validation case
+      levels: 3
+      refine: {solvers.mpm.grid_density: 2, solvers.mpm.particle_size: 0.5}   # replaces the case's
+      overrides: {}                         # applied to every variant
+      variants:
+        APIC: {solvers.mpm.transfer: apic}
+        pure FLIP: {solvers.mpm.transfer: flip, solvers.mpm.flip_ratio: 1.0}
+
+The rows of a study are kept in a CSV (one row per variant and level); a later run of some
+variants (``only``) replaces those variants' rows and keeps the others, so a new option is added to
+a published plot without rerunning the old ones.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import shlex
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from simcli.errors import SceneError
+
+CSV_COLUMNS = [
+    "study",
+    "variant",
+    "level",
+    "resolution",
+    "x",
+    "error",
+    "order",
+    "stepping_s",
+    "wall_s",
+    "particles",
+    "substeps_total",
+    "exit_code",
+    "overrides",
+    "message",
+]
+
+
+@dataclass
+class Variant:
+    label: str
+    overrides: dict[str, Any] = field(default_factory=dict)
+
+
+def parse_overrides(items: list[str], where: str = "variant") -> dict[str, Any]:
+    """``['a.b=1', 'c=flip']`` -> ``{'a.b': 1, 'c': 'flip'}`` (values YAML-typed, as ``--set``)."""
+    from simcli.scene.overrides import parse_set
+
+    out: dict[str, Any] = {}
+    for item in items:
+        try:
+            path, value = parse_set(item)
+        except ValueError as e:
+            raise SceneError([f"{where}: '{item}': {e}"]) from None
+        out[".".join(str(p) for p in path)] = value
+    return out
+
+
+def parse_variant(spec: str) -> Variant:
+    """``'LABEL: key=value key=value'`` (overrides separated by blanks, shell-quoted where a value
+    has blanks); ``'LABEL'`` alone is the case as written."""
+    label, sep, rest = spec.partition(":")
+    label = label.strip()
+    if not label:
+        raise SceneError(
+            [
+                f"--variant '{spec}': no label; write 'LABEL: key=value ...', "
+                "e.g. 'tet10: solvers.fem.element=tet10'"
+            ]
+        )
+    items = shlex.split(rest) if sep else []
+    return Variant(label, parse_overrides(items, where=f"--variant '{label}'"))
+
+
+def variant_case(case, variant: Variant, overrides: dict | None = None, refine: dict | None = None):
+    """A copy of ``case`` named ``case [label]`` with the study's and the variant's overrides on top of
+    the case's own (later wins), and the study's refine factors (when given) instead of the case's."""
+    c = case.model_copy(deep=True)
+    c.overrides = {**case.overrides, **(overrides or {}), **variant.overrides}
+    if refine is not None:
+        c.refine = dict(refine)
+    c.name = f"{case.name} [{variant.label}]"
+    return c
+
+
+@dataclass
+class Study:
+    name: str
+    case: str
+    levels: int = 3
+    refine: dict[str, float] | None = None
+    overrides: dict[str, Any] = field(default_factory=dict)
+    variants: list[Variant] = field(default_factory=list)
+    title: str = ""
+    error_label: str = "error"
+    x_key: str | None = None  # the override whose value is the left panel's x (default: first refine key)
+    x_label: str = ""
+    plot: str | None = None  # repository-relative paths
+    csv: str | None = None
+    doc: str | None = None  # a Markdown file with <!-- wp:NAME --> ... <!-- /wp:NAME --> around the table
+    note: str = ""
+    refine_keys: list[str] = field(default_factory=list)  # filled in by run_study
+
+
+_STUDY_KEYS = {
+    "case",
+    "levels",
+    "refine",
+    "overrides",
+    "variants",
+    "title",
+    "error_label",
+    "x_key",
+    "x_label",
+    "plot",
+    "csv",
+    "doc",
+    "note",
+}
+
+
+def load_studies(path: Path) -> dict[str, Study]:
+    import yaml
+
+    data = yaml.safe_load(Path(path).read_text()) or {}
+    studies = {}
+    for name, d in data.items():
+        unknown = set(d) - _STUDY_KEYS
+        if unknown:
+            raise SceneError([f"{path}: study '{name}': unknown key(s) {', '.join(sorted(unknown))}"])
+        if "case" not in d:
+            raise SceneError([f"{path}: study '{name}': 'case' is required"])
+        variants = [Variant(str(k), dict(v or {})) for k, v in (d.get("variants") or {}).items()]
+        studies[name] = Study(
+            name=name,
+            case=d["case"],
+            levels=int(d.get("levels", 3)),
+            refine=d.get("refine"),
+            overrides=dict(d.get("overrides") or {}),
+            variants=variants,
+            title=d.get("title", ""),
+            error_label=d.get("error_label", "error"),
+            x_key=d.get("x_key"),
+            x_label=d.get("x_label", ""),
+            plot=d.get("plot"),
+            csv=d.get("csv"),
+            doc=d.get("doc"),
+            note=d.get("note", ""),
+        )
+    return studies
+
+
+def resolved_values(scene_path: Path, sets: list[str], keys: list[str]) -> dict[str, Any]:
+    """The values ``keys`` (dotted) take in the resolved scene with ``sets`` applied (defaults filled
+    in); a key the scene does not have is left out."""
+    from simcli.scene.loader import load_scene
+    from simcli.scene.models import resolved_scene_dict
+    from simcli.scene.overrides import split_path
+
+    loaded = load_scene(scene_path, sets, check=False)
+    res = resolved_scene_dict(loaded.scene, loaded.name)
+    out = {}
+    for key in keys:
+        cur: Any = res
+        try:
+            for p in split_path(key):
+                cur = cur[p]
+        except (KeyError, IndexError, TypeError):
+            continue
+        out[key] = cur
+    return out
+
+
+def _g(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def result_rows(
+    study: Study, label: str, results, x_key: str | None, scene_path: Path | None = None
+) -> list[dict]:
+    """One row per result; the resolution is written from the resolved scene (so level 0 names its
+    values too) when ``scene_path`` is given."""
+    rows = []
+    for r in results:
+        keys = list(dict.fromkeys(study.refine_keys + ([x_key] if x_key else [])))
+        resolution, x = r.resolution, None
+        if scene_path is not None:
+            try:
+                vals = resolved_values(scene_path, r.overrides, keys)
+            except Exception:  # a scene that does not load reports its failure in the run's message
+                vals = {}
+            if study.refine_keys:
+                shown = [k for k in study.refine_keys if k in vals]
+                if shown:
+                    resolution = ", ".join(f"{k.split('.')[-1]}={_g(vals[k])}" for k in shown)
+            if x_key in vals:
+                try:
+                    x = float(vals[x_key])
+                except (TypeError, ValueError):
+                    x = None
+        rows.append(
+            {
+                "study": study.name,
+                "variant": label,
+                "level": r.level,
+                "resolution": resolution,
+                "x": x,
+                "error": r.error,
+                "order": r.order,
+                "stepping_s": r.stepping_s,
+                "wall_s": r.wall_s,
+                "particles": r.particles,
+                "substeps_total": r.substeps_total,
+                "exit_code": r.exit_code,
+                "overrides": " ".join(r.overrides),
+                "message": r.message,
+            }
+        )
+    return rows
+
+
+def run_study(
+    study: Study,
+    cases: dict,
+    out: Path,
+    backend: str | None = None,
+    reuse: bool = False,
+    only: list[str] | None = None,
+    levels: int | None = None,
+    echo=print,
+) -> list[dict]:
+    """Run every variant of ``study`` (or those labelled in ``only``) at ``levels`` resolutions."""
+    from simcli.verify.run import run_refinement
+
+    if study.case not in cases:
+        raise SceneError([f"study '{study.name}': unknown case '{study.case}'"])
+    base = cases[study.case]
+    labels = [v.label for v in study.variants]
+    if only:
+        missing = [o for o in only if o not in labels]
+        if missing:
+            raise SceneError(
+                [f"study '{study.name}': no variant {', '.join(missing)} (has {', '.join(labels)})"]
+            )
+    rows: list[dict] = []
+    for v in study.variants:
+        if only and v.label not in only:
+            continue
+        case = variant_case(base, v, study.overrides, study.refine)
+        x_key = study.x_key or next(iter(case.refine), None)
+        echo(f"work-precision: {study.name}: {v.label} ...")
+        study.refine_keys = list(case.refine)
+        rs = run_refinement(case, levels or study.levels, out, backend, reuse=reuse)
+        vrows = result_rows(study, v.label, rs, x_key, case.scene_path)
+        for r, row in zip(rs, vrows):
+            err = "-" if r.error is None else f"{r.error:.4g}"
+            echo(
+                f"  level {r.level} ({row['resolution']}): error {err}, stepping {r.stepping_s} s {r.message}"
+            )
+        rows += vrows
+    return rows
+
+
+def merge_rows(old: list[dict], new: list[dict]) -> list[dict]:
+    """The rows of ``new``, and those of ``old`` whose variant ``new`` does not have; variants in the
+    order they first appear (old first), levels in order."""
+    fresh = {r["variant"] for r in new}
+    kept = [r for r in old if r["variant"] not in fresh]
+    order: list[str] = []
+    for r in kept + new:
+        if r["variant"] not in order:
+            order.append(r["variant"])
+    rows = kept + new
+    return sorted(rows, key=lambda r: (order.index(r["variant"]), int(r["level"])))
+
+
+def _num(v, kind=float):
+    if v is None or v == "" or v == "None":
+        return None
+    try:
+        return kind(v)
+    except ValueError:
+        return None
+
+
+def read_rows(path: Path) -> list[dict]:
+    if not Path(path).is_file():
+        return []
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        r["level"] = _num(r.get("level"), int)
+        r["exit_code"] = _num(r.get("exit_code"), int)
+        for k in ("x", "error", "order", "stepping_s", "wall_s"):
+            r[k] = _num(r.get(k))
+        for k in ("particles", "substeps_total"):
+            r[k] = _num(r.get(k), int)
+    return rows
+
+
+def write_rows(rows: list[dict], path: Path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in CSV_COLUMNS})
+
+
+def _f(v, fmt="{:.3g}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+def markdown(rows: list[dict], study: Study) -> str:
+    head = [
+        "variant",
+        "level",
+        "resolution",
+        study.error_label,
+        "order",
+        "stepping [s]",
+        "particles",
+        "steps",
+    ]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        err = _f(r["error"], "{:.4g}")
+        if r.get("exit_code"):
+            err = f"run failed ({r['exit_code']})"
+        cells = [
+            r["variant"],
+            str(r["level"]),
+            str(r["resolution"]),
+            err,
+            _f(r["order"], "{:.2f}"),
+            _f(r["stepping_s"], "{:.2f}"),
+            _f(r.get("particles"), "{:d}"),
+            _f(r.get("substeps_total"), "{:d}"),
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def update_doc(doc: Path, name: str, text: str) -> bool:
+    """Replace what lies between ``<!-- wp:NAME -->`` and ``<!-- /wp:NAME -->`` in ``doc`` by ``text``;
+    False (and nothing written) when the markers are absent."""
+    doc = Path(doc)
+    if not doc.is_file():
+        return False
+    src = doc.read_text()
+    a, b = f"<!-- wp:{name} -->", f"<!-- /wp:{name} -->"
+    i, j = src.find(a), src.find(b)
+    if i < 0 or j < i:
+        return False
+    doc.write_text(src[: i + len(a)] + "\n" + text.rstrip("\n") + "\n" + src[j:])
+    return True
+
+
+def plot(rows: list[dict], path: Path, study: Study) -> Path | None:
+    """Two panels: error against the resolution key (log-log) and against stepping wall time, one line
+    per variant, each point labelled with its resolution."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    by: dict[str, list[dict]] = {}
+    for r in rows:
+        if r["error"] is not None and r["error"] > 0 and math.isfinite(r["error"]):
+            by.setdefault(r["variant"], []).append(r)
+    if not by:
+        return None
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11.5, 4.4))
+    markers = "osD^v<>ph*"
+    for i, (label, rs) in enumerate(by.items()):
+        rs = sorted(rs, key=lambda r: r["level"])
+        m = markers[i % len(markers)] + "-"
+        err = [r["error"] for r in rs]
+        xs = [r["x"] if r["x"] is not None else r["level"] for r in rs]
+        if all(r["x"] is not None for r in rs):
+            ax1.loglog(xs, err, m, label=label)
+        else:
+            ax1.semilogy(xs, err, m, label=label)
+        wt = [r["stepping_s"] if r["stepping_s"] is not None else r["wall_s"] for r in rs]
+        (line,) = ax2.loglog(wt, err, m, label=label)
+        for r, x, y in zip(rs, wt, err):
+            short = ", ".join(p.split("=")[-1] for p in str(r["resolution"]).split(", "))
+            ax2.annotate(
+                short, (x, y), fontsize=7, textcoords="offset points", xytext=(4, 3), color=line.get_color()
+            )
+    ax1.set_xlabel(study.x_label or "refinement level")
+    ax1.set_ylabel(study.error_label)
+    ax1.set_title("convergence")
+    ax2.set_xlabel("stepping wall time [s] (compile excluded; 2-core CPU under shared load)")
+    ax2.set_ylabel(study.error_label)
+    ax2.set_title("work-precision (lower left is better)")
+    for ax in (ax1, ax2):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    if study.title:
+        fig.suptitle(study.title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
