@@ -27,6 +27,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _echo(*a):
+    print(*a, flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     from simcli.errors import SceneError
     from simcli.verify import variants as wp
@@ -45,6 +49,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--levels", type=int, default=None, help="resolutions per variant (default: the study's)")
     ap.add_argument("-o", "--out", type=Path, default=ROOT / "out" / "work_precision", help="runs go here")
     ap.add_argument("--reuse", action="store_true", help="reuse finished runs in OUT with the same scene")
+    ap.add_argument(
+        "--repeat",
+        type=int,
+        default=None,
+        help="run every variant N times, alternating, and keep the fastest stepping time "
+        "(default: the study's repeat)",
+    )
     ap.add_argument("--backend", default=None)
     ap.add_argument("--replot", action="store_true", help="no runs: redraw plot and table from the CSV")
     ap.add_argument("--no-docs", action="store_true", help="write CSV, plot and table under OUT only")
@@ -70,7 +81,17 @@ def main(argv: list[str] | None = None) -> int:
             csv_path = ROOT / st.csv if (st.csv and not a.no_docs) else out / f"{name}.csv"
             rows = wp.read_rows(csv_path)
             if not a.replot:
-                new = wp.run_study(st, cases, out, a.backend, a.reuse, a.only or None, a.levels)
+                new = wp.run_study(
+                    st,
+                    cases,
+                    out,
+                    a.backend,
+                    a.reuse,
+                    a.only or None,
+                    a.levels,
+                    echo=_echo,
+                    repeat=a.repeat or st.repeat,
+                )
                 rows = wp.merge_rows(rows, new)
                 wp.write_rows(rows, csv_path)
                 wp.write_rows(new, out / f"{name}.csv")

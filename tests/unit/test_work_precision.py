@@ -116,3 +116,30 @@ def test_unknown_study_key_is_an_error(tmp_path):
     f.write_text("s: {case: c, variantz: {}}\n")
     with pytest.raises(SceneError, match="variantz"):
         wp.load_studies(f)
+
+
+def test_verify_variant_option_names_one_case_per_variant_and_refuses_a_bad_spec():
+    from click.testing import CliRunner
+
+    from simcli.verify.cli import verify
+
+    args = ["mpm_disk_sulsky_flip_energy", "--list"]
+    r = CliRunner().invoke(
+        verify, args + ["--variant", "APIC: solvers.mpm.transfer=apic", "--variant", "FLIP"]
+    )
+    assert r.exit_code == 0, r.output
+    names = [line.split("\t")[0] for line in r.output.splitlines()]
+    assert names == ["mpm_disk_sulsky_flip_energy [APIC]", "mpm_disk_sulsky_flip_energy [FLIP]"]
+    r = CliRunner().invoke(verify, args + ["--variant", "APIC: solvers.mpm.transfer"])
+    assert r.exit_code == 65 and "KEY=VALUE" in r.output
+
+
+def test_repetitions_keep_the_fastest_stepping_time_and_flag_differing_errors():
+    a = [_row("apic", 0, 0.3), _row("apic", 1, 0.1)]
+    b = [{**_row("apic", 0, 0.3), "stepping_s": 0.5}, {**_row("apic", 1, 0.1), "stepping_s": 9.0}]
+    c = [_row("apic", 0, 0.3), {**_row("apic", 1, 0.2), "stepping_s": None}]
+    rows = wp.fastest_of([a, b, c])
+    assert [r["stepping_s"] for r in rows] == [0.5, 2.0]
+    assert rows[0]["message"] == "fastest of 3 runs"
+    assert "errors differ" in rows[1]["message"] and rows[1]["error"] == 0.1
+    assert wp.fastest_of([a]) == a
