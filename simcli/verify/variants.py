@@ -96,6 +96,56 @@ def variant_case(case, variant: Variant, overrides: dict | None = None, refine: 
     return c
 
 
+def study_case(study: Study, base, variant: Variant):
+    """``variant_case`` with the study's changes to the measurement (``measure_params``) and to the
+    error metric (``error``: fields of the case's ``error``) applied."""
+    from simcli.verify.cases import ErrorSpec, Measure
+
+    c = variant_case(base, variant, study.overrides, study.refine)
+    if study.measure_params:
+        m = c.measure.model_dump()
+        m["params"] = {**m["params"], **study.measure_params}
+        c.measure = Measure(**m)
+    if study.error:
+        c.error = ErrorSpec(**{**c.error.model_dump(), **study.error})
+    return c
+
+
+def level_case(study: Study, case, level: int):
+    """``case`` with the measure parameters named in ``study.refine_params`` scaled by factor**level
+    (a length the measurement needs that follows the resolution, e.g. the particle spacing)."""
+    from simcli.verify.cases import Measure
+
+    if not study.refine_params or level == 0:
+        return case
+    c = case.model_copy(deep=True)
+    m = c.measure.model_dump()
+    for k, f in study.refine_params.items():
+        m["params"][k] = m["params"][k] * f**level
+    c.measure = Measure(**m)
+    return c
+
+
+def run_levels(study: Study, case, levels: int, out: Path, backend, reuse: bool):
+    """``run_refinement`` (nothing judged) with the measure parameters following the levels."""
+    from simcli.verify import run as vrun
+
+    if not study.refine_params:
+        rs = vrun.run_refinement(case, levels, out, backend, reuse=reuse)
+        for r in rs:
+            r.passed = None
+        return rs
+    rs = [
+        vrun.run_case(level_case(study, case, k), k, out, backend, judge=False, reuse=reuse)
+        for k in range(levels)
+    ]
+    ratio = vrun.refinement_ratio(case)
+    for a, b in zip(rs, rs[1:]):
+        if a.error and b.error and a.error > 0 and b.error > 0:
+            b.order = math.log(a.error / b.error) / math.log(ratio)
+    return rs
+
+
 @dataclass
 class Study:
     name: str
@@ -112,6 +162,9 @@ class Study:
     csv: str | None = None
     doc: str | None = None  # a Markdown file with <!-- wp:NAME --> ... <!-- /wp:NAME --> around the table
     note: str = ""
+    measure_params: dict[str, Any] = field(default_factory=dict)  # on top of the case's measure.params
+    refine_params: dict[str, float] = field(default_factory=dict)  # measure params scaled per level
+    error: dict[str, Any] = field(default_factory=dict)  # fields of the case's error spec replaced
     repeat: int = 1  # runs of each variant and level; the fastest stepping time is kept
     refine_keys: list[str] = field(default_factory=list)  # filled in by run_study
 
@@ -131,6 +184,9 @@ _STUDY_KEYS = {
     "doc",
     "note",
     "repeat",
+    "measure_params",
+    "refine_params",
+    "error",
 }
 
 
@@ -162,6 +218,9 @@ def load_studies(path: Path) -> dict[str, Study]:
             doc=d.get("doc"),
             note=d.get("note", ""),
             repeat=int(d.get("repeat", 1)),
+            measure_params=dict(d.get("measure_params") or {}),
+            refine_params=dict(d.get("refine_params") or {}),
+            error=dict(d.get("error") or {}),
         )
     return studies
 
@@ -288,12 +347,12 @@ def run_study(
         for v in study.variants:
             if only and v.label not in only:
                 continue
-            case = variant_case(base, v, study.overrides, study.refine)
+            case = study_case(study, base, v)
             x_key = study.x_key or next(iter(case.refine), None)
             echo(f"work-precision: {study.name}: {v.label} (run {k + 1} of {max(1, repeat)}) ...")
             study.refine_keys = list(case.refine)
             where = out if k == 0 else out / f"repeat{k}"
-            rs = vrun.run_refinement(case, levels or study.levels, where, backend, reuse=reuse)
+            rs = run_levels(study, case, levels or study.levels, where, backend, reuse)
             vrows = result_rows(study, v.label, rs, x_key, case.scene_path)
             for r, row in zip(rs, vrows):
                 err = "-" if r.error is None else f"{r.error:.4g}"
@@ -432,10 +491,20 @@ def plot(rows: list[dict], path: Path, study: Study) -> Path | None:
         wt = [r["stepping_s"] if r["stepping_s"] is not None else r["wall_s"] for r in rs]
         (line,) = ax2.loglog(wt, err, m, label=label)
         for r, x, y in zip(rs, wt, err):
-            short = ", ".join(p.split("=")[-1] for p in str(r["resolution"]).split(", "))
+            if r["x"] is not None:
+                short = f"{r['x']:g}"
+            else:
+                short = ", ".join(p.split("=")[-1] for p in str(r["resolution"]).split(", "))
             ax2.annotate(
                 short, (x, y), fontsize=7, textcoords="offset points", xytext=(4, 3), color=line.get_color()
             )
+    xs_all = sorted({r["x"] for rs in by.values() for r in rs if r["x"] is not None})
+    if xs_all:
+        from matplotlib.ticker import FixedLocator, NullLocator
+
+        ax1.xaxis.set_major_locator(FixedLocator(xs_all))
+        ax1.xaxis.set_minor_locator(NullLocator())
+        ax1.set_xticklabels([f"{x:g}" for x in xs_all])
     ax1.set_xlabel(study.x_label or "refinement level")
     ax1.set_ylabel(study.error_label)
     ax1.set_title("convergence")

@@ -143,3 +143,20 @@ def test_repetitions_keep_the_fastest_stepping_time_and_flag_differing_errors():
     assert rows[0]["message"] == "fastest of 3 runs"
     assert "errors differ" in rows[1]["message"] and rows[1]["error"] == 0.1
     assert wp.fastest_of([a]) == a
+
+
+def test_study_changes_the_measurement_and_scales_its_lengths_with_the_level(tmp_path):
+    case = _case(tmp_path)
+    st = wp.Study(
+        name="s",
+        case="c",
+        measure_params={"spacing": 0.004, "q": 99},
+        refine_params={"spacing": 0.5},
+        error={"metric": "nmae"},
+    )
+    c = wp.study_case(st, case, wp.Variant("APIC", {}))
+    assert c.measure.params == {"spacing": 0.004, "q": 99} and c.error.metric == "nmae"
+    assert case.measure.params == {} and case.error.metric == "max_rel"
+    assert wp.level_case(st, c, 0) is c
+    assert wp.level_case(st, c, 2).measure.params == {"spacing": 0.001, "q": 99}
+    assert c.measure.params["spacing"] == 0.004
