@@ -42,6 +42,7 @@ CSV_COLUMNS = [
     "stepping_s",
     "wall_s",
     "particles",
+    "size",
     "substeps_total",
     "exit_code",
     "overrides",
@@ -250,11 +251,50 @@ def _g(v) -> str:
     return f"{v:g}" if isinstance(v, float) else str(v)
 
 
+def size_of(counts: dict) -> str:
+    """``run.json``'s counts in words: '6456 particles', '1025 vertices / 3840 tets'."""
+    parts = []
+    for fam, c in (counts or {}).items():
+        if not isinstance(c, dict):
+            continue
+        if "particles" in c:
+            parts.append(f"{c['particles']} particles")
+        elif "vertices" in c:
+            cells = ", ".join(f"{v} {k}" for k, v in c.items() if k != "vertices")
+            parts.append(f"{c['vertices']} vertices" + (f" / {cells}" if cells else ""))
+        else:
+            parts.append(f"{fam}: " + ", ".join(f"{v} {k}" for k, v in c.items()))
+    return "; ".join(parts)
+
+
+def _size(out_root: Path | None, scene_path: Path | None, level: int, sets: list[str], backend) -> str:
+    """The size of the run ``run_case`` made for these sets (its folder is named by their hash)."""
+    import hashlib
+    import json
+
+    if out_root is None or scene_path is None:
+        return ""
+    key = hashlib.sha1(json.dumps([str(scene_path), sets, backend]).encode()).hexdigest()[:10]
+    try:
+        info = json.loads(
+            (Path(out_root) / "runs" / f"{scene_path.stem}-L{level}-{key}" / "run.json").read_text()
+        )
+    except (OSError, ValueError):
+        return ""
+    return size_of(info.get("counts") or {})
+
+
 def result_rows(
-    study: Study, label: str, results, x_key: str | None, scene_path: Path | None = None
+    study: Study,
+    label: str,
+    results,
+    x_key: str | None,
+    scene_path: Path | None = None,
+    out_root: Path | None = None,
+    backend: str | None = None,
 ) -> list[dict]:
     """One row per result; the resolution is written from the resolved scene (so level 0 names its
-    values too) when ``scene_path`` is given."""
+    values too) when ``scene_path`` is given, the size from the run's run.json when ``out_root`` is."""
     rows = []
     for r in results:
         keys = list(dict.fromkeys(study.refine_keys + ([x_key] if x_key else [])))
@@ -285,6 +325,7 @@ def result_rows(
                 "stepping_s": r.stepping_s,
                 "wall_s": r.wall_s,
                 "particles": r.particles,
+                "size": _size(out_root, scene_path, r.level, r.overrides, backend),
                 "substeps_total": r.substeps_total,
                 "exit_code": r.exit_code,
                 "overrides": " ".join(r.overrides),
@@ -353,7 +394,7 @@ def run_study(
             study.refine_keys = list(case.refine)
             where = out if k == 0 else out / f"repeat{k}"
             rs = run_levels(study, case, levels or study.levels, where, backend, reuse)
-            vrows = result_rows(study, v.label, rs, x_key, case.scene_path)
+            vrows = result_rows(study, v.label, rs, x_key, case.scene_path, where, backend)
             for r, row in zip(rs, vrows):
                 err = "-" if r.error is None else f"{r.error:.4g}"
                 echo(
@@ -417,17 +458,8 @@ def _f(v, fmt="{:.3g}") -> str:
 
 
 def markdown(rows: list[dict], study: Study) -> str:
-    head = [
-        "variant",
-        "level",
-        "resolution",
-        study.error_label,
-        "order",
-        "stepping [s]",
-        "particles",
-        "steps",
-    ]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    head = ["variant", "level", "resolution", study.error_label, "order", "stepping [s]", "size", "steps"]
+    lines = ["|" + "---|" * len(head)]
     for r in rows:
         err = _f(r["error"], "{:.4g}")
         if r.get("exit_code"):
@@ -439,11 +471,11 @@ def markdown(rows: list[dict], study: Study) -> str:
             err,
             _f(r["order"], "{:.2f}"),
             _f(r["stepping_s"], "{:.2f}"),
-            _f(r.get("particles"), "{:d}"),
+            r.get("size") or _f(r.get("particles") or None, "{:d} particles"),
             _f(r.get("substeps_total"), "{:d}"),
         ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+        lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    return "| " + " | ".join(h.replace("|", "\\|") for h in head) + " |\n" + "\n".join(lines) + "\n"
 
 
 def update_doc(doc: Path, name: str, text: str) -> bool:

@@ -94,9 +94,12 @@ def test_merge_replaces_rerun_variants_and_keeps_the_others_through_the_csv(tmp_
 def test_table_goes_between_the_markers_only(tmp_path):
     doc = tmp_path / "X.md"
     doc.write_text("a\n<!-- wp:s -->\nold\n<!-- /wp:s -->\nb\n")
-    st = wp.Study(name="s", case="c", error_label="err [-]")
+    st = wp.Study(name="s", case="c", error_label="|w/w0 - 1| [-]")
     table = wp.markdown([_row("tet4", 0, 0.25), {**_row("tet10", 0, None), "exit_code": 1}], st)
     assert "| tet4 | 0 | r=0 | 0.25 |" in table and "run failed (1)" in table
+    assert "\\|w/w0 - 1\\| [-]" in table.splitlines()[0] and "100 particles" in table
+    assert wp.size_of({"fem": {"vertices": 1025, "tets": 3840}}) == "1025 vertices / 3840 tets"
+    assert wp.size_of({"mpm": {"particles": 416, "grid_cells": 3025}}) == "416 particles"
     assert wp.update_doc(doc, "s", table)
     text = doc.read_text()
     assert text.startswith("a\n<!-- wp:s -->\n| variant |") and text.endswith("<!-- /wp:s -->\nb\n")
