@@ -493,6 +493,10 @@ def update_doc(doc: Path, name: str, text: str) -> bool:
     return True
 
 
+def _tick(x: float) -> str:
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"
+
+
 def plot(rows: list[dict], path: Path, study: Study) -> Path | None:
     """Two panels: error against the resolution key (log-log) and against stepping wall time, one line
     per variant, each point labelled with its resolution."""
@@ -524,7 +528,7 @@ def plot(rows: list[dict], path: Path, study: Study) -> Path | None:
         (line,) = ax2.loglog(wt, err, m, label=label)
         for r, x, y in zip(rs, wt, err):
             if r["x"] is not None:
-                short = f"{r['x']:g}"
+                short = _tick(r["x"])
             else:
                 short = ", ".join(p.split("=")[-1] for p in str(r["resolution"]).split(", "))
             ax2.annotate(
@@ -536,7 +540,7 @@ def plot(rows: list[dict], path: Path, study: Study) -> Path | None:
 
         ax1.xaxis.set_major_locator(FixedLocator(xs_all))
         ax1.xaxis.set_minor_locator(NullLocator())
-        ax1.set_xticklabels([f"{x:g}" for x in xs_all])
+        ax1.set_xticklabels([_tick(x) for x in xs_all])
     ax1.set_xlabel(study.x_label or "refinement level")
     ax1.set_ylabel(study.error_label)
     ax1.set_title("convergence")
