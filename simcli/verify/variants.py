@@ -547,7 +547,10 @@ def plot(rows: list[dict], path: Path, study: Study) -> Path | None:
     ax2.set_xlabel("stepping wall time [s] (compile excluded; 2-core CPU under shared load)")
     ax2.set_ylabel(study.error_label)
     ax2.set_title("work-precision (lower left is better)")
+    errs = [r["error"] for rs in by.values() for r in rs]
+    lo, hi = 10 ** math.floor(math.log10(min(errs))), 10 ** math.ceil(math.log10(max(errs)))
     for ax in (ax1, ax2):
+        ax.set_ylim(lo, hi if hi > lo else lo * 10)  # whole decades, so every panel has labelled ticks
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
     if study.title:
