@@ -58,7 +58,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--backend", default=None)
     ap.add_argument("--replot", action="store_true", help="no runs: redraw plot and table from the CSV")
-    ap.add_argument("--no-docs", action="store_true", help="write CSV, plot and table under OUT only")
+    ap.add_argument(
+        "--no-docs",
+        action="store_true",
+        help="write CSV, plot and table under OUT only (the published rows are still read and merged)",
+    )
     ap.add_argument("--list", action="store_true")
     a = ap.parse_args(argv)
 
@@ -73,13 +77,16 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             raise SceneError([f"unknown study {', '.join(unknown)} (have {', '.join(studies)})"])
         cases = {c.name: c for c in discover()}
+        status = 0
         for name in a.studies:
             st = studies[name]
             for v in extra:
                 st.variants = [x for x in st.variants if x.label != v.label] + [v]
             out = a.out / name
-            csv_path = ROOT / st.csv if (st.csv and not a.no_docs) else out / f"{name}.csv"
-            rows = wp.read_rows(csv_path)
+            out.mkdir(parents=True, exist_ok=True)
+            docs = not a.no_docs
+            published = ROOT / st.csv if st.csv else out / f"{name}.csv"
+            rows = wp.read_rows(published)  # the published rows: variants not run now are kept
             if not a.replot:
                 new = wp.run_study(
                     st,
@@ -92,22 +99,36 @@ def main(argv: list[str] | None = None) -> int:
                     echo=_echo,
                     repeat=a.repeat or st.repeat,
                 )
+                wp.write_rows(new, out / f"{name}.new.csv")
+                failed = [r for r in new if r.get("exit_code")]
+                if failed:  # never publish a failed run: the docs keep what they had
+                    status = 1
+                    docs = False
+                    for r in failed:
+                        print(
+                            f"{name}: {r['variant']} level {r['level']} failed: {r['message']}",
+                            file=sys.stderr,
+                        )
+                    print(
+                        f"{name}: runs failed; docs left unchanged (this run's rows: {name}.new.csv in {out})"
+                    )
                 rows = wp.merge_rows(rows, new)
+            csv_path = published if (docs and st.csv) else out / f"{name}.csv"
+            if not a.replot or not docs:
                 wp.write_rows(rows, csv_path)
-                wp.write_rows(new, out / f"{name}.csv")
             table = wp.markdown(rows, st)
             print(table)
-            (out).mkdir(parents=True, exist_ok=True)
             (out / f"{name}.md").write_text(table)
-            png = ROOT / st.plot if (st.plot and not a.no_docs) else out / f"{name}.png"
+            png = ROOT / st.plot if (st.plot and docs) else out / f"{name}.png"
             if wp.plot(rows, png, st):
                 print(f"wrote {png}")
             print(f"wrote {csv_path}")
-            if st.doc and not a.no_docs:
+            if st.doc and docs:
                 if wp.update_doc(ROOT / st.doc, name, table):
                     print(f"updated the table in {st.doc}")
                 else:
                     print(f"note: no <!-- wp:{name} --> markers in {st.doc}; table not inserted")
+        return status
     except SceneError as e:
         for line in e.lines:
             print(line, file=sys.stderr)

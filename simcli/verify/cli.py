@@ -55,8 +55,8 @@ from simcli.errors import EXIT_INVALID_SCENE, SceneError
     "variants",
     multiple=True,
     help="'LABEL: key=value key=value': run each chosen case once per variant with these scene overrides "
-    "(as --set) on top of its own, as case [LABEL]; with --refine the variants share one work-precision "
-    "plot. benchmarks/work_precision.py keeps the published studies.",
+    "(as --set) on top of its own, as case [LABEL], each judged against the case's tolerance; with --refine "
+    "the variants share one work-precision plot. benchmarks/work_precision.py keeps the published studies.",
 )
 def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse, variants):
     """Run validation cases against their references; exit 1 when a case fails."""
