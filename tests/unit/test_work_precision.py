@@ -163,3 +163,19 @@ def test_study_changes_the_measurement_and_scales_its_lengths_with_the_level(tmp
     assert wp.level_case(st, c, 0) is c
     assert wp.level_case(st, c, 2).measure.params == {"spacing": 0.001, "q": 99}
     assert c.measure.params["spacing"] == 0.004
+
+
+def test_script_lists_the_studies_and_refuses_an_unknown_one(capsys):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("work_precision", ROOT / "benchmarks" / "work_precision.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.main(["--list"]) == 0
+    assert (
+        "mpm_transfers_sulsky\tmpm_disk_sulsky_flip_energy\tAPIC, FLIP 0.99, pure FLIP"
+        in capsys.readouterr().out
+    )
+    assert mod.main(["no_such_study"]) == 65
+    assert "unknown study no_such_study" in capsys.readouterr().err
+    assert mod.main(["mpm_transfers_sulsky", "--variant", ": x=1"]) == 65
