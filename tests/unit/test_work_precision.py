@@ -179,3 +179,18 @@ def test_script_lists_the_studies_and_refuses_an_unknown_one(capsys):
     assert mod.main(["no_such_study"]) == 65
     assert "unknown study no_such_study" in capsys.readouterr().err
     assert mod.main(["mpm_transfers_sulsky", "--variant", ": x=1"]) == 65
+
+
+def test_a_static_study_counts_the_first_step_that_simcli_times_with_the_compilation(tmp_path):
+    st = wp.Study(name="s", case="c", time="first_step")
+    assert wp._time_of(st, 0.01, 4.0) == pytest.approx(4.01)
+    assert wp._time_of(wp.Study(name="s", case="c"), 0.01, 4.0) == 0.01
+    assert (
+        wp.time_of_row({"stepping_s": 2.0}) == 2.0
+        and wp.time_of_row({"stepping_s": 2.0, "time_s": 5.0}) == 5.0
+    )
+    assert "first step + stepping [s]" in wp.markdown([{**_row("tet10", 0, 0.02), "time_s": 4.01}], st)
+    f = tmp_path / "w.yaml"
+    f.write_text("s: {case: c, time: cpu}\n")
+    with pytest.raises(SceneError, match="time: one of"):
+        wp.load_studies(f)
