@@ -345,10 +345,10 @@ def result_rows(
 
 
 TIME_LABEL = {
-    "stepping": ("stepping [s]", "stepping wall time [s] (compile excluded)"),
+    "stepping": ("stepping [s]", "stepping wall time [s] (compile excluded"),
     "first_step": (
         "first step + stepping [s]",
-        "wall time of all steps [s] (the first step's own work included, kernels cached)",
+        "wall time of all steps [s] (kernels cached",
     ),
 }
 """Study ``time``: ``stepping`` is run.json's stepping_s (compilation excluded; simcli times the first
@@ -591,7 +591,7 @@ def plot(rows: list[dict], path: Path, study: Study) -> Path | None:
     ax1.set_xlabel(study.x_label or "refinement level")
     ax1.set_ylabel(study.error_label)
     ax1.set_title("convergence")
-    ax2.set_xlabel(TIME_LABEL[study.time][1] + "; 2-core CPU under shared load")
+    ax2.set_xlabel(TIME_LABEL[study.time][1] + "; 2-core CPU under shared load)")
     ax2.set_ylabel(study.error_label)
     ax2.set_title("work-precision (lower left is better)")
     errs = [r["error"] for rs in by.values() for r in rs]
