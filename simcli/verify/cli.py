@@ -50,7 +50,15 @@ from simcli.errors import EXIT_INVALID_SCENE, SceneError
     help="Reuse finished runs in OUT whose resolved scene is unchanged "
     "(regenerate a report without rerunning).",
 )
-def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse):
+@click.option(
+    "--variant",
+    "variants",
+    multiple=True,
+    help="'LABEL: key=value key=value': run each chosen case once per variant with these scene overrides "
+    "(as --set) on top of its own, as case [LABEL], each judged against the case's tolerance; with --refine "
+    "the variants share one work-precision plot. benchmarks/work_precision.py keeps the published studies.",
+)
+def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse, variants):
     """Run validation cases against their references; exit 1 when a case fails."""
     from simcli.verify.cases import discover, select
     from simcli.verify.report import markdown_table, plot_refinement, write_csv
@@ -58,6 +66,11 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse):
 
     try:
         chosen = select(discover(root), list(cases), all_, tag)
+        if variants:
+            from simcli.verify.variants import parse_variant, variant_case
+
+            vs = [parse_variant(v) for v in variants]
+            chosen = [variant_case(c, v) for c in chosen for v in vs]
     except SceneError as e:
         for line in e.lines:
             click.echo(line, err=True)
