@@ -37,6 +37,15 @@ class FEMOptions(_Options):
         "minimisation) followed by an explicit half step; keeps the energy of undamped motion and the "
         "angular momentum of a free body (choose it for elastic dynamics: vibration, spinning).",
     )
+    element: Literal["tet4", "tet10"] = Field(
+        "tet4",
+        description="FEM.Elastic element: tet4, linear tetrahedra (4 nodes, constant strain; lock in "
+        "bending: a slender beam needs many elements); tet10, quadratic tetrahedra (the same mesh with a "
+        "node at each edge midpoint, 4-point Gauss quadrature, HRZ lumped mass): far more accurate in "
+        "bending per node. tet10 supports FEM.Elastic with every model and integrator, boundary "
+        "conditions, colliders and walls; not FEM.Muscle, FEM.Cloth or coupling with other families "
+        "(refused by validate).",
+    )
     resolution: float = Field(
         20.0,
         gt=0,
