@@ -173,7 +173,9 @@ class FEMBoundaryCondition(_Options):
 
 
 class _FEMSolid(_Solid):
-    model: Literal["linear", "linear_corotated", "stable_neohookean", "neohookean"] = Field(
+    model: Literal[
+        "linear", "linear_corotated", "stable_neohookean", "neohookean", "neohookean_decoupled"
+    ] = Field(
         "stable_neohookean",
         description="Constitutive model: 'linear' (small-strain, not rotation invariant), 'linear_corotated' "
         "(linear in the stretch S of F = R S), 'stable_neohookean' (Smith, de Goes and Kim 2018, Lame "
@@ -182,7 +184,9 @@ class _FEMSolid(_Solid):
         "3) - mu ln J "
         "+ lambda/2 (ln J)^2: the model of the reference solutions, e.g. Cook's membrane; undefined for "
         "J <= 0: an inverted element's ln J is taken at J = 1e-4 (docs/FEM.md), so prefer "
-        "stable_neohookean where elements may invert).",
+        "stable_neohookean where elements may invert), 'neohookean_decoupled' (mu/2 (J^-2/3 I1 - 3) + "
+        "kappa/4 (J^2 - 1 - 2 ln J), kappa = lambda + 2 mu / 3: the model of the deal.II code gallery's "
+        "Cook membrane, Pelteret and McBride 2016; the same inversion guard).",
     )
     angular_velocity: Vec | None = Field(
         None,
