@@ -5,8 +5,8 @@
 * element patch test (numpy): a linear displacement field is reproduced exactly at every Gauss point
   (F = I + A), a uniform stress leaves no force on interior nodes, the 4-point rule integrates the volume
   and the stiffness's integrands exactly, HRZ masses are positive and sum to the element mass;
-* solver patch test (Taichi, f64, one quasi-static implicit step of the uniaxial-tension cube with the
-  linear model): strain 1e-3 along the load and -3e-4 across at every node, corners and edge nodes.
+* solver patch test (slow: Taichi, f64, one quasi-static implicit step of the uniaxial-tension cube with
+  the linear model): strain 1e-3 along the load and -3e-4 across at every node, corners and edge nodes.
 """
 
 import json
@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from simcli.geometry.tetmesh import box_tets, signed_volumes
 from simcli.solvers.fem import tet10
@@ -121,6 +122,7 @@ print("RESULT " + json.dumps(dict(n=int(s.n), m=int(s.m), ex=[ex.min(), ex.max()
 """
 
 
+@pytest.mark.slow  # compiles the tet10 implicit kernels: 19 s wall, warm kernel cache, loaded machine
 def test_solver_patch_uniaxial_tension_exact(tmp_path):
     script = tmp_path / "run.py"
     script.write_text(SCRIPT)
