@@ -135,3 +135,35 @@ def test_solver_patch_uniaxial_tension_exact(tmp_path):
         assert abs(v - 1e-3) < 1e-12
     for v in out["ey"]:
         assert abs(v + 3e-4) < 1e-12
+
+
+SCENE_REFUSED = """version: 1
+sim: {dim: 3, dt: 0.01, steps: 2}
+domain: {lower: [-1, -1, -1], upper: [1, 1, 1]}
+solvers:
+  fem: {integrator: implicit, element: tet10}
+entities:
+  - name: muscle
+    material: {type: FEM.Muscle, E: 1.0e5, nu: 0.3}
+    morph: {type: Box, lower: [0, 0, 0], upper: [0.2, 0.2, 0.2]}
+  - name: sand
+    material: {type: MPM.Sand}
+    morph: {type: Box, lower: [0, 0, 0.5], upper: [0.2, 0.2, 0.7]}
+"""
+
+
+def test_validate_refuses_what_tet10_does_not_support(tmp_path):
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(SCENE_REFUSED)
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "validate", str(scene)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=ROOT,
+    )
+    assert r.returncode == 65, r.stdout + r.stderr
+    out = r.stdout + r.stderr
+    assert f"{scene}:8:" in out and "FEM.Muscle is not supported with solvers.fem.element: tet10" in out
+    assert f"{scene}:11:" in out and "MPM.Sand entities are not coupled to quadratic FEM solids" in out
+    assert "Traceback" not in out
