@@ -204,7 +204,6 @@ class FEMSolver(Solver):
 
             tet10.prepare(self)  # quadrature points as kernel elements: Bk, volk, midk, adjacency
             self.h_factor = tet10.H_FACTOR  # explicit stability: the edge nodes shrink the node spacing
-            self.h_min *= self.h_factor
 
     def rest_diagonal_blocks(self) -> np.ndarray:
         """Per element corner a, the 3x3 diagonal block V (mu |g_a|^2 I + (mu + lam) g_a g_a^T) of the
@@ -545,8 +544,9 @@ class FEMSolver(Solver):
         self._frame_stats()
         self._min_height()
         vmax = float(np.max(self.stat_speed.to_numpy()))
-        h = max(float(self.hmin_cur[None]) * self.h_factor, 0.25 * self.h_min)
-        return self.opts.cfl * min(h, self.h_min) / (self.c_p + vmax)
+        h = max(float(self.hmin_cur[None]), 0.25 * self.h_min)
+        # tet10: the corner tetrahedra's height times tet10.H_FACTOR (1.0 for tet4: the same float)
+        return self.opts.cfl * min(h, self.h_min) * self.h_factor / (self.c_p + vmax)
 
     def collider_loads(self) -> dict[str, np.ndarray]:
         """Named collider -> impulse [N s] and its moment [N m s] the vertices gave it since the last call
