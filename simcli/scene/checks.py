@@ -170,6 +170,10 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
             )
 
     _check_faces_and_sf(s, err)
+    from simcli.solvers.fem.checks import check_element  # solvers.fem.element: tet10 (FEM.Elastic only)
+
+    for p, msg in check_element(s):
+        err(p, msg)
     if s.probes:
         from simcli.probes.config import check_probes
 

@@ -55,3 +55,53 @@ def check_cloth_entity(entity, dim: int, scene_dir, scene) -> list[tuple[tuple, 
     from simcli.solvers.fem.cloth.checks import check_entity
 
     return check_entity(entity, dim, scene_dir, scene)
+
+
+def check_element(scene) -> list[tuple[tuple, str]]:
+    """``solvers.fem.element: tet10`` findings (path from the scene root, message): quadratic tetrahedra
+    support FEM.Elastic solids only (simcli/solvers/fem/tet10.py)."""
+    fem = getattr(scene.solvers, "fem", None)
+    if fem is None or getattr(fem, "element", "tet4") != "tet10":
+        return []
+    out = []
+    solids = [i for i, e in enumerate(scene.entities) if e.family == "FEM"]
+    for i, e in enumerate(scene.entities):
+        t = e.material.type
+        if t == "FEM.Muscle":
+            out.append(
+                (
+                    ("entities", i, "material", "type"),
+                    "FEM.Muscle is not supported with solvers.fem.element: tet10 (the active fibre stress "
+                    "is implemented for linear tetrahedra only): set solvers.fem.element: tet4 or use "
+                    "FEM.Elastic",
+                )
+            )
+        elif t == "FEM.Cloth":
+            out.append(
+                (
+                    ("entities", i, "material", "type"),
+                    "FEM.Cloth in a scene with solvers.fem.element: tet10 is not supported (the cloth "
+                    "solver has triangles of its own and is not coupled to quadratic solids): set "
+                    "solvers.fem.element: tet4 or move the cloth to a scene of its own",
+                )
+            )
+        elif solids and e.family != "FEM":
+            out.append(
+                (
+                    ("entities", i, "material", "type"),
+                    f"{t} entities are not coupled to quadratic FEM solids (solvers.fem.element: tet10 "
+                    "couples with no other family yet): set solvers.fem.element: tet4 to couple them, or "
+                    "remove the "
+                    f"{e.family} entities",
+                )
+            )
+    if solids:
+        for k, em in enumerate(getattr(scene, "emitters", []) or []):
+            out.append(
+                (
+                    ("emitters", k),
+                    "emitters are not coupled to quadratic FEM solids (solvers.fem.element: tet10): set "
+                    "solvers.fem.element: tet4 or remove the emitter",
+                )
+            )
+    return out

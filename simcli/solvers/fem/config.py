@@ -37,6 +37,15 @@ class FEMOptions(_Options):
         "minimisation) followed by an explicit half step; keeps the energy of undamped motion and the "
         "angular momentum of a free body (choose it for elastic dynamics: vibration, spinning).",
     )
+    element: Literal["tet4", "tet10"] = Field(
+        "tet4",
+        description="FEM.Elastic element: tet4, linear tetrahedra (4 nodes, constant strain; lock in "
+        "bending: a slender beam needs many elements); tet10, quadratic tetrahedra (the same mesh with a "
+        "node at each edge midpoint, 4-point Gauss quadrature, HRZ lumped mass): far more accurate in "
+        "bending per node. tet10 supports FEM.Elastic with every model and integrator, boundary "
+        "conditions, colliders and walls; not FEM.Muscle, FEM.Cloth or coupling with other families "
+        "(refused by validate).",
+    )
     resolution: float = Field(
         20.0,
         gt=0,
@@ -164,7 +173,9 @@ class FEMBoundaryCondition(_Options):
 
 
 class _FEMSolid(_Solid):
-    model: Literal["linear", "linear_corotated", "stable_neohookean", "neohookean"] = Field(
+    model: Literal[
+        "linear", "linear_corotated", "stable_neohookean", "neohookean", "neohookean_decoupled"
+    ] = Field(
         "stable_neohookean",
         description="Constitutive model: 'linear' (small-strain, not rotation invariant), 'linear_corotated' "
         "(linear in the stretch S of F = R S), 'stable_neohookean' (Smith, de Goes and Kim 2018, Lame "
@@ -173,7 +184,9 @@ class _FEMSolid(_Solid):
         "3) - mu ln J "
         "+ lambda/2 (ln J)^2: the model of the reference solutions, e.g. Cook's membrane; undefined for "
         "J <= 0: an inverted element's ln J is taken at J = 1e-4 (docs/FEM.md), so prefer "
-        "stable_neohookean where elements may invert).",
+        "stable_neohookean where elements may invert), 'neohookean_decoupled' (mu/2 (J^-2/3 I1 - 3) + "
+        "kappa/4 (J^2 - 1 - 2 ln J), kappa = lambda + 2 mu / 3: the model of the deal.II code gallery's "
+        "Cook membrane, Pelteret and McBride 2016; the same inversion guard).",
     )
     angular_velocity: Vec | None = Field(
         None,

@@ -45,7 +45,7 @@ class ExplicitIntegrator:
 
         add_load = make_add_load(poses)
         moving, named = poses.any_moving, poses.any_named
-        n, m = s.n, s.m
+        n, m = s.n, s.mk  # kernel elements (tet10: quadrature points)
         beta = float(s.opts.damping)
         alpha = float(s.opts.mass_damping)
 

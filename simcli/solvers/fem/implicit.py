@@ -68,16 +68,16 @@ class ImplicitIntegrator:
     def __init__(self, s) -> None:
         self.s = s
         f = s.f
-        n, m = s.n, s.m
+        n, m, nc = s.n, s.mk, s.nc  # kernel elements and their corners (tet10: quadrature points, 10 nodes)
         V3 = lambda k: ti.Vector.field(3, f, shape=k)  # noqa: E731
         M3 = lambda k: ti.Matrix.field(3, 3, f, shape=k)  # noqa: E731
         self.xn, self.xhat, self.g, self.d, self.r, self.z, self.p, self.q = (V3(n) for _ in range(8))
         self.Pinv = M3(n)
         self.hU, self.hV, self.hS = M3(m), M3(m), M3(m)
         self.hls, self.hlt = V3(m), V3(m)
-        self.db = M3(4 * m)  # per element corner: diagonal block of the element Hessian
+        self.db = M3(nc * m)  # per element corner: diagonal block of the element Hessian
         self.rotated = s.opts.preconditioner == "rotated_rest"
-        self.k0 = M3(4 * m if self.rotated else 1)  # rest stiffness diagonal blocks (rotated_rest)
+        self.k0 = M3(nc * m if self.rotated else 1)  # rest stiffness diagonal blocks (rotated_rest)
         if self.rotated:
             self.k0.from_numpy(s.rest_diagonal_blocks().astype(s.npf))
         self.dmin = ti.field(f, shape=())
@@ -110,7 +110,8 @@ class ImplicitIntegrator:
     def _make(self) -> None:
         s = self.s
         f = s.f
-        n, m = s.n, s.m
+        n, m, nc = s.n, s.mk, s.nc
+        deformation_plus, corner_grad = s.deformation_plus, s.corner_grad
         x, v, xr, free, vfix, fext, mass = s.x, s.v, s.xr, s.free_f, s.vfix_f, s.fext_f, s.mass_f
         vol, B, gravity = s.vol_f, s.B_f, s.gravity
         deformation, law_call, law_hessian, scatter, gather = (
@@ -196,12 +197,15 @@ class ImplicitIntegrator:
             """Smallest det F over the elements at x + d (the free-flight predictor of begin)."""
             dmin[None] = 1e30
             for e in range(m):
-                t4 = tet[e]
-                x0 = x[t4[0]] + d[t4[0]]
-                Ds = ti.Matrix.cols(
-                    [x[t4[1]] + d[t4[1]] - x0, x[t4[2]] + d[t4[2]] - x0, x[t4[3]] + d[t4[3]] - x0]
-                )
-                ti.atomic_min(dmin[None], (Ds @ B[e]).determinant())
+                if ti.static(nc == 4):
+                    t4 = tet[e]
+                    x0 = x[t4[0]] + d[t4[0]]
+                    Ds = ti.Matrix.cols(
+                        [x[t4[1]] + d[t4[1]] - x0, x[t4[2]] + d[t4[2]] - x0, x[t4[3]] + d[t4[3]] - x0]
+                    )
+                    ti.atomic_min(dmin[None], (Ds @ B[e]).determinant())
+                else:  # tet10: det F at the quadrature points
+                    ti.atomic_min(dmin[None], deformation_plus(e, x, d).determinant())
             return dmin[None]
 
         @ti.kernel
@@ -259,17 +263,20 @@ class ImplicitIntegrator:
                     scale = 1.0
                     if ti.static(ray_b > 0):
                         scale += ray_b / dt
-                    for a in ti.static(range(4)):
-                        db[4 * e + a] = scale * (R @ k0[4 * e + a] @ R.transpose())
+                    for a in ti.static(range(nc)):
+                        db[nc * e + a] = scale * (R @ k0[nc * e + a] @ R.transpose())
                 if ti.static(not rotated):
-                    for a in range(4):
+                    for a in range(nc):
                         ga = ti.Vector.zero(float, 3)  # gradient of corner a's shape function
-                        if a == 0:
-                            for j in ti.static(range(3)):
-                                ga[j] = -(Bt[0, j] + Bt[1, j] + Bt[2, j])
+                        if ti.static(nc == 10):
+                            ga = corner_grad(e, a)
                         else:
-                            for j in ti.static(range(3)):
-                                ga[j] = Bt[a - 1, j]
+                            if a == 0:
+                                for j in ti.static(range(3)):
+                                    ga[j] = -(Bt[0, j] + Bt[1, j] + Bt[2, j])
+                            else:
+                                for j in ti.static(range(3)):
+                                    ga[j] = Bt[a - 1, j]
                         blk = ti.Matrix.zero(float, 3, 3)
                         for c in range(3):
                             E = ti.Matrix.zero(float, 3, 3)
@@ -283,7 +290,7 @@ class ImplicitIntegrator:
                             col = vol[e] * dP @ ga
                             for rr in ti.static(range(3)):
                                 blk[rr, c] = col[rr]
-                        db[4 * e + a] = blk
+                        db[nc * e + a] = blk
             for i in range(n):
                 mi = mass[i]
                 D = ti.Matrix.identity(float, 3) * (mi / (dt * dt))

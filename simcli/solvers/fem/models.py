@@ -30,6 +30,11 @@ Models (mu, lam are the Lame parameters passed at run time):
   finite and twice continuously differentiable for every F, inverted ones included, and an element
   squashed past 1 % of its volume feels a pressure that keeps growing as J falls (it is pushed back, no
   NaN). Only elements below J = 0.01 see the extension; above it the model is exact.
+* ``neohookean_decoupled``: the decoupled compressible neo-Hookean of the deal.II code gallery's Cook
+  membrane (Pelteret and McBride 2016, doi:10.5281/zenodo.1228964; the model of step-44 without its three
+  fields): psi = mu/2 (J^(-2/3) I_C - 3) + kappa/4 (J^2 - 1 - 2 ln J), kappa = lam + 2 mu / 3 (the solver
+  passes kappa). It linearises to Hooke's law like the others; J^(-2/3) and ln J carry the same inversion
+  guard below J = 0.01.
 """
 
 from simcli.backend import stdout_to_stderr
@@ -38,7 +43,7 @@ from simcli.solvers.taichi_funcs import jacobi_rotation
 with stdout_to_stderr():
     import taichi as ti
 
-MODELS = ("linear", "linear_corotated", "stable_neohookean", "neohookean")
+MODELS = ("linear", "linear_corotated", "stable_neohookean", "neohookean", "neohookean_decoupled")
 NH_J_MIN = 0.01  # neohookean: below this J, ln J is continued by its second-order Taylor polynomial
 TWIST_EPS = 1e-6  # |s_i + s_j| below this: the twist eigenvalue's denominator is clamped
 
@@ -47,6 +52,8 @@ def lame_for(model: str, mu: float, lam: float) -> tuple[float, float]:
     """The (mu, lambda) a model's kernel gets for a material with Lame parameters (mu, lam)."""
     if model == "stable_neohookean":
         return mu, lam + mu
+    if model == "neohookean_decoupled":  # its second parameter is the bulk modulus kappa
+        return mu, lam + 2.0 * mu / 3.0
     return mu, lam
 
 
@@ -332,9 +339,94 @@ class NeoHookean:
         return U, V, Hs, ls, lt
 
 
+# neohookean_decoupled: J^(-2/3) and its first two derivatives at NH_J_MIN (the guard's Taylor polynomial)
+_G0 = NH_J_MIN ** (-2.0 / 3.0)
+_G1 = -2.0 / 3.0 * _G0 / NH_J_MIN
+_G2 = 10.0 / 9.0 * _G0 / (NH_J_MIN * NH_J_MIN)
+
+
+@ti.func
+def _guarded_pow(J):
+    """(g, g', g'') with g = J^(-2/3) for J >= NH_J_MIN and its second-order Taylor polynomial about NH_J_MIN
+    below (defined for J <= 0, decreasing: the inversion guard of neohookean_decoupled, like _guarded_log)."""
+    g = 0.0 * J
+    d1 = 0.0 * J
+    d2 = 0.0 * J
+    if J >= NH_J_MIN:
+        g = ti.pow(J, -2.0 / 3.0)
+        d1 = -2.0 / 3.0 * g / J
+        d2 = 10.0 / 9.0 * g / (J * J)
+    else:
+        a = J - NH_J_MIN
+        g = _G0 + _G1 * a + 0.5 * _G2 * a * a
+        d1 = _G1 + _G2 * a
+        d2 = _G2 + 0.0 * J
+    return g, d1, d2
+
+
+class NeoHookeanDecoupled:
+    """The decoupled compressible neo-Hookean of the deal.II code gallery's Cook membrane (Pelteret and
+    McBride 2016, the model of step-44 without its three fields; Miehe 1994): psi = mu/2 (J^(-2/3) I_C - 3) +
+    kappa/4 (J^2 - 1 - 2 ln J), kappa = lam + 2 mu / 3 the bulk modulus (the solver passes kappa, see
+    ``lame_for``). J^(-2/3) and ln J carry the inversion guard below J = NH_J_MIN. In the singular values:
+    psi = mu/2 (g(J) sum s_i^2 - 3) + h(J), dpsi/ds_i = mu g s_i + c J / s_i with c = mu/2 g' I_C + h'; the
+    flip/twist eigenvalues are mu g -/+ c s_k."""
+
+    name = "neohookean_decoupled"
+
+    @staticmethod
+    @ti.func
+    def energy(F, mu, lam):
+        J = F.determinant()
+        g, g1, g2 = _guarded_pow(J)
+        lj, l1, l2 = _guarded_log(J)
+        return 0.5 * mu * (g * (F * F).sum() - 3.0) + 0.25 * lam * (J * J - 1.0 - 2.0 * lj)
+
+    @staticmethod
+    @ti.func
+    def pk1(F, mu, lam):
+        J = F.determinant()
+        g, g1, g2 = _guarded_pow(J)
+        lj, l1, l2 = _guarded_log(J)
+        c = 0.5 * mu * g1 * (F * F).sum() + 0.5 * lam * (J - l1)
+        return mu * g * F + c * cofactor(F)
+
+    @staticmethod
+    @ti.func
+    def hessian(F, mu, lam, project: ti.template()):
+        U, s, V = signed_svd(F)
+        J = s[0] * s[1] * s[2]
+        g, g1, g2 = _guarded_pow(J)
+        lj, l1, l2 = _guarded_log(J)
+        I1 = s.dot(s)
+        h1 = 0.5 * lam * (J - l1)  # h'(J), h = lam/4 (J^2 - 1 - 2 ln J)
+        h2 = 0.5 * lam * (1.0 - l2)  # h''(J)
+        c = 0.5 * mu * g1 * I1 + h1
+        o = ti.Vector([s[1] * s[2], s[0] * s[2], s[0] * s[1]])  # J / s_i
+        Hs = ti.Matrix.zero(float, 3, 3)
+        for i in ti.static(range(3)):
+            for j in ti.static(range(3)):
+                dc = 0.5 * mu * (g2 * o[j] * I1 + 2.0 * g1 * s[j]) + h2 * o[j]  # dc / ds_j
+                v = mu * g1 * o[j] * s[i] + dc * o[i]
+                if ti.static(i == j):
+                    v += mu * g
+                else:
+                    v += c * s[ti.static(3 - i - j)]
+                Hs[i, j] = v
+        sk = ti.Vector([s[2], s[0], s[1]])  # pairs (0,1), (1,2), (0,2): the third index 2, 0, 1
+        ls = mu * g - c * sk
+        lt = mu * g + c * sk
+        if ti.static(project):
+            Hs = _project_sym3(Hs)
+            ls = ti.max(ls, 0.0)
+            lt = ti.max(lt, 0.0)
+        return U, V, Hs, ls, lt
+
+
 LAWS = {
     "linear": Linear,
     "linear_corotated": LinearCorotated,
     "stable_neohookean": StableNeoHookean,
     "neohookean": NeoHookean,
+    "neohookean_decoupled": NeoHookeanDecoupled,
 }

@@ -58,10 +58,22 @@ class FEMSolver(Solver):
         self.implicit = self.opts.integrator != "explicit"
         self.midpoint = self.opts.integrator == "implicit_midpoint"
         self.entities = [e for e in scene.entities if e.family == "FEM"]
+        # tet4 (linear) or tet10 (quadratic: simcli/solvers/fem/tet10.py, edge midpoints appended per entity)
+        self.element = getattr(self.opts, "element", "tet4")
+        self.tet10 = self.element == "tet10"
         xs, ts, self.offsets, self.toffsets = [], [], [0], [0]
         self.materials, mids, self.models = [], [], []
+        t10s, self._edge_lookup, self.n_corner = [], [], []
         for e in self.entities:
             m = mesh_for_entity(e, self.opts, scene_dir)
+            if self.tet10:
+                from simcli.solvers.fem import tet10
+
+                x10, t10 = tet10.quadratic_nodes(m.x, m.tets)
+                self._edge_lookup.append(tet10.edge_node_lookup(t10, m.x.shape[0]))
+                self.n_corner.append(m.x.shape[0])
+                t10s.append(t10 + self.offsets[-1])
+                m = type(m)(x10, m.tets, m.source)  # corner tets over the nodes (corners keep their indices)
             ts.append(m.tets + self.offsets[-1])
             xs.append(m.x)
             self.offsets.append(self.offsets[-1] + m.x.shape[0])
@@ -73,6 +85,11 @@ class FEMSolver(Solver):
         self.tets = np.concatenate(ts).astype(np.int64)
         self.mid = np.concatenate(mids)
         self.n, self.m = self.x0.shape[0], self.tets.shape[0]
+        # kernel elements: tet4 its tetrahedra (nc = 4 corners); tet10 its quadrature points (4 per element,
+        # nc = 10 nodes each; tet10.prepare)
+        self.mk, self.nc = self.m, 4
+        if self.tet10:
+            self.tets10 = np.concatenate(t10s).astype(np.int64)
         self.models = []
         for mat in self.materials:
             if mat.model not in self.models:
@@ -91,9 +108,14 @@ class FEMSolver(Solver):
         Dm = np.stack([x[T[:, 1]] - x[T[:, 0]], x[T[:, 2]] - x[T[:, 0]], x[T[:, 3]] - x[T[:, 0]]], axis=2)
         self.B = np.linalg.inv(Dm)
         rho = np.array([float(self.materials[k].rho) for k in self.mid])
-        mass = np.zeros(self.n)
-        for a in range(4):
-            np.add.at(mass, T[:, a], 0.25 * rho * vol)
+        if self.tet10:
+            from simcli.solvers.fem import tet10
+
+            mass = tet10.lumped_mass(self.tets10, vol, rho, self.n)  # HRZ (tet10.py)
+        else:
+            mass = np.zeros(self.n)
+            for a in range(4):
+                np.add.at(mass, T[:, a], 0.25 * rho * vol)
         self.mass = mass
         # adjacency vertex -> element corners (e * 4 + a)
         flat = T.reshape(-1)
@@ -135,6 +157,10 @@ class FEMSolver(Solver):
                     area = 0.5 * np.linalg.norm(
                         np.cross(xe[sel[:, 1]] - xe[sel[:, 0]], xe[sel[:, 2]] - xe[sel[:, 0]]), axis=1
                     )
+                    if self.tet10:  # a quadratic triangle's consistent load: t A / 3 on each edge node
+                        from simcli.solvers.fem.tet10 import face_edge_nodes
+
+                        sel = face_edge_nodes(sel, self._edge_lookup[k], self.n_corner[k])
                     for a in range(3):
                         np.add.at(
                             fext[lo:hi], sel[:, a], (area / 3.0)[:, None] * np.asarray(bc.traction)[None, :]
@@ -171,11 +197,22 @@ class FEMSolver(Solver):
         self._prepare_muscles()
         self.edge = float(np.mean(np.linalg.norm(x[T[:, 1]] - x[T[:, 0]], axis=1)))
         self.extent = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+        self.Bk, self.volk, self.midk = self.B, self.vol0, self.mid  # the kernel elements' data (tet4)
+        self.h_factor = 1.0
+        if self.tet10:
+            from simcli.solvers.fem import tet10
+
+            tet10.prepare(self)  # quadrature points as kernel elements: Bk, volk, midk, adjacency
+            self.h_factor = tet10.H_FACTOR  # explicit stability: the edge nodes shrink the node spacing
 
     def rest_diagonal_blocks(self) -> np.ndarray:
         """Per element corner a, the 3x3 diagonal block V (mu |g_a|^2 I + (mu + lam) g_a g_a^T) of the
         small-strain stiffness at rest (the materials' own Lame parameters), g_a the shape-function
-        gradient."""
+        gradient. tet10: per quadrature point and node (tet10.rest_diagonal_blocks)."""
+        if self.tet10:
+            from simcli.solvers.fem import tet10
+
+            return tet10.rest_diagonal_blocks(self)
         G = np.concatenate([-self.B.sum(axis=1, keepdims=True), self.B], axis=1)  # (m, 4, 3): rows of B
         mu = np.array([self.materials[k].mu for k in self.mid])
         lam = np.array([self.materials[k].lam for k in self.mid])
@@ -231,17 +268,18 @@ class FEMSolver(Solver):
         f = ti.f64 if self.scene.sim.precision == "f64" else ti.f32
         self.f = f
         self.npf = np.float64 if f == ti.f64 else np.float32
-        n, m = self.n, self.m
+        n, m = self.n, self.mk  # kernel elements (tet10: quadrature points); tet_f holds the corner tets
+        nc = self.nc
         V3 = lambda k: ti.Vector.field(3, f, shape=k)  # noqa: E731
         self.x, self.v, self.xr = V3(n), V3(n), V3(n)
         self.free_f, self.vfix_f, self.fext_f = V3(n), V3(n), V3(n)
         self.mass_f = ti.field(f, shape=n)
-        self.tet_f = ti.Vector.field(4, ti.i32, shape=m)
+        self.tet_f = ti.Vector.field(4, ti.i32, shape=self.m)
         self.B_f = ti.Matrix.field(3, 3, f, shape=m)
         self.vol_f = ti.field(f, shape=m)
         self.mid_f = ti.field(ti.i32, shape=m)
-        self.fe = V3(4 * m)
-        self.adj_f = ti.field(ti.i32, shape=4 * m)
+        self.fe = V3(nc * m)
+        self.adj_f = ti.field(ti.i32, shape=nc * m)
         self.adj_start_f = ti.field(ti.i32, shape=n + 1)
         nm = len(self.materials)
         self.mat_mu = ti.field(f, shape=nm)
@@ -279,9 +317,9 @@ class FEMSolver(Solver):
         self.fext_f.from_numpy(self.fext.astype(npf))
         self.mass_f.from_numpy(self.mass.astype(npf))
         self.tet_f.from_numpy(self.tets.astype(np.int32))
-        self.B_f.from_numpy(self.B.astype(npf))
-        self.vol_f.from_numpy(self.vol0.astype(npf))
-        self.mid_f.from_numpy(self.mid)
+        self.B_f.from_numpy(self.Bk.astype(npf))
+        self.vol_f.from_numpy(self.volk.astype(npf))
+        self.mid_f.from_numpy(self.midk)
         self.adj_f.from_numpy(self.adj)
         self.adj_start_f.from_numpy(self.adj_start)
         mus, lams = [], []
@@ -339,6 +377,12 @@ class FEMSolver(Solver):
             x0 = xf[t[0]]
             Ds = ti.Matrix.cols([xf[t[1]] - x0, xf[t[2]] - x0, xf[t[3]] - x0])
             return Ds @ B[e]
+
+        self.deformation_plus = self.corner_grad = None
+        if self.tet10:  # per quadrature point, 10 nodes (tet10.py)
+            from simcli.solvers.fem import tet10
+
+            deformation, self.deformation_plus, scatter10, self.corner_grad = tet10.make_funcs(self)
 
         has_muscle = self.has_muscle
         el_group, el_fiber, el_k, act = self.el_group_f, self.el_fiber_f, self.el_k_f, self.act_f
@@ -415,10 +459,12 @@ class FEMSolver(Solver):
         self.deformation, self.law_call, self.law_hessian = deformation, law_call, law_hessian
         self.active_dP = active_dP
         self.scatter_columns, self.gather = scatter_columns, gather
+        if self.tet10:
+            self.scatter_columns = scatter10
 
         nb = len(self.entities)
         v, stat_speed, stat_bad, body_off = self.v, self.stat_speed, self.stat_bad, self.body_off
-        n, m = self.n, self.m
+        n, m, m_el, nc = self.n, self.mk, self.m, self.nc
         f64 = self.f == ti.f64
         f = self.f
         vol, out_vm, out_J, el_vm, el_J = self.vol_f, self.out_vm, self.out_J, self.el_vm, self.el_J
@@ -441,11 +487,11 @@ class FEMSolver(Solver):
                 vm = ti.sqrt(1.5 * (dev * dev).sum())
                 el_vm[e] = vm
                 el_J[e] = J
-                self.fe[4 * e] = ti.Vector([vm * vol[e], J * vol[e], vol[e]])
+                self.fe[nc * e] = ti.Vector([vm * vol[e], J * vol[e], vol[e]])
             for i in range(n):
                 acc = ti.Vector.zero(float, 3)
                 for q in range(self.adj_start_f[i], self.adj_start_f[i + 1]):
-                    acc += self.fe[4 * (self.adj_f[q] // 4)]
+                    acc += self.fe[nc * (self.adj_f[q] // nc)]
                 out_vm[i] = acc[0] / acc[2]
                 out_J[i] = acc[1] / acc[2]
 
@@ -455,7 +501,7 @@ class FEMSolver(Solver):
         def min_height():
             """Smallest current element height 3 |V| / largest face area (explicit stability)."""
             hmin_cur[None] = 1e30
-            for e in range(m):
+            for e in range(m_el):
                 t = self.tet_f[e]
                 a, b, c, d = x[t[0]], x[t[1]], x[t[2]], x[t[3]]
                 V = ti.abs((b - a).dot((c - a).cross(d - a))) / 6.0
@@ -499,7 +545,8 @@ class FEMSolver(Solver):
         self._min_height()
         vmax = float(np.max(self.stat_speed.to_numpy()))
         h = max(float(self.hmin_cur[None]), 0.25 * self.h_min)
-        return self.opts.cfl * min(h, self.h_min) / (self.c_p + vmax)
+        # tet10: the corner tetrahedra's height times tet10.H_FACTOR (1.0 for tet4: the same float)
+        return self.opts.cfl * min(h, self.h_min) * self.h_factor / (self.c_p + vmax)
 
     def collider_loads(self) -> dict[str, np.ndarray]:
         """Named collider -> impulse [N s] and its moment [N m s] the vertices gave it since the last call
@@ -555,7 +602,10 @@ class FEMSolver(Solver):
                 out[fld] = np.array(self._elastic_energy()[tlo:thi])
                 continue
             if fld in self.cell_fields:
-                out[fld] = np.array((self.el_vm if fld == "von_mises" else self.el_J).to_numpy()[tlo:thi])
+                a = (self.el_vm if fld == "von_mises" else self.el_J).to_numpy()
+                if self.tet10:  # per element: the mean over its quadrature points (equal weights)
+                    a = a.reshape(self.m, -1).mean(axis=1)
+                out[fld] = np.array(a[tlo:thi])
                 continue
             if fld == "position":
                 a = self.x.to_numpy()
@@ -578,8 +628,8 @@ class FEMSolver(Solver):
         """Per element the stored energy V_e psi(F_e) [J] of its law at the current positions (FEM.Muscle:
         with the active fibre energy; Rayleigh damping stores none). Compiled on first use."""
         if self.el_E is None:
-            self.el_E = ti.field(self.f, shape=self.m)
-            el_E, vol, x, m = self.el_E, self.vol_f, self.x, self.m
+            self.el_E = ti.field(self.f, shape=self.mk)
+            el_E, vol, x, m = self.el_E, self.vol_f, self.x, self.mk
             deformation, law_call = self.deformation, self.law_call
 
             @ti.kernel
@@ -589,6 +639,8 @@ class FEMSolver(Solver):
 
             self._energy_k = energy
         self._energy_k()
+        if self.tet10:  # per element: the sum over its quadrature points
+            return self.el_E.to_numpy().reshape(self.m, -1).sum(axis=1)
         return self.el_E.to_numpy()
 
     def positions(self) -> np.ndarray:
@@ -606,7 +658,7 @@ class FEMSolver(Solver):
         self._version += 1
 
     def counts(self) -> dict[str, int]:
-        return {"vertices": self.n, "tets": self.m}
+        return {"vertices": self.n, "tets": self.m}  # tet10: vertices are its nodes, tets its elements
 
     def info(self) -> dict[str, Any]:
         d: dict[str, Any] = {
@@ -614,7 +666,8 @@ class FEMSolver(Solver):
             "models": list(self.models),
             "vertices": self.n,
             "tets": self.m,
-            "mass_lumping": "1/4 of each adjacent tet",
+            "mass_lumping": "HRZ (tet10)" if self.tet10 else "1/4 of each adjacent tet",
+            **({"element": "tet10", "nodes": self.n} if self.tet10 else {}),
             "smallest_element_height_m": self.h_min,
             "warnings": self.warnings,
         }
