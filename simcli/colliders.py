@@ -46,23 +46,27 @@ class WallSpec:
 
 def collider_specs(scene: Any, dim: int, scene_dir: Any = None) -> list[ColliderSpec]:
     """``scene_dir``: Mesh colliders' files are relative to it."""
+    specs = [_collider_spec_full(c, dim, scene, scene_dir) for c in scene.colliders]
+    return specs + _rigid(scene, "specs", scene_dir)
+
+
+def _collider_spec_full(c: Any, dim: int, scene: Any = None, scene_dir: Any = None) -> ColliderSpec:
+    """One collider's record with its restitution, motion flag, name and pivot."""
     from dataclasses import replace
 
     from simcli.motion import collider_centre
 
-    specs = []
-    for c in scene.colliders:
-        specs.append(_collider_spec(c, dim, scene, scene_dir))
-        if getattr(c, "restitution", 0.0) > 0:
-            specs[-1] = replace(specs[-1], restitution=float(c.restitution))
-        if getattr(c, "motion", None) is not None or getattr(c, "name", None) is not None:
-            specs[-1] = replace(
-                specs[-1],
-                moving=c.motion is not None,
-                name=c.name,
-                centre=tuple(float(x) for x in collider_centre(c, dim)),
-            )
-    return specs + _rigid(scene, "specs", scene_dir)
+    spec = _collider_spec(c, dim, scene, scene_dir)
+    if getattr(c, "restitution", 0.0) > 0:
+        spec = replace(spec, restitution=float(c.restitution))
+    if getattr(c, "motion", None) is not None or getattr(c, "name", None) is not None:
+        spec = replace(
+            spec,
+            moving=c.motion is not None,
+            name=c.name,
+            centre=tuple(float(x) for x in collider_centre(c, dim)),
+        )
+    return spec
 
 
 def _rigid(scene: Any, what: str, scene_dir: Any = None) -> list:
@@ -72,7 +76,14 @@ def _rigid(scene: Any, what: str, scene_dir: Any = None) -> list:
         return []
     from simcli.rigid.world import world_for
 
-    return getattr(world_for(scene, scene_dir), what)()
+    w = world_for(scene, scene_dir)
+    if w.collider_source is None:  # the scene's colliders, which the bodies meet (simcli.rigid.contact)
+        n, dim = len(scene.colliders), int(scene.sim.dim)
+        w.collider_source = lambda: zip(
+            [_collider_spec_full(c, dim, scene, scene_dir) for c in scene.colliders[:n]],
+            collider_motions(scene, dim, scene_dir)[:n],
+        )
+    return getattr(w, what)()
 
 
 def collider_motions(scene: Any, dim: int, scene_dir: Any = None) -> list:

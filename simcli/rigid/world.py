@@ -61,6 +61,7 @@ class RigidWorld:
         self.scene = scene
         self.scene_dir = scene_dir
         self._colliders = None  # (spec, motion) of the scene's colliders, built at the first step
+        self.collider_source = None  # () -> those pairs (simcli.colliders sets it)
         self.dim = dim = int(scene.sim.dim)
         self.bodies = [RigidBodyModel(rb, dim, scene, scene_dir) for rb in scene.rigid_bodies]
         self.n_colliders = len(scene.colliders)  # rigid body k is collider n_colliders + k of every family
@@ -88,13 +89,10 @@ class RigidWorld:
 
     def colliders(self) -> list:
         """(ColliderSpec, Motion or None) of the scene's colliders (not the bodies), for body-collider
-        contact; built on first use (simcli.colliders asks this world for the bodies' specs)."""
+        contact; built on first use by ``collider_source`` (set by simcli.colliders, which asks this world
+        for the bodies' specs: rigid sits below it and imports no Taichi)."""
         if self._colliders is None:
-            from simcli.colliders import collider_motions, collider_specs
-
-            n, dim = self.n_colliders, self.dim
-            specs = collider_specs(self.scene, dim, self.scene_dir)[:n]
-            self._colliders = list(zip(specs, collider_motions(self.scene, dim, self.scene_dir)[:n]))
+            self._colliders = list(self.collider_source()) if self.collider_source is not None else []
         return self._colliders
 
     # ------------------------------------------------------------------ stepping
