@@ -220,7 +220,7 @@ def check_sources(scene, err) -> None:
     path."""
     dim = scene.sim.dim
     lo, hi = (np.asarray(v, dtype=np.float64) for v in scene.domain.bounds(dim))
-    if len(lo) != dim:
+    if len(lo) != dim or len(hi) != dim:  # the domain's own check reports it
         return
     taken = {e.name: "an entity" for e in scene.entities}
     for i, em in enumerate(scene.emitters):
