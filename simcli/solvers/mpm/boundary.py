@@ -6,7 +6,10 @@ Both act on grid node velocities in ``grid_update`` (after gravity), the usual M
   condition (slip / sticky / separate, Coulomb friction) along the SDF normal; a frictionless slip or
   separate obstacle of an analytic shape also mirrors the material onto the free nodes less than 1.5
   cells in front of it (its image, ``_image``: the symmetry condition of a slip wall), so that a
-  liquid at rest meets the surface with its bulk pressure instead of standing a cell off it;
+  liquid at rest meets the surface with its bulk pressure instead of standing a cell off it; the image
+  and the contact of the nodes inside such a collider fade out as the gap between the surface and the
+  material the nodes gather grows (``_fade``: no force across a gap, a dropped floating body does not
+  ride on a sparse layer);
   a frictional static one of an analytic shape acts on a node inside it only once the node's material
   has reached the surface (its gap test, ``gap_test``), not up to 1.5 cells before it touches, and
   (under APIC) on the velocity of that material rather than the node's extrapolation of it;
@@ -82,7 +85,9 @@ class GridBoundary:
             self.poses.any_named,
             self.poses.named,
         )
-        self.uses_gap = any(self.gap_test(k) for k in range(self.n_colliders))
+        # the nodes' material position (a P2G channel): the frictional gap test and the image's fade
+        self.uses_gap_test = any(self.gap_test(k) for k in range(self.n_colliders))
+        self.uses_gap = self.uses_gap_test or any(self.has_image(k) for k in range(self.n_colliders))
         # the gap test's contact acts on the material's velocity (``_node``): set by the solver when P2G
         # gathers the nodes' APIC affine momentum (not under FLIP, whose nodes carry none)
         self.material_velocity = False
@@ -112,6 +117,14 @@ class GridBoundary:
                 else 0.0
                 for k, c in enumerate(self.colliders)
             )
+
+    # the image's fade (``_fade``) with the gap between the surface and the material [cells]: full below
+    # FADE_START (the gap estimate's bias and noise with particles in contact, a few hundredths of a
+    # cell), none from FADE_END (0.3 particle spacing at 2 particles per cell). Measured (issue 20,
+    # docs/RIGID.md): 0.1-0.25 left the dropped rho-250 box 12.5% high, 0-0.1 let the rho-500 one sink
+    # 5% deep and the held box at 0.02 m read -4.1%; 0.05-0.15 gives -8.7/+2.8/-0.9% and +0.3%.
+    FADE_START = 0.05
+    FADE_END = 0.15
 
     def upload(self) -> None:
         """Copy the run-time numbers (geometry, friction, wall velocity) into the fields."""
@@ -220,10 +233,11 @@ class GridBoundary:
                 x, v = self._project(x, v, phi, n, k)
         return x, v
 
-    def bind_grid(self, grid, bbox, T: int, gravity) -> None:
-        """The P2G grid copies, their node boxes and the gravity field, read by the colliders' image
-        (``_image``); called by grid_update.build_grid_update."""
+    def bind_grid(self, grid, bbox, T: int, gravity, gap_ch: int = -1) -> None:
+        """The P2G grid copies, their node boxes, the gravity field and the first material position
+        channel, read by the colliders' image (``_image``); called by grid_update.build_grid_update."""
         self._grid, self._bbox, self._T, self._gravity = grid, bbox, int(T), gravity
+        self._gap_ch = int(gap_ch)
         self.grid_shape = tuple(int(s) for s in grid.shape[1:])
 
     def reach(self, k: int) -> float:
@@ -244,7 +258,12 @@ class GridBoundary:
     def raw(self, J):
         """Momentum (after the substep's stress impulse) and mass of node J summed over the P2G copies
         (zero outside the grid and outside every copy's node box)."""
-        g = ti.Vector.zero(self.dtype, self.dim + 1)
+        return self._raw(J, 0, self.dim + 1)
+
+    @ti.func
+    def _raw(self, J, c0: ti.template(), nc: ti.template()):
+        """Channels c0 .. c0 + nc - 1 of node J summed over the P2G copies (see ``raw``)."""
+        g = ti.Vector.zero(self.dtype, nc)
         inb = True
         for d in ti.static(range(self.dim)):
             inb = inb and 0 <= J[d] and J[d] < self.grid_shape[d]
@@ -257,8 +276,8 @@ class GridBoundary:
                     inside = inside and a[d] <= J[d] and J[d] < b[d]
                 if inside:
                     gt = self._grid[t, J]
-                    for c in ti.static(range(self.dim + 1)):
-                        g[c] += gt[c]
+                    for c in ti.static(range(nc)):
+                        g[c] += gt[c0 + c]
         return g
 
     @ti.func
@@ -315,7 +334,81 @@ class GridBoundary:
         return y * self.dx
 
     @ti.func
-    def _image(self, xI, v, m, phi, n, vw, dt, bilateral: ti.template()):
+    def _phi(self, k: ti.template(), x):
+        """Signed distance of x from collider k (at the substep's mid pose if it moves)."""
+        phi = 1.0
+        if ti.static(self.colliders[k].moving or self.named[k]):
+            phi, _n, _vw = self.sdf_at(k, x, 0)
+        else:
+            phi, _n = self.sdf(k, x)
+        return phi
+
+    @ti.func
+    def _contact_dist(self, phi):
+        """Distance from the surface [m] of the material gathered by a node at signed distance ``phi``
+        (quadratic B-spline weights) when the material fills the half-space in front of the surface up to
+        it: phi + T1(a) / M with a = |phi| / dx, T0(a) and T1(a) the kernel's tail integrals of 1 and u
+        beyond a, M = T0 inside (phi < 0) and 1 - T0 in front (exact; e.g. 0.406 dx on the surface)."""
+        a = ti.min(ti.abs(phi) / self.dx, 1.5)
+        t0 = 0.0
+        t1 = 0.0
+        if a < 0.5:
+            t0 = 0.75 * (0.5 - a) - (0.125 - a * a * a) / 3.0 + 1.0 / 6.0
+            t1 = 0.375 * (0.25 - a * a) - (0.0625 - a * a * a * a) / 4.0 + 0.125
+        else:
+            b = 1.5 - a
+            t0 = b * b * b / 6.0
+            t1 = 0.25 * b * b * b - 0.125 * b * b * b * b
+        mm = t0
+        if phi >= 0:
+            mm = 1.0 - t0
+        r = phi
+        if mm > 1e-6:
+            r = phi + t1 / mm * self.dx
+        return r
+
+    @ti.func
+    def _fade(self, gap):
+        """Weight of a frictionless collider's condition (its image, and the contact of the nodes inside
+        it) for a material ``gap`` [m] between the surface and the material nodes gather (their material
+        position beyond where material in contact would put it, ``_contact_dist``): 1 up to FADE_START dx,
+        0 from FADE_END dx, linear between."""
+        g0 = ti.static(self.FADE_START * self.dx)
+        g1 = ti.static(self.FADE_END * self.dx)
+        return ti.min(ti.max((g1 - gap) / (g1 - g0), 0.0), 1.0)
+
+    @ti.func
+    def _mirror_gap(self, k: ti.template(), xs):
+        """The gap [m] between collider k's surface and the material the nodes around the point xs
+        gather (multilinear weights times node mass): their material position's distance from the surface
+        less ``_contact_dist`` of each node, mass-weighted; 0 without material."""
+        dim = ti.static(self.dim)
+        s = (xs - ti.Vector(self.origin, dt=self.dtype)) / self.dx
+        base = ti.floor(s).cast(ti.i32)
+        fr = s - base.cast(self.dtype)
+        num = 0.0
+        den = 0.0
+        for off in ti.static(ti.grouped(ti.ndrange(*([2] * dim)))):
+            w = 1.0
+            for d in ti.static(range(dim)):
+                if ti.static(off[d] == 1):
+                    w *= fr[d]
+                else:
+                    w *= 1.0 - fr[d]
+            J = base + off
+            mJ = self._raw(J, dim, 1)[0]
+            if mJ > 0 and w > 0:
+                xJ = ti.Vector(self.origin, dt=self.dtype) + J.cast(self.dtype) * self.dx
+                xm = self._raw(J, self._gap_ch, dim) / mJ
+                num += w * mJ * (self._phi(k, xm) - self._contact_dist(self._phi(k, xJ)))
+                den += w * mJ
+        gap = 0.0
+        if den > 0:
+            gap = num / den
+        return gap
+
+    @ti.func
+    def _image(self, k: ti.template(), xI, v, m, phi, n, vw, dt, bilateral: ti.template()):
         """Velocity of a free node in front of a collider (0 <= phi < 1.5 dx) after the collider's
         mirror image of the material: the grid's momentum and mass at the node's mirror point
         x - 2 phi n (interpolated between the nodes around it, before any condition), reflected about
@@ -327,18 +420,25 @@ class GridBoundary:
         This is a slip wall's symmetry condition. Without it the first free nodes' kernels reach past
         the surface into nodes that no material fills, the material's stress is not carried there as in
         the bulk and a liquid at rest stands a cell off the surface: the force on a wall, on a floating
-        body, reads the pressure of a shallower depth (first order in dx)."""
+        body, reads the pressure of a shallower depth (first order in dx).
+
+        The change is faded (``_fade``) with the gap between the surface and the material the nodes
+        around the mirror point gather (``_mirror_gap``): mirrored mass reaches the node from material
+        up to 1.5 cells from the surface, so without the fade the image carried a body across a sub-cell
+        gap (a dropped box rested on a sparse layer of liquid and floated 23% high, docs/RIGID.md)."""
         dim = ti.static(self.dim)
-        src = self.interp(xI - 2.0 * phi * n)
+        xs = xI - 2.0 * phi * n
+        src = self.interp(xs)
         ms = src[dim]
         v_new = v
         if ms > 0:
+            fade = self._fade(self._mirror_gap(k, xs))
             P = ti.Vector.zero(self.dtype, dim)
             for d in ti.static(range(dim)):
                 P[d] = src[d]
             P += ms * (dt * self._gravity[None] - vw)  # the image's momentum relative to the surface
             P = P - 2.0 * P.dot(n) * n + ms * vw  # reflected
-            dn = ((m * v + P) / (m + ms) - v).dot(n)
+            dn = fade * ((m * v + P) / (m + ms) - v).dot(n)
             if ti.static(bilateral):
                 v_new = v + dn * n
             elif dn > 0:
@@ -350,7 +450,8 @@ class GridBoundary:
         """Collider k's condition on a node at signed distance phi (below ``reach(k)``): inside it, the
         contact condition (simcli.colliders.contact_velocity; with the gap test, ``gap_test``, only once
         the node's material at ``xm`` has reached the surface, and on that material's velocity
-        ``v - va``: ``material_velocity``); in front of it, its image (``_image``)."""
+        ``v - va``: ``material_velocity``; with an image, faded with the gap of the node's material,
+        ``_fade``); in front of it, its image (``_image``)."""
         touching = True
         if ti.static(self.gap_test(k)):
             if phi < 0:
@@ -360,10 +461,15 @@ class GridBoundary:
             if ti.static(self.gap_test(k) and self.material_velocity):
                 vs = v - va  # the material's velocity at xm: the node's less its APIC extrapolation
                 v = v + (contact_velocity(vs, n, vw, self.colliders[k].contact, self.col_friction[k]) - vs)
+            elif ti.static(
+                self.has_image(k)
+            ):  # faded as the image: only where the material is at the surface
+                vc = contact_velocity(v, n, vw, self.colliders[k].contact, self.col_friction[k])
+                v = v + self._fade(self._phi(k, xm) - self._contact_dist(phi)) * (vc - v)
             else:
                 v = contact_velocity(v, n, vw, self.colliders[k].contact, self.col_friction[k])
         elif ti.static(self.has_image(k)):
-            v = self._image(xI, v, m, phi, n, vw, dt, ti.static(self.colliders[k].contact == "slip"))
+            v = self._image(k, xI, v, m, phi, n, vw, dt, ti.static(self.colliders[k].contact == "slip"))
         return v
 
     @ti.func

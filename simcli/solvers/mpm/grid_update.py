@@ -29,7 +29,7 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
     # (apply(I, v, m) only, as the operator tests build) neither
     with_grid = hasattr(boundary, "bind_grid")
     if with_grid:
-        boundary.bind_grid(grid, bbox, T, gravity)
+        boundary.bind_grid(grid, bbox, T, gravity, gap_ch)
     use_flip = flip is not None
 
     @ti.func

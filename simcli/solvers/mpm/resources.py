@@ -48,6 +48,17 @@ def _gap_test(c) -> bool:
     )
 
 
+def _image(c) -> bool:
+    """A collider or rigid body with an image whose fade reads the nodes' material position (a
+    frictionless slip or separate surface of an analytic shape: GridBoundary.has_image), which adds dim
+    channels to every grid node too."""
+    return (
+        getattr(c, "type", getattr(getattr(c, "morph", None), "type", "")) != "Mesh"
+        and getattr(c, "boundary", "separate") != "sticky"
+        and float(getattr(c, "friction", 0.0) or 0.0) <= 0
+    )
+
+
 def estimate(scene, scene_dir, lo, hi) -> Part | None:
     dim = scene.sim.dim
     mpm = scene.solvers.mpm
@@ -59,9 +70,11 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
         cnt(math.ceil(min((hi[a] - lo[a]) * mpm.grid_density, 1e30) - 1e-6)) + 7 for a in range(dim)
     )
     gdim = dim + 2
-    if any(_gap_test(c) for c in scene.colliders):  # the nodes' material position (boundary.gap_test)
+    bodies = list(scene.colliders) + list(getattr(scene, "rigid_bodies", None) or [])
+    gap_test = any(_gap_test(c) for c in scene.colliders)
+    if gap_test or any(_image(c) for c in bodies):  # the nodes' material position
         gdim += dim
-        if getattr(mpm, "transfer", "apic") != "flip":  # and their affine momentum (APIC)
+        if gap_test and getattr(mpm, "transfer", "apic") != "flip":  # and their affine momentum (APIC)
             gdim += dim
     copy = nodes * gdim * 4 * fp
     t = threads_for(scene)

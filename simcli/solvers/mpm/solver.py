@@ -228,7 +228,8 @@ class MPMSolver(Solver):
         if self.boundary.uses_gap:
             self.gap_ch = self.gdim
             self.gdim += dim
-            if self.transfer != "flip":  # APIC: the nodes' affine momentum too (boundary._node)
+            if self.transfer != "flip" and self.boundary.uses_gap_test:  # APIC: the nodes' affine momentum
+                # too, for the gap test's contact on the material's velocity (boundary._node)
                 self.gap_aff = True
                 self.boundary.material_velocity = True
                 self.gdim += dim
