@@ -268,7 +268,9 @@ class GridBoundary:
         for d in ti.static(range(self.dim)):
             inb = inb and 0 <= J[d] and J[d] < self.grid_shape[d]
         if inb:
-            for t in ti.static(range(self._T)):
+            # a run-time loop over the copies (and over the corners in ``interp``): unrolled, every
+            # collider with an image inlined 2^dim x T copies of this, and compiling them took minutes
+            for t in range(self._T):
                 a = self._bbox[t, 0]
                 b = self._bbox[t, 1]
                 inside = True
@@ -287,10 +289,14 @@ class GridBoundary:
         base = ti.floor(s).cast(ti.i32)
         fr = s - base.cast(self.dtype)
         src = ti.Vector.zero(self.dtype, self.dim + 1)
-        for off in ti.static(ti.grouped(ti.ndrange(*([2] * self.dim)))):
+        # corner c has offset bit (dim - 1 - d) of c along axis d: the order of ti.ndrange(2, .., 2)
+        # (last axis fastest), so the sum is the same as unrolled, one call site instead of 2^dim
+        for c in range(2**self.dim):
+            off = ti.Vector.zero(ti.i32, self.dim)
             w = 1.0
             for d in ti.static(range(self.dim)):
-                if ti.static(off[d] == 1):
+                if (c >> (self.dim - 1 - d)) & 1 == 1:
+                    off[d] = 1
                     w *= fr[d]
                 else:
                     w *= 1.0 - fr[d]
