@@ -19,13 +19,14 @@ import numpy as np
 
 ITERATIONS = 6
 ERP = 0.2  # share of a penetration depth removed per substep (Baumgarte)
+MESH_DENSE = 2000  # a Mesh body with more vertices is sampled by its vertices only (no edge or face points)
 
 
 def surface_points(spec, dim: int, n: int = 4) -> np.ndarray:
     """Sample points (k, dim) on a body's surface in its body frame."""
     if spec.kind == "Mesh":
         V = np.asarray(spec.mesh.vertices, float)
-        if n <= 1:
+        if n <= 1 or len(V) > MESH_DENSE:  # a dense mesh's vertices already sample its faces finely
             return V
         T = np.asarray(spec.mesh.triangles, np.int64)
         e = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
