@@ -315,29 +315,10 @@ def be_decay_ratio(
     midpoint rule's |(1 + dt m / 2) / (1 - dt m / 2)| with m = -c / 2 + i sqrt(w^2 - c^2 / 4) the mode's
     continuous root (no numerical damping: the decay is Rayleigh damping's alone; needs c > 0). Returns
     ln|lambda| / ln(prediction) at the last frame's time."""
+    from simcli.verify.fem_measures import slowest_mode
+
     _, g = _entity(f, entity)
-    x = _positions(g)
-    if "displacement" in g:  # (FEM) exact to f32 round-off of the small displacement, not of the position
-        x0 = x[0] - np.asarray(g["displacement"][0], dtype=np.float64)
-        u = np.asarray(g["displacement"][...], dtype=np.float64)
-    else:
-        x0, u = x[0], x - x[0]
-    sel = np.all((x0 >= np.asarray(lower)) & (x0 <= np.asarray(upper)), axis=1)
-    if not sel.any():
-        raise ValueError("be_decay_ratio: no vertex inside the region")
-    t, y = f["time"][...], u[:, sel, axis].mean(axis=1)
-    dt = float(t[1] - t[0])
-    y = np.asarray(y[int(skip) :], dtype=np.float64)
-    p = 2 * int(modes)
-    if len(y) < 4 * p:
-        raise ValueError(f"be_decay_ratio: {len(y)} frames after skip, need at least {4 * p}")
-    A = np.stack([y[p - 1 - k : len(y) - 1 - k] for k in range(p)] + [np.ones(len(y) - p)], axis=1)
-    coef, *_ = np.linalg.lstsq(A, y[p:], rcond=None)
-    roots = np.roots(np.concatenate([[1.0], -coef[:p]]))
-    osc = roots[np.imag(roots) > 1e-12]
-    if len(osc) == 0:
-        raise ValueError("be_decay_ratio: no oscillating mode found in the series")
-    lam = osc[np.argmin(np.angle(osc))]
+    t, dt, lam = slowest_mode(g, f["time"][...], lower, upper, axis, skip, modes, "be_decay_ratio")
     c = alpha + beta * w * w
     if scheme == "implicit_midpoint":
         mc = complex(-0.5 * c, math.sqrt(max(w * w - 0.25 * c * c, 0.0)))
