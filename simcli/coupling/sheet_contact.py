@@ -1,36 +1,43 @@
 """Two-way contact between the MPM material and a set of points without volume (PBD cloth and rope vertices):
 a one-sided, position-level contact of each vertex against MPM's volume fraction (docs/COUPLING.md, MPM-PBD).
 
-Why not the grid merge of grid_contact.py: a cloth has no volume, so at a node both touch the merge gives the
-light cloth the heavy MPM body's normal velocity wherever their B-splines overlap. A ball on a trampoline drags
-the vertices under it along, the cloth's constraints (solved in PBD's own substep, blind to the ball) pull them
-back up into it, and the merge, which acts on velocities at nodes only, never puts them back below: the ball
-passes through (5.6 cells, measured). And a light cloth on sand stops where the B-splines first overlap,
+Why not the grid merge of grid_contact.py: a cloth has no volume, so at a node both touch the merge gives
+the light cloth the heavy MPM body's normal velocity wherever their B-splines overlap. A ball on a trampoline
+drags the vertices under it along, the cloth's constraints (solved in PBD's own substep, blind to the ball)
+pull them back up into it, and the merge, acting on velocities at nodes only, never puts them back below: the
+ball passes through (5.6 cells, measured). And a light cloth on sand stops where the B-splines first overlap,
 1.5 cells above the sand. What holds a sheet is a contact on the vertices' positions, as PBD's own collider
 contact and Jiang et al. 2017 ("Anisotropic elastoplasticity for cloth, knit and hair frictional contact",
 a cloth's particles kept out of the MPM material by a contact on the particle level) and Han et al. 2019
 (a hybrid MPM for frictional contact between materials) do.
 
-Per substep, after PBD's whole step (vertices at their end positions ``x`` with end velocities ``v``) and
-MPM's grid update (node masses ``m_i``, updated velocities ``v_i``):
+Per substep, after PBD's whole step (vertices at their end positions ``x``) and MPM's grid update (node masses
+``m_i``, updated velocities ``v_i``):
 
-1. MPM's volume fraction on its node box, ``phi_i = sum_p w_ip J_p V0_p / dx^dim`` (as grid_contact.py).
-2. For each coupled vertex (mass ``M > 0``) at ``x``: the MPM mass it sees, ``S = sum_i w_i m_i``, and the
-   material's velocity there, ``v_m = sum_i w_i m_i v_i / S``. MPM's fraction is sampled where the vertex sits
-   relative to the material at the substep's end, ``y = x - dt v_m`` (the grid holds the material at the
-   substep's start): ``phi(y) = sum_i w_i(y) phi_i`` and its gradient with the B-spline's derivative. Where
-   ``phi(y) > PHI_SURFACE`` the vertex is inside the material: its depth ``d = (phi - PHI_SURFACE) / |grad
-   phi|`` (one Newton step to the level set, at most MAX_PUSH cells) along ``n = -grad phi / |grad phi|``
-   is removed, shared by inverse mass as a two-body PBD contact does: the vertex moves by ``S / (S + M) d n``
-   and gets the velocity change ``du = S / (S + M) d n / dt`` (position and velocity stay consistent, as
-   PBD's velocity update ``(x - xp) / dt`` would have given).
-3. The reaction ``-M du`` goes to MPM's nodes in proportion to ``w_i m_i`` (node velocity change
-   ``-M du w_i / S``, the same at every node the vertex touches, so no light node is kicked), so the total
-   momentum is conserved exactly: ``sum_i m_i dv_i = -M du``. MPM's G2P carries it to its particles.
+1. ``prepare``: MPM's volume fraction on its node box, ``phi_i = sum_p w_ip J_p V0_p / dx^dim`` (as
+   grid_contact.py).
+2. ``push``: each coupled vertex (mass ``M > 0``) at ``x`` sees the MPM mass ``S = sum_i w_i m_i`` and
+   velocity ``v_m = sum_i w_i m_i v_i / S``; in the material's frame (the grid holds the material at the
+   substep's start) it is at ``b = x - dt v_m``. Where ``phi(b) > PHI_SURFACE`` (``phi`` and its gradient by
+   the B-spline interpolation of the node values) it is inside: if it was outside at ``a`` (its start
+   position, or where the last push left it), it goes back to where its path ``a -> b`` entered (sampled
+   every MARCH cells, then BISECT bisections) and on along the surface (the path's normal part removed: free
+   slip); then up to NEWTON steps onto the level set along ``-grad phi`` (at most MAX_STEP cells each). So
+   a sheet keeps its side: a vertex pulled deep into a ball comes back out of the face it went in by, not
+   the nearest one. The vertex moves by its share ``S / (S + M)`` of the push (a two-body contact by
+   inverse mass).
+3. ``relax(dt)``: one more sweep of the set's own constraints (PBD's stretch), then ``push`` again, RELAX
+   times: the constraints pull the held vertices back into the body, and each push hands the body that pull.
+4. ``finish``: each vertex's velocity changes by its move in this phase over dt (position and velocity stay
+   consistent, as PBD's ``(x - xp) / dt``); the sum ``s`` of its pushes goes to MPM as the reaction
+   ``-M s / dt``, spread over the nodes it touches in proportion to ``w_i m_i`` (node velocity change
+   ``-M s w_i / (S dt)``, so no light node is kicked). Momentum is conserved exactly: ``sum_i m_i dv_i =
+   -M s / dt``, and the sweeps move momentum between vertices only (or into pinned ones, as PBD's own step).
+   MPM's G2P carries the nodes' change to its particles.
 
-Only nodes inside the domain faces count (the walls keep MPM's own condition there). A vertex outside the
-material (``phi <= PHI_SURFACE``) is not touched: the contact is one-sided and never pulls, and a sheet's
-vertices rest on the material's surface (its ``phi = 1/2`` level set), not a cell and a half above it.
+Only nodes inside the domain faces take a reaction (the walls keep MPM's own condition there). A vertex
+outside the material is not touched: the contact is one-sided and never pulls, and a sheet's vertices rest on
+the material's surface (its ``phi = 1/2`` level set), not a cell and a half above it.
 """
 
 from typing import Any
@@ -55,8 +62,9 @@ RELAX = 8
 
 
 class SheetContact:
-    """MPM <-> a point set without volume: ``n`` points, ``mass(i)`` (0: not coupled), end positions ``x`` and
-    velocities ``v`` (vector fields of 3 components, MPM's dim used), ``count()`` the active points or None."""
+    """MPM <-> a point set without volume: ``n`` points, ``mass(i)`` (0: not coupled), end positions ``x``,
+    start positions ``xp`` and velocities ``v`` (vector fields of 3 components, MPM's dim used), ``count()``
+    the active points or None, ``relax(dt)`` one more sweep of the set's own constraints or None."""
 
     def __init__(self, mpm: Any, name: str) -> None:
         self.mpm, self.name = mpm, name
