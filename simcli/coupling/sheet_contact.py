@@ -80,10 +80,11 @@ class SheetContact:
         self.x0 = ti.Vector.field(dim, f, shape=npt)  # each point at the coupling phase's start
         self.xa = ti.Vector.field(dim, f, shape=npt)  # where it last was outside (the grid's frame)
         self.acc = ti.Vector.field(dim, f, shape=npt)  # the sum of its pushes this substep
+        self.hits = ti.field(ti.i32, shape=())  # points the first push moved this substep
         fb = 8 if mpm.precision == "f64" else 4
         self.bytes = int(np.prod(shape)) * fb + npt * 3 * dim * fb
 
-        vm, x0, xa, acc = self.vm, self.x0, self.xa, self.acc
+        vm, x0, xa, acc, hits = self.vm, self.x0, self.xa, self.acc, self.hits
         grid_v, grid_m, bbox_all = mpm.grid_v, mpm.grid_m, mpm.bbox_all
         flip = mpm.flip
         use_flip = flip is not None
@@ -259,6 +260,8 @@ class SheetContact:
                         mv = (S / (S + M)) * (y - b)  # the point's share of the push
                         acc[p] += mv
                         xa[p] = b + mv
+                        if mv.norm_sqr() > 0:
+                            hits[None] += 1
                         for d in ti.static(range(dim)):
                             x[p][d] += mv[d]
 
@@ -300,9 +303,11 @@ class SheetContact:
         self._prepare, self._push, self._finish = prepare, push, finish
 
     def couple(self, dt: float) -> None:
+        self.hits[None] = 0
         self._prepare()
-        for _ in range(RELAX if self.relax is not None else 0):
-            self._push(dt)
-            self.relax(dt)
         self._push(dt)
+        if self.relax is not None and self.hits[None] > 0:  # nothing touched: the set's own step stands
+            for _ in range(RELAX):
+                self.relax(dt)
+                self._push(dt)
         self._finish(dt)
