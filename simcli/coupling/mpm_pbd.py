@@ -103,8 +103,11 @@ def _sheet(mpm: Any, pbd: Any) -> SheetContact:
     sweeps = [k for k in (pbd._solve_stretch, pbd._solve_volume) if k is not None]
 
     def relax(dt: float) -> None:  # one more Gauss-Seidel sweep of the bodies' stretch (and volume)
-        for k in sweeps:
-            k(dt)
+        if pbd.serial:  # small bodies: one single-threaded launch, as PBD's own step (the same sweep order)
+            pbd._project_serial(dt, 1, 0)
+        else:
+            for k in sweeps:
+                k(dt)
 
     pair = SheetContact(mpm, "mpm_pbd")
     pair.build(pbd.n, m, pbd.x, pbd.xp, pbd.v, count, relax if sweeps else None)
