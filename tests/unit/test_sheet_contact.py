@@ -161,3 +161,27 @@ def test_a_point_that_crossed_deep_goes_back_to_its_side(ti_f32):
     x1 = b.x.to_numpy()[0, :2]
     assert FACE - 0.01 < x1[0] < FACE + 0.02, x1  # not out of the left face (x = 0.4)
     assert np.allclose(b.x.to_numpy()[1:, :2], [[0.9, 0.5], [0.9, 0.6], [0.9, 0.7], [0.9, 0.9]])
+
+
+def test_the_set_relaxes_only_when_a_point_touched(ti_f32):
+    """The extra constraint sweeps between pushes (relax) run only in a substep where a point was pushed: a
+    cloth that touches nothing steps exactly as PBD alone."""
+    import taichi as ti
+
+    from simcli.coupling.sheet_contact import RELAX
+
+    calls = []
+    outside = [[0.9, 0.5], [0.9, 0.6], [0.9, 0.7], [0.9, 0.8], [0.9, 0.9]]
+    if "sc" not in _BUILT:
+        _BUILT.update(_build(ti))
+    _BUILT["sc"].relax = calls.append
+    try:
+        b, gv = _run(ti, outside, outside, [[0.0, 0.0]] * 5, [0.01] * 5)
+        assert calls == []
+        assert np.allclose(b.mpm.grid_v.to_numpy(), gv.astype(np.float32))
+        assert np.allclose(b.x.to_numpy()[:, :2], outside)
+        inside = [[0.77, 0.5]] + outside[1:]
+        b, gv = _run(ti, outside, inside, [[-130.0, 0.0]] + [[0.0, 0.0]] * 4, [0.01] * 5)
+        assert len(calls) == RELAX
+    finally:
+        _BUILT["sc"].relax = None
