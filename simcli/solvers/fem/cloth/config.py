@@ -74,6 +74,14 @@ class FEMCloth(_Solid):
         description="Bending stiffness D [N m] (default the plate value E thickness^3 / (12 (1 - nu^2))); "
         "0: no bending.",
     )
+    bending_model: Literal["shape_operator", "quadratic"] = Field(
+        "shape_operator",
+        description="Bending discretisation. shape_operator: Kirchhoff-Love plate energy "
+        "D/2 [(k1 + k2)^2 - 2 (1 - nu) k1 k2] per triangle from a discrete shape operator (the triangle and "
+        "its three neighbours), both curvature invariants, any rest shape. quadratic: the older model, "
+        "mean curvature only (Bergou et al. 2006) on a flat rest mesh, discrete-shell hinges on a curved one; "
+        "cheaper (constant Hessian when flat) but soft in twist and saddle modes.",
+    )
     friction: float = Field(
         0.0,
         ge=0,

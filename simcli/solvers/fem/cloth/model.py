@@ -80,7 +80,12 @@ def dihedral_gradients(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
 class ShellModel:
     """Rest state and elastic energy of one or several triangle meshes stacked (global vertex indices)."""
 
-    def __init__(self, X: np.ndarray, tris: np.ndarray, mu, lam_ps, thickness, D, tri_body=None):
+    def __init__(
+        self, X: np.ndarray, tris: np.ndarray, mu, lam_ps, thickness, D, tri_body=None, shape_operator=None
+    ):
+        """shape_operator: per triangle (bool) or None: triangles whose bending is the shape-operator model
+        (simcli.solvers.fem.cloth.shape_operator, both curvature invariants) instead of the quadratic /
+        hinge model below."""
         self.X = np.asarray(X, dtype=np.float64)
         self.tris = np.asarray(tris, dtype=np.int64)
         m = len(self.tris)
@@ -105,6 +110,17 @@ class ShellModel:
         self.quads = bending_quads(self.tris)
         self.theta0 = dihedral_angles(self.X, self.quads)
         Dq = np.broadcast_to(np.asarray(D, dtype=np.float64), (m,))
+        self.shape = None
+        if shape_operator is not None and np.any(shape_operator):
+            from simcli.solvers.fem.cloth.shape_operator import MidedgeBending
+
+            so = np.broadcast_to(np.asarray(shape_operator, dtype=bool), (m,))
+            nu = self.lam / np.maximum(self.lam + 2 * self.mu, 1e-300)  # plane stress: lam_ps / (lam_ps + 2 mu)
+            self.shape = MidedgeBending(self.X, self.tris[so], Dq[so], nu[so])
+            Dq = np.where(so, 0.0, Dq)
+            if so.all():
+                self.quads = np.zeros((0, 4), np.int64)
+                self.theta0 = np.zeros(0)
         if len(self.quads):
             # the two triangles of each hinge: look them up by their vertex sets
             key = {tuple(sorted(t)): i for i, t in enumerate(self.tris.tolist())}
@@ -221,11 +237,19 @@ class ShellModel:
             Qx = Q @ x
             eb += 0.5 * float(np.sum(x * Qx))
             gb = gb + Qx
+        if self.shape is not None:
+            es, gs, Hs = self.shape(x, order)
+            eb += es
+            gb = gb + gs
         if order < 2:
             return em + eb, gm + gb, None
         rows = [self._rows_t, self._rows_q]
         cols = [self._cols_t, self._cols_q]
         vals = [Hm.ravel(), Hb.ravel() if Hb is not None else np.zeros(0)]
+        if self.shape is not None:
+            rows.append(Hs[0])
+            cols.append(Hs[1])
+            vals.append(Hs[2])
         if self.quadratic is not None:
             Qc = self.quadratic.tocoo()
             for k in range(3):

@@ -85,6 +85,7 @@ class ClothSolver(Solver):
         from simcli.geometry.regions import points_in_regions
 
         xs, ts, mu, lam, h, D, mass, fixed, offs = [], [], [], [], [], [], [], [], [0]
+        so = []
         self.cells = {}
         for e in self.entities:
             x, t = cloth_mesh(e, self.scene_dir)
@@ -97,6 +98,7 @@ class ClothSolver(Solver):
             lam.append(np.full(m, mat.E * mat.nu / (1 - mat.nu**2)))
             h.append(np.full(m, mat.thickness))
             D.append(np.full(m, mat.D))
+            so.append(np.full(m, mat.bending_model == "shape_operator"))
             area = 0.5 * np.linalg.norm(np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]]), axis=1)
             mv = np.zeros(len(x))
             for a in range(3):
@@ -112,7 +114,13 @@ class ClothSolver(Solver):
         self.X = X
         self.tris = T
         self.model = ShellModel(
-            X, T, np.concatenate(mu), np.concatenate(lam), np.concatenate(h), np.concatenate(D)
+            X,
+            T,
+            np.concatenate(mu),
+            np.concatenate(lam),
+            np.concatenate(h),
+            np.concatenate(D),
+            shape_operator=np.concatenate(so),
         )
         self.mass = np.concatenate(mass)
         self.fext = self._edge_loads(xs, ts, offs)
@@ -706,7 +714,9 @@ class ClothSolver(Solver):
             "method": "backward Euler, Newton + sparse LU (reused as CG preconditioner), IPC barrier (ipctk) "
             "+ CCD "
             "line search",
-            "bending": "quadratic (flat rest)"
+            "bending": "shape operator (both curvature invariants)"
+            if self.model.shape is not None
+            else "quadratic (flat rest)"
             if self.model.quadratic is not None
             else "discrete-shell hinges",
             "contact_distance": self.dhat,
