@@ -115,7 +115,9 @@ class ShellModel:
             from simcli.solvers.fem.cloth.shape_operator import MidedgeBending
 
             so = np.broadcast_to(np.asarray(shape_operator, dtype=bool), (m,))
-            nu = self.lam / np.maximum(self.lam + 2 * self.mu, 1e-300)  # plane stress: lam_ps / (lam_ps + 2 mu)
+            nu = self.lam / np.maximum(
+                self.lam + 2 * self.mu, 1e-300
+            )  # plane stress: lam_ps / (lam_ps + 2 mu)
             self.shape = MidedgeBending(self.X, self.tris[so], Dq[so], nu[so])
             Dq = np.where(so, 0.0, Dq)
             if so.all():

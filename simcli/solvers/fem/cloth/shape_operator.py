@@ -48,7 +48,7 @@ def _dihedral_gradients(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
 class MidedgeBending:
     """Shape-operator bending of one or several stacked triangle meshes (global vertex indices)."""
 
-    def __init__(self, X: np.ndarray, tris: np.ndarray, D, nu, method: str = "quadratic", beta: float = 1.0):
+    def __init__(self, X: np.ndarray, tris: np.ndarray, D, nu):
         X = np.asarray(X, dtype=np.float64)
         tris = np.asarray(tris, dtype=np.int64)
         m = len(tris)
@@ -86,20 +86,17 @@ class MidedgeBending:
             return t * s[:, None]
 
         t0, t1, t2 = conormal(q1, q2, q0), conormal(q2, q0, q1), conormal(q0, q1, q2)
-        if method == "midedge":
-            B = np.zeros((m, 3, 2, 2))
-            B[:, 0] = 2 * dot(t0, e1)[:, None, None] * np.ones((2, 2))
-            B[:, 1, 0, 0] = -2 * dot(t1, e1)
-            B[:, 2, 1, 1] = -2 * dot(t2, e2)
-            GB = gi[:, None] @ B  # (m, 3, 2, 2): g^-1 B_i
-            a = np.trace(GB, axis1=2, axis2=3)  # (m, 3)
-            b = np.einsum("kipq,kjqp->kij", GB, GB)  # tr(g^-1 B_i g^-1 B_j)
-            # s_i = theta_i / 2: W_T = sum_ij theta_i theta_j (A D / 8) [nu a_i a_j + (1 - nu) b_ij]
-            Q = (area * Dt / 8.0)[:, None, None] * (
-                nut[:, None, None] * a[:, :, None] * a[:, None, :] + (1 - nut)[:, None, None] * b
-            )
-        else:
-            Q, R6 = self._quadratic_forms(X, tris, hid, (t0, t1, t2), nh, area, Dt, nut)
+        B = np.zeros((m, 3, 2, 2))
+        B[:, 0] = 2 * dot(t0, e1)[:, None, None] * np.ones((2, 2))
+        B[:, 1, 0, 0] = -2 * dot(t1, e1)
+        B[:, 2, 1, 1] = -2 * dot(t2, e2)
+        GB = gi[:, None] @ B  # (m, 3, 2, 2): g^-1 B_i
+        a = np.trace(GB, axis1=2, axis2=3)  # (m, 3)
+        b = np.einsum("kipq,kjqp->kij", GB, GB)  # tr(g^-1 B_i g^-1 B_j)
+        # s_i = theta_i / 2: W_T = sum_ij theta_i theta_j (A D / 8) [nu a_i a_j + (1 - nu) b_ij]
+        Q = (area * Dt / 8.0)[:, None, None] * (
+            nut[:, None, None] * a[:, :, None] * a[:, None, :] + (1 - nut)[:, None, None] * b
+        )
         ok = hid >= 0
         rows, cols, vals = [], [], []
         for i in range(3):
@@ -111,148 +108,12 @@ class MidedgeBending:
         self.Q = sp.coo_matrix(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(k, k)
         ).tocsr()
-        if method != "midedge" and beta > 0 and k:
-            self.Q = self.Q + self._stabilisation(tris, hid, R6, area, Dt, nut, k, beta)
         self.Q = 0.5 * (self.Q + self.Q.T)
         self.hinge_of_tri = hid
         self.area = area
         # sparsity of G (k x 3n): hinge h touches the 12 dofs of its quad
         self._gr = np.repeat(np.arange(k), 12)
         self._gc = (3 * self.quads[:, :, None] + np.arange(3)).reshape(k, 12).ravel()
-
-    @staticmethod
-    def _quadratic_forms(X, tris, hid, ts, nh, area, Dt, nut):
-        """Per-triangle 3x3 forms Q_T of the quadratic-patch reconstruction: for a height field
-        f = x^T S x / 2 over T's rest plane, the slopes of its linear interpolants on T and on the neighbour
-        across edge i jump by delta_i (along the edge normal t_i), a linear function of S computed on the
-        rest flap (the neighbour unfolded about the edge); the dihedral angle is that jump, so the three
-        hinges of T give three equations for the symmetric S (exact for every quadratic surface: the
-        quadratic through the 6 vertices of the flap). A free edge's equation is the moment-free condition
-        M_nn = 0, t.S t + nu e.S e = 0 (e along the edge)."""
-        m = len(tris)
-        dot = lambda a, b: np.einsum("ij,ij->i", a, b)  # noqa: E731
-        u = X[tris[:, 1]] - X[tris[:, 0]]
-        u /= np.linalg.norm(u, axis=1)[:, None]
-        v = np.cross(nh, u)
-        to2 = lambda y: np.stack([dot(y, u), dot(y, v)], axis=1)  # noqa: E731  (rest frame of T)
-        P = [to2(X[tris[:, a]] - X[tris[:, 0]]) for a in range(3)]
-        # the neighbour's far vertex across each edge
-        far = {}
-        for t, (a, b, cc) in enumerate(tris.tolist()):
-            for p_, q_, r_ in ((b, cc, a), (cc, a, b), (a, b, cc)):
-                far.setdefault((min(p_, q_), max(p_, q_)), []).append((t, r_))
-
-        def grad_p1(A, Bp, Cp, fa, fb, fc):  # slope of the linear interpolant through three 2D points
-            J = np.stack([Bp - A, Cp - A], axis=1)  # (m, 2, 2) rows: edges
-            return np.linalg.solve(J, np.stack([fb - fa, fc - fa], axis=1)[..., None])[..., 0]
-
-        basis = [np.array([[1.0, 0.0], [0.0, 0.0]]), np.array([[0.0, 1.0], [1.0, 0.0]]),
-                 np.array([[0.0, 0.0], [0.0, 1.0]])]
-        M = np.zeros((m, 3, 3))
-        for i in range(3):
-            ip, iq = (i + 1) % 3, (i + 2) % 3
-            p, q = tris[:, ip], tris[:, iq]
-            interior = hid[:, i] >= 0
-            r = np.array(
-                [
-                    next((f for o, f in far[(min(a, b), max(a, b))] if o != k), a)
-                    for k, (a, b) in enumerate(zip(p.tolist(), q.tolist()))
-                ]
-            )
-            # unfold r about the edge into T's plane, on the far side
-            ed = X[q] - X[p]
-            eh = ed / np.linalg.norm(ed, axis=1)[:, None]
-            rel = X[r] - X[p]
-            al = dot(rel, eh)
-            dn = np.linalg.norm(rel - al[:, None] * eh, axis=1)
-            t = ts[i]
-            R2 = P[ip] + to2(al[:, None] * eh + dn[:, None] * t)
-            R2[~interior] = P[ip][~interior] + P[iq][~interior] - P[i][~interior]  # unused, not degenerate
-            t2 = to2(t)
-            e2 = to2(eh)
-            row_i = np.zeros((m, 3))
-            for c, Hb in enumerate(basis):
-                f = lambda y: 0.5 * np.einsum("ki,ij,kj->k", y, Hb, y)  # noqa: E731
-                g_t = grad_p1(P[0], P[1], P[2], f(P[0]), f(P[1]), f(P[2]))
-                g_n = grad_p1(P[ip], P[iq], R2, f(P[ip]), f(P[iq]), f(R2))
-                row_i[:, c] = dot(g_n - g_t, t2)
-            tu, tv, eu, ev = t2[:, 0], t2[:, 1], e2[:, 0], e2[:, 1]
-            row_b = np.stack(
-                [tu * tu + nut * eu * eu, 2 * (tu * tv + nut * eu * ev), tv * tv + nut * ev * ev], axis=1
-            )
-            M[:, i] = np.where(interior[:, None], row_i, row_b)
-        R = np.linalg.pinv(M)  # (m, 3, 3): (s11, s12, s22) = R theta (free-edge columns act on 0)
-        R[np.broadcast_to((hid < 0)[:, None, :], R.shape)] = 0.0
-        C = np.zeros((m, 3, 3))
-        C[:, 0, 0] = C[:, 2, 2] = 1.0
-        C[:, 1, 1] = 2 * (1 - nut)
-        C[:, 0, 2] = C[:, 2, 0] = nut
-        # W_T = A D / 2 [nu (s11 + s22)^2 + (1 - nu)(s11^2 + 2 s12^2 + s22^2)] = A D / 2 s^T C s
-        Q = (0.5 * area * Dt)[:, None, None] * (np.swapaxes(R, 1, 2) @ C @ R)
-        # S as a 3D tensor in the rest tangent plane: 6 components (xx, yy, zz, xy, xz, yz) per (s11, s12, s22)
-        uv = [u, v]
-        P6 = np.zeros((m, 6, 3))
-        for c, (a, b) in enumerate(((0, 0), (0, 1), (1, 1))):
-            for r, (i, j) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
-                val = uv[a][:, i] * uv[b][:, j]
-                if a != b:
-                    val = val + uv[b][:, i] * uv[a][:, j]
-                P6[:, r, c] = val
-        return Q, P6 @ R
-
-    def _stabilisation(self, tris, hid, R6, area, Dt, nut, k, beta):
-        """beta D/2 sum_e (A_T + A_T') / 3 |S_T - S_T'|^2_C over interior edges: zero for every quadratic
-        surface (S constant), positive for the zig-zag folds the per-triangle reconstruction cannot see."""
-        m = len(tris)
-        rows, cols, vals = [], [], []
-        for i in range(3):
-            ok = hid[:, i] >= 0
-            for j in range(3):
-                sel = hid[:, j] >= 0
-                for r in range(6):
-                    rows.append(6 * np.nonzero(sel)[0] + r)
-                    cols.append(hid[sel, j])
-                    vals.append(R6[sel, r, j])
-            del ok
-        Rg = sp.coo_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(6 * m, k)
-        ).tocsr()
-        # the two triangles of each hinge
-        tri_a = np.full(k, -1)
-        tri_b = np.full(k, -1)
-        for i in range(3):
-            h = hid[:, i]
-            for t in np.nonzero(h >= 0)[0]:
-                if tri_a[h[t]] < 0:
-                    tri_a[h[t]] = t
-                else:
-                    tri_b[h[t]] = t
-        e = np.nonzero((tri_a >= 0) & (tri_b >= 0))[0]
-        ta, tb = tri_a[e], tri_b[e]
-        ne = len(e)
-        r6 = np.arange(6)
-        Dop = sp.coo_matrix(
-            (
-                np.concatenate([np.ones(6 * ne), -np.ones(6 * ne)]),
-                (
-                    np.concatenate([(6 * np.arange(ne)[:, None] + r6).ravel()] * 2),
-                    np.concatenate([(6 * ta[:, None] + r6).ravel(), (6 * tb[:, None] + r6).ravel()]),
-                ),
-            ),
-            shape=(6 * ne, 6 * m),
-        ).tocsr()
-        w = beta * 0.5 * 0.5 * (Dt[ta] + Dt[tb]) * (area[ta] + area[tb]) / 3.0
-        nue = 0.5 * (nut[ta] + nut[tb])
-        diag = (1 - nue)[:, None] * np.array([1, 1, 1, 2, 2, 2.0])
-        Cw = np.zeros((ne, 6, 6))
-        Cw[:, r6, r6] = diag
-        Cw[:, :3, :3] += nue[:, None, None]
-        Cw *= w[:, None, None]
-        bi = (6 * np.arange(ne)[:, None, None] + r6[None, :, None]) * np.ones((1, 1, 6), int)
-        bj = np.swapaxes(bi, 1, 2)
-        Wm = sp.coo_matrix((Cw.ravel(), (bi.ravel(), bj.ravel())), shape=(6 * ne, 6 * ne)).tocsr()
-        A = Dop @ Rg
-        return (A.T @ Wm @ A).tocsr()
 
     def angles(self, x: np.ndarray) -> np.ndarray:
         d = dihedral_angles(x, self.quads) - self.theta0

@@ -123,8 +123,10 @@ class ClothSolver(Solver):
             shape_operator=np.concatenate(so),
         )
         self.mass = np.concatenate(mass)
+        self._load_ramps = []  # (forces, ramp_time) of the tractions that grow with time
         self.fext = self._edge_loads(xs, ts, offs)
-        self.fext_any = bool(np.any(self.fext))
+        self.fext_any = bool(np.any(self.fext)) or bool(self._load_ramps)
+        self.fext_full = self.fext
         self.fixed = np.concatenate(fixed)
         self._build_pins(xs, offs)
         self.damp = np.concatenate(
@@ -240,8 +242,19 @@ class ClothSolver(Solver):
                     continue
                 le = np.linalg.norm(x[sel[:, 1]] - x[sel[:, 0]], axis=1)
                 fe = (0.5 * le * e.material.thickness)[:, None] * np.asarray(bc.traction, float)[None, :]
+                dest = f
+                if bc.ramp_time > 0:  # kept apart: scaled by min(1, t / ramp_time) each step
+                    dest = np.zeros_like(f)
+                    self._load_ramps.append((dest, float(bc.ramp_time)))
                 for a in range(2):
-                    np.add.at(f[offs[k] : offs[k + 1]], sel[:, a], fe)
+                    np.add.at(dest[offs[k] : offs[k + 1]], sel[:, a], fe)
+        return f
+
+    def _loads_at(self, t: float) -> np.ndarray:
+        """The dead loads at time t (ramped tractions grow linearly to their value at ramp_time)."""
+        f = self.fext_full
+        for fr, tr in self._load_ramps:
+            f = f + min(1.0, t / tr) * fr
         return f
 
     # --------------------------------------------------------- the potential
@@ -448,6 +461,8 @@ class ClothSolver(Solver):
         self.xhat = self.xn + dt * self.v + dt * dt * self.g
         self.xhat[self.fixed] = self.xn[self.fixed]
         t_end = self.time + dt
+        if self._load_ramps:  # backward Euler: the loads at the step's end
+            self.fext = self._loads_at(t_end)
         tau = self.tau if self.obst.moving else None  # moving colliders' time at the iterate
         pin_to = None
         if self.moving_pins:  # Dirichlet: the pinned vertices' prescribed positions at the step's end
