@@ -81,11 +81,20 @@ class ShellModel:
     """Rest state and elastic energy of one or several triangle meshes stacked (global vertex indices)."""
 
     def __init__(
-        self, X: np.ndarray, tris: np.ndarray, mu, lam_ps, thickness, D, tri_body=None, shape_operator=None
+        self,
+        X: np.ndarray,
+        tris: np.ndarray,
+        mu,
+        lam_ps,
+        thickness,
+        D,
+        tri_body=None,
+        shape_operator=None,
+        pinned=None,
     ):
         """shape_operator: per triangle (bool) or None: triangles whose bending is the shape-operator model
         (simcli.solvers.fem.cloth.shape_operator, both curvature invariants) instead of the quadratic /
-        hinge model below."""
+        hinge model below; pinned: (n,) bool, held vertices (held triangles clamp that model)."""
         self.X = np.asarray(X, dtype=np.float64)
         self.tris = np.asarray(tris, dtype=np.int64)
         m = len(self.tris)
@@ -111,14 +120,14 @@ class ShellModel:
         self.theta0 = dihedral_angles(self.X, self.quads)
         Dq = np.broadcast_to(np.asarray(D, dtype=np.float64), (m,))
         self.shape = None
-        if shape_operator is not None and np.any(shape_operator):
+        so = np.zeros(m, bool)
+        if shape_operator is not None:  # (bending_stiffness 0: no bending at all, either model)
+            so = np.broadcast_to(np.asarray(shape_operator, dtype=bool), (m,)) & (Dq > 0)
+        if so.any():
             from simcli.solvers.fem.cloth.shape_operator import MidedgeBending
 
-            so = np.broadcast_to(np.asarray(shape_operator, dtype=bool), (m,))
-            nu = self.lam / np.maximum(
-                self.lam + 2 * self.mu, 1e-300
-            )  # plane stress: lam_ps / (lam_ps + 2 mu)
-            self.shape = MidedgeBending(self.X, self.tris[so], Dq[so], nu[so])
+            nu = self.lam / np.maximum(self.lam + 2 * self.mu, 1e-300)  # plane stress: lam / (lam + 2 mu)
+            self.shape = MidedgeBending(self.X, self.tris[so], Dq[so], nu[so], pinned)
             Dq = np.where(so, 0.0, Dq)
             if so.all():
                 self.quads = np.zeros((0, 4), np.int64)
