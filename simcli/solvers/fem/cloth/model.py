@@ -157,6 +157,11 @@ class ShellModel:
         self._rows_q = np.repeat(dof_q, 12, axis=1).ravel()
         self._cols_q = np.tile(dof_q, (1, 12)).ravel()
 
+    @property
+    def aux(self):
+        """Hessian blocks of the bending model's edge unknowns from the last order-2 evaluation, or None."""
+        return self.shape.aux if self.shape is not None else None
+
     # ------------------------------------------------------------ membrane
     def deformation(self, x: np.ndarray) -> np.ndarray:
         t = self.tris

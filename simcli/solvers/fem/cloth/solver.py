@@ -121,6 +121,7 @@ class ClothSolver(Solver):
             np.concatenate(h),
             np.concatenate(D),
             shape_operator=np.concatenate(so),
+            pinned=np.concatenate(fixed),
         )
         self.mass = np.concatenate(mass)
         self._load_ramps = []  # (forces, ramp_time) of the tractions that grow with time
@@ -154,6 +155,7 @@ class ClothSolver(Solver):
         self.bbox = float(np.linalg.norm(np.ptp(X, axis=0))) or 1.0
         self.kappa = None
         self.free_dofs = np.nonzero(np.repeat(~self.fixed, 3))[0]
+        self.fixed_dofs = np.nonzero(np.repeat(self.fixed, 3))[0]
         self._dof_map = np.full(3 * self.n, -1, dtype=np.int64)
         self._dof_map[self.free_dofs] = np.arange(len(self.free_dofs))
         self._dof_ii = np.arange(3 * self.n)
@@ -369,6 +371,13 @@ class ClothSolver(Solver):
             self._Hc = (r[kc], np.concatenate(parts_c)[kc], v[kc])
         nf = len(self.free_dofs)
         H = sp.csc_matrix((v[keep], (r[keep], c[keep])), shape=(nf, nf))
+        aux = self.model.aux
+        if aux is not None:  # the bending model's edge unknowns, eliminated by this solve (shape_operator.py)
+            C, A2 = aux
+            Cf = C[:, self.free_dofs]
+            H = sp.bmat([[H, Cf.T], [Cf, A2]], format="csc")
+            if self.dirichlet:
+                self._aux_c = C[:, self.fixed_dofs]
         self.stats["assemble_s"] += time.perf_counter() - t0
         return e, g, H, n_self + n_obst
 
@@ -529,7 +538,13 @@ class ClothSolver(Solver):
                     rhs = rhs - np.bincount(ri, weights=hv * p.ravel()[cj], minlength=len(fd))
                 if dtau > 0 and self._obst_cross is not None:
                     rhs = rhs + self._obst_cross.ravel()[fd]
-            pf = self._linear_solve(H, rhs)
+            n_aux = H.shape[0] - len(fd)
+            if n_aux:  # edge unknowns of the bending model: at their optimum, so no residual of their own
+                r_aux = np.zeros(n_aux)
+                if pending and pc is not None:
+                    r_aux = -(self._aux_c @ p.ravel()[self.fixed_dofs])
+                rhs = np.concatenate([rhs, r_aux])
+            pf = self._linear_solve(H, rhs)[: len(fd)]
             self.stats["solve_s"] += time.perf_counter() - t0
             p.ravel()[fd] = pf
             if not pending and float(np.abs(pf).max(initial=0.0)) <= self.opts.newton_atol * dt * dt:
