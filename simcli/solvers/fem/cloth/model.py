@@ -6,8 +6,11 @@ psi = mu |E|^2 + lambda_ps / 2 tr(E)^2 with the plane-stress lambda_ps = E nu / 
 area and thickness. Valid for large rotations and moderate strains; its Hessian is projected to be
 positive semi-definite per triangle (eigenvalues of dP/dF clamped at 0).
 
-Bending, two discretisations of the plate energy D/2 int (2H)^2 dA (cylinder of radius R: D / (2 R^2) per
-unit area), chosen by the rest shape:
+Bending: by default (material bending_model: shape_operator) the Kirchhoff-Love plate energy with both
+curvature invariants from a discrete shape operator, simcli.solvers.fem.cloth.shape_operator (ShellModel's
+`shape`, on the triangles that use it). The older model (bending_model: quadratic), two discretisations of
+the mean-curvature energy D/2 int (2H)^2 dA (cylinder of radius R: D / (2 R^2) per unit area), chosen by
+the rest shape:
 - flat rest mesh (Rectangle, planar Mesh): the quadratic model of Bergou, Wardetzky, Harmon, Zorin and
   Grinspun 2006 ("A quadratic bending model for inextensible surfaces"), vertex form
   W = D/2 sum_v |(K x)_v|^2 / A_v, K x = L x + the free edges' flux: L the cotangent Laplacian of the rest
