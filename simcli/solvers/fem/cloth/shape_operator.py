@@ -158,7 +158,6 @@ class MidedgeBending:
                     sig[t, i] = 1.0
         ne = len(e_of)
         self.n_edges = ne
-        self._X, self._hid, self._cth, self._eid, self._sig = X, hid, cth, eid, sig
         P = plate_forms(X, tris, D, nu)
         P[held] = 0.0
         # s = c theta + sigma phi:  W = theta^T A_tt theta + 2 theta^T A_tp phi + phi^T A_pp phi
@@ -201,15 +200,6 @@ class MidedgeBending:
             return 0.0
         d = self.angles(x)
         return float(d @ self._moment(d))
-
-    def triangle_energies(self, x: np.ndarray, tris: np.ndarray, D, nu) -> np.ndarray:
-        """Per-triangle energies at the minimising edge rotations (tests; tris, D, nu as built)."""
-        d = self.angles(x)
-        phi = self.edge_rotations(d)
-        s = np.zeros((len(tris), 3))
-        s += np.where(self._hid >= 0, self._cth * d[np.maximum(self._hid, 0)], 0.0)
-        s += np.where(self._eid >= 0, self._sig * phi[np.maximum(self._eid, 0)] if len(phi) else 0.0, 0.0)
-        return np.einsum("ki,kij,kj->k", s, plate_forms(self._X, tris, D, nu), s)
 
     def __call__(self, x: np.ndarray, order: int = 2):
         """Energy, gradient (n, 3) and, for order 2, the x block of the Gauss-Newton Hessian as COO
