@@ -273,6 +273,23 @@ def test_edge_traction_is_the_stated_force_and_drives_momentum(tmp_path):
         np.testing.assert_allclose(p, F * 0.01 * k, rtol=1e-6, atol=1e-12)
 
 
+def test_ramped_traction_grows_linearly_then_holds(tmp_path):
+    """ramp_time: the load at a step's end is min(1, t / ramp_time) times the traction's (backward Euler),
+    so the momentum gains sum_k F min(1, t_k / T) dt."""
+    bc = (
+        "{region: {type: Box, lower: [0.19, -0.2, -0.1], upper: [0.21, 0.2, 0.1]}, traction: [0, 300, 500], "
+        "ramp_time: 0.025}"
+    )
+    s = _solver(_scene(tmp_path, EDGE_LOAD % bc))
+    F = np.array([0.0, 300.0, 500.0]) * 0.2 * 2.0e-3
+    impulse = np.zeros(3)
+    for k in range(1, 5):
+        s.substep(0.01)
+        impulse += F * min(1.0, 0.01 * k / 0.025) * 0.01
+        p = (s.mass[:, None] * s.v).sum(axis=0)
+        np.testing.assert_allclose(p, impulse, rtol=1e-6, atol=1e-12)
+
+
 def test_cloth_traction_takes_no_axes(tmp_path):
     bc = "{region: {type: Box, lower: [0.19, -0.2, -0.1], upper: [0.21, 0.2, 0.1]}, axes: [x]}"
     r = _validate(_scene(tmp_path, EDGE_LOAD % bc))

@@ -26,6 +26,13 @@ class ClothTraction(BaseModel):
         description="Dead-load traction [Pa]: force per initial edge-face area (edge length x thickness), "
         "constant in direction and size; a shear P [N] spread over an end of width b: P / (b thickness).",
     )
+    ramp_time: float = Field(
+        0.0,
+        ge=0,
+        description="Time [s] over which the traction grows linearly from zero to its value (then held); "
+        "0: applied in full from the start. A slow ramp with light, damped vertices gives a quasi-static "
+        "load path (a static analysis by load steps).",
+    )
 
 
 class PinMotion(BaseModel):
@@ -56,8 +63,9 @@ class PinMotion(BaseModel):
 
 
 class FEMCloth(_Solid):
-    """Thin shell on a triangle mesh: StVK membrane in plane stress and discrete-shell bending (Grinspun
-    et al. 2003) with the rest mesh's dihedral angles; backward Euler, IPC contact."""
+    """Thin shell on a triangle mesh: StVK membrane in plane stress and Kirchhoff-Love bending from a
+    discrete shape operator (mid-edge normals, libshell's MidedgeAverage; or the older quadratic / hinge
+    model); backward Euler, IPC contact."""
 
     type: Literal["FEM.Cloth"]
     E: float = Field(1.0e6, gt=0, description="Young's modulus [Pa] of the membrane.")
@@ -73,6 +81,14 @@ class FEMCloth(_Solid):
         ge=0,
         description="Bending stiffness D [N m] (default the plate value E thickness^3 / (12 (1 - nu^2))); "
         "0: no bending.",
+    )
+    bending_model: Literal["shape_operator", "quadratic"] = Field(
+        "shape_operator",
+        description="Bending discretisation. shape_operator: Kirchhoff-Love plate energy "
+        "D/2 [(k1 + k2)^2 - 2 (1 - nu) k1 k2] per triangle from a discrete shape operator (mid-edge normals "
+        "of the triangle and its three neighbours), both curvature invariants, any rest shape. quadratic: "
+        "the older model, mean curvature only (Bergou et al. 2006) on a flat rest mesh, discrete-shell "
+        "hinges on a curved one; cheaper (constant Hessian when flat) but free in twist and saddle modes.",
     )
     friction: float = Field(
         0.0,

@@ -6,8 +6,11 @@ psi = mu |E|^2 + lambda_ps / 2 tr(E)^2 with the plane-stress lambda_ps = E nu / 
 area and thickness. Valid for large rotations and moderate strains; its Hessian is projected to be
 positive semi-definite per triangle (eigenvalues of dP/dF clamped at 0).
 
-Bending, two discretisations of the plate energy D/2 int (2H)^2 dA (cylinder of radius R: D / (2 R^2) per
-unit area), chosen by the rest shape:
+Bending: by default (material bending_model: shape_operator) the Kirchhoff-Love plate energy with both
+curvature invariants from a discrete shape operator, simcli.solvers.fem.cloth.shape_operator (ShellModel's
+`shape`, on the triangles that use it). The older model (bending_model: quadratic), two discretisations of
+the mean-curvature energy D/2 int (2H)^2 dA (cylinder of radius R: D / (2 R^2) per unit area), chosen by
+the rest shape:
 - flat rest mesh (Rectangle, planar Mesh): the quadratic model of Bergou, Wardetzky, Harmon, Zorin and
   Grinspun 2006 ("A quadratic bending model for inextensible surfaces"), vertex form
   W = D/2 sum_v |(K x)_v|^2 / A_v, K x = L x + the free edges' flux: L the cotangent Laplacian of the rest
@@ -80,7 +83,21 @@ def dihedral_gradients(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
 class ShellModel:
     """Rest state and elastic energy of one or several triangle meshes stacked (global vertex indices)."""
 
-    def __init__(self, X: np.ndarray, tris: np.ndarray, mu, lam_ps, thickness, D, tri_body=None):
+    def __init__(
+        self,
+        X: np.ndarray,
+        tris: np.ndarray,
+        mu,
+        lam_ps,
+        thickness,
+        D,
+        tri_body=None,
+        shape_operator=None,
+        pinned=None,
+    ):
+        """shape_operator: per triangle (bool) or None: triangles whose bending is the shape-operator model
+        (simcli.solvers.fem.cloth.shape_operator, both curvature invariants) instead of the quadratic /
+        hinge model below; pinned: (n,) bool, held vertices (held triangles clamp that model)."""
         self.X = np.asarray(X, dtype=np.float64)
         self.tris = np.asarray(tris, dtype=np.int64)
         m = len(self.tris)
@@ -105,6 +122,19 @@ class ShellModel:
         self.quads = bending_quads(self.tris)
         self.theta0 = dihedral_angles(self.X, self.quads)
         Dq = np.broadcast_to(np.asarray(D, dtype=np.float64), (m,))
+        self.shape = None
+        so = np.zeros(m, bool)
+        if shape_operator is not None:  # (bending_stiffness 0: no bending at all, either model)
+            so = np.broadcast_to(np.asarray(shape_operator, dtype=bool), (m,)) & (Dq > 0)
+        if so.any():
+            from simcli.solvers.fem.cloth.shape_operator import MidedgeBending
+
+            nu = self.lam / np.maximum(self.lam + 2 * self.mu, 1e-300)  # plane stress: lam / (lam + 2 mu)
+            self.shape = MidedgeBending(self.X, self.tris[so], Dq[so], nu[so], pinned)
+            Dq = np.where(so, 0.0, Dq)
+            if so.all():
+                self.quads = np.zeros((0, 4), np.int64)
+                self.theta0 = np.zeros(0)
         if len(self.quads):
             # the two triangles of each hinge: look them up by their vertex sets
             key = {tuple(sorted(t)): i for i, t in enumerate(self.tris.tolist())}
@@ -129,6 +159,11 @@ class ShellModel:
         dof_q = (3 * self.quads[:, :, None] + np.arange(3)).reshape(k, 12)
         self._rows_q = np.repeat(dof_q, 12, axis=1).ravel()
         self._cols_q = np.tile(dof_q, (1, 12)).ravel()
+
+    @property
+    def aux(self):
+        """Hessian blocks of the bending model's edge unknowns from the last order-2 evaluation, or None."""
+        return self.shape.aux if self.shape is not None else None
 
     # ------------------------------------------------------------ membrane
     def deformation(self, x: np.ndarray) -> np.ndarray:
@@ -221,11 +256,19 @@ class ShellModel:
             Qx = Q @ x
             eb += 0.5 * float(np.sum(x * Qx))
             gb = gb + Qx
+        if self.shape is not None:
+            es, gs, Hs = self.shape(x, order)
+            eb += es
+            gb = gb + gs
         if order < 2:
             return em + eb, gm + gb, None
         rows = [self._rows_t, self._rows_q]
         cols = [self._cols_t, self._cols_q]
         vals = [Hm.ravel(), Hb.ravel() if Hb is not None else np.zeros(0)]
+        if self.shape is not None:
+            rows.append(Hs[0])
+            cols.append(Hs[1])
+            vals.append(Hs[2])
         if self.quadratic is not None:
             Qc = self.quadratic.tocoo()
             for k in range(3):

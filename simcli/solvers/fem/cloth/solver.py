@@ -85,6 +85,7 @@ class ClothSolver(Solver):
         from simcli.geometry.regions import points_in_regions
 
         xs, ts, mu, lam, h, D, mass, fixed, offs = [], [], [], [], [], [], [], [], [0]
+        so = []
         self.cells = {}
         for e in self.entities:
             x, t = cloth_mesh(e, self.scene_dir)
@@ -97,6 +98,7 @@ class ClothSolver(Solver):
             lam.append(np.full(m, mat.E * mat.nu / (1 - mat.nu**2)))
             h.append(np.full(m, mat.thickness))
             D.append(np.full(m, mat.D))
+            so.append(np.full(m, mat.bending_model == "shape_operator"))
             area = 0.5 * np.linalg.norm(np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]]), axis=1)
             mv = np.zeros(len(x))
             for a in range(3):
@@ -112,11 +114,20 @@ class ClothSolver(Solver):
         self.X = X
         self.tris = T
         self.model = ShellModel(
-            X, T, np.concatenate(mu), np.concatenate(lam), np.concatenate(h), np.concatenate(D)
+            X,
+            T,
+            np.concatenate(mu),
+            np.concatenate(lam),
+            np.concatenate(h),
+            np.concatenate(D),
+            shape_operator=np.concatenate(so),
+            pinned=np.concatenate(fixed),
         )
         self.mass = np.concatenate(mass)
+        self._load_ramps = []  # (forces, ramp_time) of the tractions that grow with time
         self.fext = self._edge_loads(xs, ts, offs)
-        self.fext_any = bool(np.any(self.fext))
+        self.fext_any = bool(np.any(self.fext)) or bool(self._load_ramps)
+        self.fext_full = self.fext
         self.fixed = np.concatenate(fixed)
         self._build_pins(xs, offs)
         self.damp = np.concatenate(
@@ -144,6 +155,7 @@ class ClothSolver(Solver):
         self.bbox = float(np.linalg.norm(np.ptp(X, axis=0))) or 1.0
         self.kappa = None
         self.free_dofs = np.nonzero(np.repeat(~self.fixed, 3))[0]
+        self.fixed_dofs = np.nonzero(np.repeat(self.fixed, 3))[0]
         self._dof_map = np.full(3 * self.n, -1, dtype=np.int64)
         self._dof_map[self.free_dofs] = np.arange(len(self.free_dofs))
         self._dof_ii = np.arange(3 * self.n)
@@ -232,8 +244,19 @@ class ClothSolver(Solver):
                     continue
                 le = np.linalg.norm(x[sel[:, 1]] - x[sel[:, 0]], axis=1)
                 fe = (0.5 * le * e.material.thickness)[:, None] * np.asarray(bc.traction, float)[None, :]
+                dest = f
+                if bc.ramp_time > 0:  # kept apart: scaled by min(1, t / ramp_time) each step
+                    dest = np.zeros_like(f)
+                    self._load_ramps.append((dest, float(bc.ramp_time)))
                 for a in range(2):
-                    np.add.at(f[offs[k] : offs[k + 1]], sel[:, a], fe)
+                    np.add.at(dest[offs[k] : offs[k + 1]], sel[:, a], fe)
+        return f
+
+    def _loads_at(self, t: float) -> np.ndarray:
+        """The dead loads at time t (ramped tractions grow linearly to their value at ramp_time)."""
+        f = self.fext_full
+        for fr, tr in self._load_ramps:
+            f = f + min(1.0, t / tr) * fr
         return f
 
     # --------------------------------------------------------- the potential
@@ -348,6 +371,13 @@ class ClothSolver(Solver):
             self._Hc = (r[kc], np.concatenate(parts_c)[kc], v[kc])
         nf = len(self.free_dofs)
         H = sp.csc_matrix((v[keep], (r[keep], c[keep])), shape=(nf, nf))
+        aux = self.model.aux
+        if aux is not None:  # the bending model's edge unknowns, eliminated by this solve (shape_operator.py)
+            C, A2 = aux
+            Cf = C[:, self.free_dofs]
+            H = sp.bmat([[H, Cf.T], [Cf, A2]], format="csc")
+            if self.dirichlet:
+                self._aux_c = C[:, self.fixed_dofs]
         self.stats["assemble_s"] += time.perf_counter() - t0
         return e, g, H, n_self + n_obst
 
@@ -440,6 +470,8 @@ class ClothSolver(Solver):
         self.xhat = self.xn + dt * self.v + dt * dt * self.g
         self.xhat[self.fixed] = self.xn[self.fixed]
         t_end = self.time + dt
+        if self._load_ramps:  # backward Euler: the loads at the step's end
+            self.fext = self._loads_at(t_end)
         tau = self.tau if self.obst.moving else None  # moving colliders' time at the iterate
         pin_to = None
         if self.moving_pins:  # Dirichlet: the pinned vertices' prescribed positions at the step's end
@@ -506,7 +538,13 @@ class ClothSolver(Solver):
                     rhs = rhs - np.bincount(ri, weights=hv * p.ravel()[cj], minlength=len(fd))
                 if dtau > 0 and self._obst_cross is not None:
                     rhs = rhs + self._obst_cross.ravel()[fd]
-            pf = self._linear_solve(H, rhs)
+            n_aux = H.shape[0] - len(fd)
+            if n_aux:  # edge unknowns of the bending model: at their optimum, so no residual of their own
+                r_aux = np.zeros(n_aux)
+                if pending and pc is not None:
+                    r_aux = -(self._aux_c @ p.ravel()[self.fixed_dofs])
+                rhs = np.concatenate([rhs, r_aux])
+            pf = self._linear_solve(H, rhs)[: len(fd)]
             self.stats["solve_s"] += time.perf_counter() - t0
             p.ravel()[fd] = pf
             if not pending and float(np.abs(pf).max(initial=0.0)) <= self.opts.newton_atol * dt * dt:
@@ -706,7 +744,9 @@ class ClothSolver(Solver):
             "method": "backward Euler, Newton + sparse LU (reused as CG preconditioner), IPC barrier (ipctk) "
             "+ CCD "
             "line search",
-            "bending": "quadratic (flat rest)"
+            "bending": "shape operator (both curvature invariants)"
+            if self.model.shape is not None
+            else "quadratic (flat rest)"
             if self.model.quadratic is not None
             else "discrete-shell hinges",
             "contact_distance": self.dhat,
