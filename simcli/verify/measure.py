@@ -197,6 +197,10 @@ def surface_angle(f, entity, axis=0, up=None, bin=0.01, lo=0.2, hi=0.8, **_):
     up = x.shape[2] - 1 if up is None else up
     out = []
     for frame in x:
+        frame = frame[np.isfinite(frame).all(axis=1)]  # an emitter's unused capacity rows are NaN
+        if len(frame) < 3:
+            out.append(np.nan)
+            continue
         a, z = frame[:, axis], frame[:, up]
         k = np.floor((a - a.min()) / bin).astype(np.int64)
         top = np.full(k.max() + 1, -np.inf)

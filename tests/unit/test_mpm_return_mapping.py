@@ -391,6 +391,45 @@ def test_sand_in_steady_simple_shear_mobilises_the_cone_s_friction(ti_f32, dim, 
     assert t[0, 0] == pytest.approx(t[1, 1], rel=0.02)  # coaxial, steady: equal normal stresses
 
 
+@pytest.mark.parametrize("dim,I_target", [(2, 0.05), (2, 0.5), (3, 0.3)])
+def test_mu_i_sand_in_steady_simple_shear_mobilises_mu_of_I(ti_f32, dim, I_target):
+    """With the mu(I) rheology a steady simple shear at rate gamma_dot under pressure p carries
+    tau_xy / -sigma_yy = mu(I) = mu_s + dmu I / (I0 + I), I = gamma_dot d / sqrt(p / rho_s) (Jop,
+    Forterre & Pouliquen 2006): the same shear test as above, with each shear increment taking dt."""
+    phi, dmu, I0, d, rho_s = 30.0, 0.26, 0.279, 5.0e-4, 2500.0
+    m = mat(
+        type="MPM.Sand",
+        friction_angle=phi,
+        mu_i={"delta_mu": dmu, "I0": I0, "grain_diameter": d, "grain_density": rho_s},
+    )
+    h = Harness(m, dim=dim, n=1)
+    F = np.eye(dim)
+    F[1, 1] = 0.995  # 0.5% compression: mean stress about -2 kPa
+    Fo, tau = h.run(F)
+    p0 = -np.trace(tau[0]) / dim
+    dgam = 2.0e-4
+    gamma_dot = I_target * math.sqrt(p0 / rho_s) / d  # the shear rate that gives about I_target
+    h.law.host_update(0.0, dgam / gamma_dot)
+    step = np.eye(dim)
+    step[0, 1] = dgam
+    for _ in range(600):
+        Fo, tau = h.run(step @ Fo)
+    t = tau[0]
+    p = -t[1, 1]
+    I = gamma_dot * d / math.sqrt(p / rho_s)
+    mu_s = math.tan(math.radians(phi))
+    expected = mu_s + dmu * I / (I0 + I)
+    assert t[0, 1] / p == pytest.approx(expected, rel=0.01)
+    assert t[0, 1] / p > mu_s + 0.1 * dmu * I_target / (I0 + I_target)  # above the static cone
+
+
+def test_mu_i_needs_the_simple_shear_cone():
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match="simple_shear"):
+        mat(type="MPM.Sand", cone="plane_strain", mu_i={})
+
+
 # ------------------------------------------------------------------------ liquid, muscle
 
 
@@ -433,7 +472,7 @@ def test_muscle_active_stress_along_the_fibre(ti_f32, model):
         groups=[{"actuation": {"type": "constant", "value": 0.1}}],
     )
     h = Harness(m, dim=3, n=8)
-    h.law.host_update(0.0)
+    h.law.host_update(0.0, 1.0e-3)
     rng = np.random.default_rng(8)
     F = np.stack([random_rotation(rng) @ np.diag(rng.uniform(0.9, 1.1, 3)) for _ in range(h.n)])
     _, tau_on = h.run(F, plastic=False)

@@ -129,6 +129,35 @@ class MPMElastoPlastic(_Solid):
     )
 
 
+class MuIRheology(_Options):
+    """The mu(I) rheology of dense granular flow (GDR MiDi 2004; Jop, Forterre & Pouliquen 2006)."""
+
+    delta_mu: float = Field(
+        0.26,
+        ge=0,
+        description="mu_2 - mu_s [-]: how much the friction coefficient rises from its static value "
+        "mu_s = tan(friction_angle) at high inertial number (Jop et al. 2006, glass beads: "
+        "0.64 - 0.38 = 0.26).",
+    )
+    I0: float = Field(
+        0.279,
+        gt=0,
+        description="Inertial number at which the friction is half way from mu_s to mu_2 [-] "
+        "(Jop et al. 2006: 0.279).",
+    )
+    grain_diameter: float = Field(
+        5.0e-4,
+        gt=0,
+        description="Grain diameter d [m] in I = gamma_dot d / sqrt(p / rho_s) (Jop et al. 2006: 0.5 mm).",
+    )
+    grain_density: float | None = Field(
+        None,
+        gt=0,
+        description="Density of the grains' material rho_s [kg/m^3] in I. Default: the material's rho / 0.6 "
+        "(a packing fraction of 0.6).",
+    )
+
+
 class MPMSand(_Solid):
     """Granular material: Drucker-Prager plasticity on the Hencky strain (Klar et al. 2016)."""
 
@@ -166,6 +195,30 @@ class MPMSand(_Solid):
         "triaxial compression (alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi))); a flowing layer mobilises "
         "tan = 3 alpha / sqrt(2) (34.7 deg for 30).",
     )
+    mu_i: MuIRheology | None = Field(
+        None,
+        description="Rate-dependent friction, the mu(I) rheology: a flowing layer's friction rises "
+        "from mu_s = tan(friction_angle) at rest to mu_s + delta_mu as its inertial number I = gamma_dot d / "
+        "sqrt(p / rho_s) grows, mu(I) = mu_s + delta_mu I / (I0 + I) (Jop et al. 2006). The return mapping "
+        "solves for the plastic shear rate that puts the stress on the cone of mu(I) (a scalar quadratic per "
+        "particle). Needs cone: simple_shear. Omitted: rate-independent Drucker-Prager.",
+    )
+
+    @model_validator(mode="after")
+    def _mu_i_needs_simple_shear(self) -> MPMSand:
+        if self.mu_i is not None and self.cone != "simple_shear":
+            raise ValueError(
+                "mu_i needs cone: simple_shear (the cone on which tan(friction_angle) is a flowing layer's "
+                "friction coefficient); remove mu_i or set cone: simple_shear"
+            )
+        return self
+
+    @property
+    def grain_density(self) -> float:
+        """rho_s [kg/m^3] of the mu(I) inertial number (0 without mu_i)."""
+        if self.mu_i is None:
+            return 0.0
+        return self.mu_i.grain_density if self.mu_i.grain_density is not None else self.rho / 0.6
 
     @property
     def alpha(self) -> float:

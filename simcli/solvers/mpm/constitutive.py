@@ -200,8 +200,9 @@ class ConstitutiveLaw:
         law that reads solver fields (the affine velocity C) or the bodies (muscle groups by
         region) takes what it needs here."""
 
-    def host_update(self, t: float) -> None:
-        """Called by the solver before each substep with the time t [s] at its start (actuation)."""
+    def host_update(self, t: float, dt: float) -> None:
+        """Called by the solver before each substep with the time t [s] at its start (actuation) and
+        the substep dt [s] (the mu(I) sand's shear rate)."""
 
     def max_wave_factor(self, materials: list) -> float:
         """Extra stiffness (x (lambda + 2 mu)) the law may add at most, for stable_dt (muscle)."""

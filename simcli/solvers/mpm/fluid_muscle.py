@@ -175,7 +175,7 @@ class _MuscleHost:
         self.fiber.from_numpy(fiber.astype(_np_dtype(self.dtype)))
         self.group_sizes = np.bincount(group[group >= 0], minlength=self.n_groups)
 
-    def host_update(self, t: float) -> None:
+    def host_update(self, t: float, dt: float) -> None:
         a = [float(sig(t)) for sig in self.signals] + [0.0] * (self.n_groups - len(self.signals))
         if a != self._last_act:  # a constant activation is uploaded once
             self._set_actuation(ti.Vector(a, dt=self.dtype))

@@ -436,6 +436,48 @@ class SandLaw(_SVDPlasticLaw):
         # mean Kirchhoff stress at the cone's apex: c cot(phi) (Mohr-Coulomb), 0 without cohesion
         self.apex = self._param(materials, lambda m: m.cohesion / math.tan(math.radians(m.friction_angle)))
         self.correct = self._param(materials, lambda m: 1.0 if m.volume_correction else 0.0)
+        # mu(I) rheology (Jop et al. 2006), compiled in only when a sand material asks for it
+        self.use_mu_i = any(self.uses(m) and getattr(m, "mu_i", None) is not None for m in materials)
+        if self.use_mu_i:
+            self.mu_s = self._param(materials, lambda m: math.tan(math.radians(m.friction_angle)))
+            self.dmu = self._param(materials, lambda m: m.mu_i.delta_mu if m.mu_i is not None else 0.0)
+            self.I0 = self._param(materials, lambda m: m.mu_i.I0 if m.mu_i is not None else 1.0)
+            # I = k_I dgamma / sqrt(p): k_I = sqrt(2) d sqrt(rho_s) / dt, the dt part set per substep
+            self.dsr = self._param(
+                materials,
+                lambda m: (
+                    math.sqrt(2.0) * m.mu_i.grain_diameter * math.sqrt(m.grain_density)
+                    if m.mu_i is not None
+                    else 0.0
+                ),
+            )
+            self.inv_dt = ti.field(self.dtype, shape=())
+            self._last_dt = None
+
+    def host_update(self, t: float, dt: float) -> None:
+        if self.use_mu_i and dt != self._last_dt:  # a constant substep is uploaded once
+            self.inv_dt[None] = 1.0 / dt
+            self._last_dt = dt
+
+    @ti.func
+    def mu_i_projection(self, mid, b, A, pressure):
+        """The plastic deviatoric strain increment dgamma of the mu(I) cone.
+
+        Static cone: |ehat| - dgamma = A mu_s, so dgamma = b = |ehat| - A mu_s. With mu(I) the cone is
+        |ehat| - dgamma = A mu(I), mu(I) = mu_s + dmu I / (I0 + I), I = k dgamma (the plastic shear rate
+        gamma_dot = sqrt(2) dgamma / dt of a simple shear, times d / sqrt(p / rho_s)): the positive root
+        of k dgamma^2 + (I0 + k (A dmu - b)) dgamma - b I0 = 0, in [0, b]. As p -> 0 it tends to
+        b - A dmu (friction mu_2), as k -> 0 to b (mu_s)."""
+        k = self.dsr[mid] * self.inv_dt[None] / ti.sqrt(ti.max(pressure, 1.0e-12))
+        I0 = self.I0[mid]
+        B = I0 + k * (A * self.dmu[mid] - b)
+        disc = ti.sqrt(B * B + 4.0 * k * b * I0)
+        d = 0.0
+        if B >= 0.0:
+            d = 2.0 * b * I0 / (B + disc)
+        else:
+            d = (disc - B) / (2.0 * k)
+        return ti.min(ti.max(d, 0.0), b)
 
     @ti.func
     def return_mapping(self, p, F, mid, mu, lam):
@@ -461,6 +503,11 @@ class SandLaw(_SVDPlasticLaw):
         else:
             corrected = ehat + tr / 3.0
             dgamma = norm + bulk / (2.0 * mu) * self.alpha[mid] * (tr - tr_apex)  # Klar et al. eq. 27
+            if ti.static(self.use_mu_i):
+                if dgamma > 0.0 and self.dmu[mid] > 0.0:
+                    # cone slope alpha = sqrt(2) mu / 3 (simple_shear): |ehat| on the cone = A mu
+                    A = bulk / (2.0 * mu) * (tr_apex - tr) * ti.sqrt(2.0) / 3.0
+                    dgamma = self.mu_i_projection(mid, dgamma, A, bulk * (tr_apex - tr) / 3.0)
             if dgamma > 0.0:
                 new_eps = corrected - (dgamma / norm) * ehat
                 changed = True

@@ -416,7 +416,7 @@ class MPMSolver(Solver):
 
     def substep(self, dt: float) -> None:
         for law in self.laws:  # muscle activations at the start of the substep (host, no sync)
-            law.host_update(self.time)
+            law.host_update(self.time, dt)
         if self.boundary.any_moving:  # collider poses of this substep (host, no sync)
             self.boundary.set_time(self.time, dt)
         self.kernels.substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
@@ -430,7 +430,7 @@ class MPMSolver(Solver):
 
     def pre_couple(self, dt: float) -> None:
         for law in self.laws:
-            law.host_update(self.time)
+            law.host_update(self.time, dt)
         if self.boundary.any_moving:
             self.boundary.set_time(self.time, dt)
         self.kernels.pre_couple(dt)
