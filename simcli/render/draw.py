@@ -21,6 +21,7 @@ GRID_CMAP = "inferno"
 COLLIDER_RGBA = (0.62, 0.62, 0.66, 0.55)
 RIGID_RGBA = (0.75, 0.45, 0.2, 0.9)  # rigid bodies: solid, brown
 MAX_PARTICLES = 250_000
+MIXED_PARTICLES = 40_000  # particles drawn as depth-sorted hexagons beside surfaces (3D)
 
 
 def _mpl():
@@ -432,12 +433,38 @@ class Painter:
                 cols.append(np.hstack([f, np.ones((len(t), 1))]))
             elif e.kind == "lines" and e.cells is not None:
                 ax.add_collection3d(Line3DCollection(p[e.cells], colors=[self._entity_rgb(e.name)], lw=2.0))
+        # Particles beside surfaces (a ball on a cloth, sand under a rigid body): matplotlib sorts the faces
+        # of one collection by depth but draws whole collections in turn, so a scatter and a surface hide
+        # each other wholesale. With surfaces present, particles (up to MIXED_PARTICLES) become small
+        # camera-facing hexagons in the surfaces' collection and are depth-sorted with them.
+        polys = [np.concatenate(tris)] if tris else []
+        mixed = set()
         if tris:
+            n_part = sum(len(e.position) for e in ents if e.kind == "particles" and e.position is not None)
+            if 0 < n_part <= MIXED_PARTICLES:
+                el, az = np.radians(22.0), np.radians(-58.0)
+                eye = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+                u = np.array([-np.sin(az), np.cos(az), 0.0])
+                w = np.cross(eye, u)
+                ang = np.linspace(0.0, 2.0 * np.pi, 7)[:-1]
+                ring = np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * w  # (6, 3)
+                for e in ents:
+                    if e.kind != "particles" or e.position is None:
+                        continue
+                    p = e.position
+                    r = 0.5 * np.sqrt(self._marker_area(ax, e.name, pts_per_m)) / pts_per_m
+                    polys.append(p[:, None, :] + r * ring[None, :, :])
+                    c = np.asarray(self._particle_colors(e), dtype=float)
+                    c = np.broadcast_to(c if len(c) > 1 else c[:1], (len(p), c.shape[1]))[:, :3]
+                    cols.append(np.hstack([c, np.ones((len(p), 1))]))
+                    mixed.add(e.name)
+        if polys:
             fc = np.concatenate(cols)
-            pc = Poly3DCollection(np.concatenate(tris), facecolors=fc, edgecolors=fc, linewidths=0.3)
+            faces = [f for block in polys for f in block]
+            pc = Poly3DCollection(faces, facecolors=fc, edgecolors=fc, linewidths=0.3)
             ax.add_collection3d(pc)
         for e in ents:
-            if e.kind == "particles" and e.position is not None:
+            if e.kind == "particles" and e.position is not None and e.name not in mixed:
                 p = e.position
                 sel = slice(None)
                 if len(p) > MAX_PARTICLES:

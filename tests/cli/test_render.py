@@ -216,6 +216,35 @@ def test_tet_mesh_surface_and_cloth_and_rod_3d(tmp_path):
     p.close()
 
 
+def test_particles_above_a_cloth_are_seen_and_those_under_it_hidden(tmp_path):
+    """A ball resting in a sheet (the trampoline) must show: particles and surfaces are depth-sorted
+    together, not drawn collection by collection (the sheet used to cover the ball wholesale)."""
+    u = _block([0.2, 0.2], [0.8, 0.8], 13)
+    sheet = np.column_stack([u, np.full(len(u), 0.5)])
+    tri = []
+    for i in range(12):
+        for j in range(12):
+            a = i * 13 + j
+            tri += [[a, a + 13, a + 14], [a, a + 14, a + 1]]
+    above = _block([0.45, 0.45, 0.55], [0.55, 0.55, 0.65], 5)
+    below = _block([0.45, 0.45, 0.35], [0.55, 0.55, 0.45], 5)
+    ents = [
+        (EntityMeta("ball", "particles", len(above), 3, {"position": (3, "m")}), [{"position": above}] * 2),
+        (
+            EntityMeta("cloth", "triangles", len(sheet), 3, {"position": (3, "m")}, cells=np.asarray(tri)),
+            [{"position": sheet}] * 2,
+        ),
+        (EntityMeta("under", "particles", len(below), 3, {"position": (3, "m")}), [{"position": below}] * 2),
+    ]
+    out = _write_run(tmp_path / "out", 3, ents)
+    p, img, to_px = _painted(out, color="entity")
+    assert _near(img, to_px([0.5, 0.5, 0.6]), BLUE, radius=2, tol=40)  # the ball on top of the sheet
+    c, r = to_px([0.5, 0.5, 0.4])  # straight under the sheet: the sheet's orange, not the third colour
+    px = img[r - 1 : r + 2, c - 1 : c + 2].reshape(-1, 3).astype(int).mean(0)
+    assert px[0] > px[2] + 40  # orange-ish (the green of the third entity would have g > r)
+    p.close()
+
+
 def test_grid_2d_density_image_and_obstacle(tmp_path):
     nx, ny = 32, 64
     d = np.zeros((ny, nx))
