@@ -17,6 +17,12 @@ out its pids in order.
   n speed a + g a^2 / 2, v = n speed + g a), every other per-particle field copied from the fresh row.
   So the layers lie one spacing apart along the normal (rest spacing, rest density) and the mass flux is
   rho A speed (a lattice of n_layer particles of mass m per layer, speed / spacing layers per second).
+  MPM staggers the layers: layer q's lattice is shifted in the nozzle's plane by the q-th point of a
+  low-discrepancy sequence over one lattice cell (``layer_shift``). With every layer on the same lattice
+  the particles of one lattice column (every layer's) follow one streamline: where the stream spreads
+  (a poured heap's impact point) they bunch along a few radial streaks with empty bands between, a
+  distribution MPM's F does not see (the spreading is volume-preserving), so the heap is a fan of
+  stress-free streaks. SPH and PBD keep the layers stacked (a liquid's inflow at its rest lattice).
 * **Sinks** (after a step, one small host read): particles inside a sink are counted; if any, one
   serial pass lists the holes they leave below the new count and the survivors above it, and every
   per-particle field copies the survivors into the holes (parallel: sources and targets are disjoint).
@@ -34,6 +40,12 @@ from simcli.scene.sources import family_spacing_of, nozzle_area, nozzle_frame, n
 
 with stdout_to_stderr():
     import taichi as ti
+
+
+# R2 sequence (Roberts 2018): the fractional parts of k / phi_2 and k / phi_2^2 (phi_2 the plastic number)
+# cover the unit square evenly for every k; the 2D layers use the golden ratio's 1 / phi
+ALPHA = (0.7548776662466927, 0.5698402909980532)
+ALPHA_2D = 0.6180339887498949
 
 
 def is_emitter(body) -> bool:
@@ -83,6 +95,9 @@ class ActiveSet:
                     "area": nozzle_area(em.shape, self.dim),
                 }
             )
+        # MPM: each layer's lattice shifted in the nozzle's plane (layer_shift in build); SPH and PBD keep
+        # the layers stacked (a liquid's inflow at its rest lattice)
+        self.stagger = family == "MPM"
         self.sinks = list(getattr(scene, "sinks", []))
         self.warnings: list[str] = []
         self.first = 0  # the first slot sinks may remove (build)
@@ -135,9 +150,15 @@ class ActiveSet:
         self.buffer_layers = buffer_layers
         self.em_c = ti.Vector.field(dim, f, shape=ne)
         self.em_u = ti.Vector.field(dim, f, shape=ne)  # normal x speed
+        # the staggered layers (MPM, see layer_shift): the nozzle's in-plane axes times the spacing
+        self.em_a = ti.Vector.field(dim, f, shape=(ne, 2))
         for k, e in enumerate(self.emitters):
             self.em_c[k] = [float(c) for c in e["cfg"].shape.center]
             self.em_u[k] = [float(c) * float(e["cfg"].speed) for c in e["normal"]]
+            _n, axes = nozzle_frame(e["cfg"].shape.normal, dim)
+            for j in range(2):
+                a = axes[j] * self.spacing if j < len(axes) else np.zeros(dim)
+                self.em_a[k, j] = [float(c) for c in a]
         const_fields = []
         for fld, vals in consts.items():
             cf = ti.field(fld.dtype, shape=ne)
@@ -159,10 +180,27 @@ class ActiveSet:
         nP = len(P)
         nC = len(const_fields)
         mass = solver.mass if mass is None else mass  # the per-particle mass field (the sinks' sums)
-        nact, lat_f, em_c, em_u = self.nact, self.lat, self.em_c, self.em_u
+        nact, lat_f, em_c, em_u, em_a = self.nact, self.lat, self.em_c, self.em_u, self.em_a
+        stagger = self.stagger
+        a_u = ALPHA_2D if dim == 2 else ALPHA[0]
         sk_lo, sk_hi, removed, removed_n = self.sk_lo, self.sk_hi, self.removed, self.removed_n
         holes, movers, nmove = self.holes, self.movers, self.nmove
+        em_i, em_t = self.em_i, self.em_t
         n_sinks = len(self.sinks)
+
+        @ti.func
+        def layer_shift(e, layer):
+            """The in-plane offset of an emitter's layer ``layer`` (0 for the first): a low-discrepancy
+            (R2 / golden-ratio) sequence over one lattice cell, so no two layers share a streamline."""
+            r = ti.Vector.zero(f, dim)
+            if ti.static(stagger):
+                lf = ti.cast(layer, ti.f64)
+                u = lf * a_u + 0.5
+                w = lf * ALPHA[1] + 0.5
+                r = ti.cast(u - ti.floor(u) - 0.5, f) * em_a[e, 0]
+                if ti.static(dim == 3):
+                    r += ti.cast(w - ti.floor(w) - 0.5, f) * em_a[e, 1]
+            return r
 
         @ti.kernel
         def emit(
@@ -178,6 +216,7 @@ class ActiveSet:
                     const_fields[c][0][s] = const_fields[c][1][e]
                 a = age0 - layer * dage
                 x[s] = em_c[e] + lat_f[k0 + q % npl] + a * em_u[e] + (0.5 * a * a) * g
+                x[s] += layer_shift(e, (pid0 + q - em_i[e, 0]) // npl)
                 v[s] = em_u[e] + a * g
                 pid[s] = pid0 + q
             nact[None] = slot0 + nl * npl
@@ -231,7 +270,6 @@ class ActiveSet:
                 for c in ti.static(range(nP)):
                     P[c][a] = P[c][b]
 
-        em_i, em_t = self.em_i, self.em_t
         n_em = len(self.emitters)
         caps = ti.field(ti.i32, shape=ne)
         for k, e in enumerate(self.emitters):
@@ -252,6 +290,7 @@ class ActiveSet:
                         if a64 < em_t[e, 2]:
                             a = ti.cast(a64, f)
                             x[i] = em_c[e] + lat_f[em_i[e, 2] + q % npl] + a * em_u[e] + (0.5 * a * a) * g
+                            x[i] += layer_shift(e, q // npl)
                             v[i] = em_u[e] + a * g
 
         self._drive = drive
