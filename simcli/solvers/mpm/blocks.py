@@ -68,13 +68,17 @@ class BlockFields:
             count=ti.field(ti.i32, shape=()),
         )
 
-    def nodes(self, lo, hi) -> int:
-        """The nodes the last substep's grid update visited: those of the listed blocks in its node box
-        [lo, hi) (``bbox_all``)."""
-        k = int(self.count[None])
-        if k == 0:
+    def nodes(self, base: np.ndarray, lo, hi) -> int:
+        """The nodes a grid update visits for particles whose stencils start at the nodes ``base`` (n x dim):
+        those of the blocks the stencils touch inside the node box [lo, hi) (host-side, for counts)."""
+        if len(base) == 0:
             return 0
-        b = self.blocks.to_numpy()[:k].astype(np.int64) * self.edge
+        base = np.asarray(base, dtype=np.int64)
+        b0, b1 = base // self.edge, (base + 2) // self.edge
+        dim = base.shape[1]
+        # the 2^dim blocks of each stencil (as the marking pass), without repeats
+        picks = [np.where([(c >> d) & 1 for d in range(dim)], b1, b0) for c in range(2**dim)]
+        b = np.unique(np.concatenate(picks), axis=0) * self.edge
         lo, hi = np.asarray(lo, dtype=np.int64), np.asarray(hi, dtype=np.int64)
         ext = np.minimum(b + self.edge, hi) - np.maximum(b, lo)
         return int(np.prod(np.maximum(ext, 0), axis=1).sum())

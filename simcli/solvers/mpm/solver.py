@@ -14,11 +14,13 @@ boundary.py, the per-frame kernels in outputs.py.
 
 Design choices (measured on a 2-core CPU, see benchmarks/mpm_micro.py):
 
-* **Grid work bounded by the particles' bounding box.** The grid is a dense array over the
-  domain plus ``PAD`` cells, but ``clear_grid`` and ``grid_update`` only sweep the box of nodes
-  the particles touch. g2p computes that box from the new positions into a tiny field; the next
-  substep's grid loops read their range-for bounds from it on the device: no host sync.
-  Nodes outside the box may hold stale values; nothing reads them.
+* **Grid work over the blocks that hold material.** The grid is a dense array over the domain
+  plus ``PAD`` cells, but ``clear_grid`` and ``grid_update`` only visit the blocks of 4^3 (2D: 8^2)
+  nodes the particles' stencils touch, inside the particles' node box (blocks.py: a marking pass
+  over the particles and a compaction into a list, on the device: no host sync). Every grid field is
+  0 off the list (the clear zeroes the last substep's blocks), so loops that still sweep the box
+  (the coupling phase) see what a box sweep wrote. g2p computes the box from the new positions into
+  a tiny field. ``grid_blocks = False`` sweeps the whole box instead (the comparison in the tests).
 * **P2G without atomics on the CPU.** Particles are split into ``T`` contiguous chunks
   (T = threads); chunk t scatters into its own copy t of the grid with plain read-add-write, and
   ``grid_update`` sums the copies in a fixed order. This removes the atomic float adds (a
@@ -637,13 +639,15 @@ class MPMSolver(Solver):
 
     def counts(self) -> dict[str, int]:
         active = box = 0
-        if self._built:  # node box the next substep works on (union over the chunks)
+        if self._built:  # node box and nodes the next substep works on (union over the chunks)
             b = self.bbox.to_numpy()
             box = int(np.prod(np.maximum(b[:, 1].max(axis=0) - b[:, 0].min(axis=0), 0)))
             # the nodes the grid work visits: the last substep's block list (blocks.py), else the box
-            if self.blocks is not None:
-                ba = self.bbox_all.to_numpy()
-                active = self.blocks.nodes(ba[0], ba[1])
+            if self.blocks is not None:  # the blocks the current particles' stencils touch, in the box
+                x = self.x.to_numpy()[: self.n_live()].astype(np.float64)
+                base = np.floor((x - self.origin) * self.inv_dx - 0.5).astype(np.int64)
+                base = np.clip(base, 0, np.asarray(self.grid_shape) - 3)
+                active = self.blocks.nodes(base, b[:, 0].min(axis=0), b[:, 1].max(axis=0))
             else:
                 active = box
         return {
