@@ -2,12 +2,13 @@
 around all particles.
 
 The grid is divided into blocks of ``edge^dim`` nodes (``BLOCK_EDGE``: 4^3 = 64 nodes in 3D, 8^2 in 2D).
-Before P2G, ``prepare()`` runs three passes (all plain Taichi: the same code on the CPU and CUDA):
+Before P2G, ``prepare()`` runs three passes in two parallel loops (plain Taichi: the same code on the CPU
+and CUDA; 1 and 2 share a loop, as each loop is a task that costs tens of microseconds on the CPU):
 
 1. **zero the last substep's blocks**: the nodes of the blocks in the list (the blocks the previous P2G
    wrote) inside the previous substep's node box (``bbox_all``, which holds every node that substep
    wrote) are set to 0 in every P2G grid copy, in ``grid_v`` and, where allocated, in ``grid_m`` and
-   FLIP's ``grid_dv``; the blocks' flags are reset. Every other node is zero already (by induction: the
+   FLIP's ``grid_dv``. Every other node is zero already (by induction: the
    fields start at 0, and only such nodes are ever written: P2G writes its particles' stencils, the grid
    update the list's nodes in the box, the coupling phase nodes of positive mass), so after this pass every
    grid field is 0 everywhere;
@@ -15,7 +16,7 @@ Before P2G, ``prepare()`` runs three passes (all plain Taichi: the same code on 
    the same ``base_node`` as P2G: no edit to P2G's scatter);
 3. **compact**: a loop over the block flags appends the flagged blocks to the list (an atomic counter;
    the order of the list is whatever the threads make of it, which only changes the order in which the
-   nodes are visited: each node's own sums are unchanged).
+   nodes are visited: each node's own sums are unchanged) and resets the flags.
 
 The grid update then visits the list's nodes inside the particles' node box only (``n_nodes()``,
 ``node(q, lo, hi)``: never more nodes than the box sweep, so a compact body pays only the two passes).
@@ -128,34 +129,37 @@ def build_block_list(params, fields, bf: BlockFields, base_node, flip, count) ->
 
     @ti.func
     def prepare():
+        # two parallel tasks (on the CPU each task costs tens of microseconds: B1's whole substep is ~1 ms)
         lo = bbox_all[0]  # the last substep's node box: it holds every node the last substep wrote
         hi = bbox_all[1]
-        for q in range(nblk[None] * BS):  # 1. the nodes the last substep wrote back to 0
-            I, ok = node(q, lo, hi)
-            if ok:
-                for t in ti.static(range(T)):
-                    grid[t, I] = ti.Vector.zero(f, gdim)
-                grid_v[I] = ti.Vector.zero(f, dim)
-                if ti.static(keep_m):
-                    grid_m[I] = 0.0
-                if ti.static(use_flip):
-                    flip.grid_dv[I] = ti.Vector.zero(f, dim)
-            if q % BS == 0:
-                flag[blocks[q // BS]] = 0
-        nblk[None] = 0
-        for p in range(N()):  # 2. the blocks this substep's stencils touch
-            b0 = base_node(x[p])
-            b1 = (b0 + 2) // E
-            b0 = b0 // E
-            for c in ti.static(range(2**dim)):
-                b = b0
-                for d in ti.static(range(dim)):
-                    if ti.static((c >> d) & 1):
-                        b[d] = b1[d]
-                flag[b] = 1
-        for b in ti.grouped(flag):  # 3. compact
+        nclear = nblk[None] * BS  # (bounds are read before the loop runs: the reset below is safe)
+        for q in range(nclear + N()):
+            if q == 0:
+                nblk[None] = 0
+            if q < nclear:  # 1. the nodes the last substep wrote back to 0
+                I, ok = node(q, lo, hi)
+                if ok:
+                    for t in ti.static(range(T)):
+                        grid[t, I] = ti.Vector.zero(f, gdim)
+                    grid_v[I] = ti.Vector.zero(f, dim)
+                    if ti.static(keep_m):
+                        grid_m[I] = 0.0
+                    if ti.static(use_flip):
+                        flip.grid_dv[I] = ti.Vector.zero(f, dim)
+            else:  # 2. the blocks this substep's stencils touch
+                b0 = base_node(x[q - nclear])
+                b1 = (b0 + 2) // E
+                b0 = b0 // E
+                for c in ti.static(range(2**dim)):
+                    b = b0
+                    for d in ti.static(range(dim)):
+                        if ti.static((c >> d) & 1):
+                            b[d] = b1[d]
+                    flag[b] = 1
+        for b in ti.grouped(flag):  # 3. compact; the flags go back to 0 for the next substep
             if flag[b] != 0:
                 k = ti.atomic_add(nblk[None], 1)
                 blocks[k] = b
+                flag[b] = 0
 
     return BlockList(prepare, n_nodes, node)
