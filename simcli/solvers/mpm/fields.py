@@ -48,6 +48,9 @@ class MPMParams:
     # the gap test's nodes also gather the particles' affine (APIC) momentum, in the dim channels after
     # gap_ch's: the contact acts on the material's velocity at its position (boundary.GridBoundary._node)
     gap_aff: bool = False
+    # the grid work runs over a block list (blocks.py) instead of the particles' node box: the grid fields
+    # are zeroed there, so P2G does not clear its copies
+    block_list: bool = False
 
     @property
     def inv_dx(self) -> float:
@@ -96,3 +99,4 @@ class MPMFields:
     stat_speed: Any
     stat_bad: Any
     stat_stiff: Any
+    blocks: Any = None  # blocks.BlockFields when params.block_list

@@ -1,6 +1,8 @@
 """Grid update: node momentum -> node velocity, gravity, then the boundary conditions.
 
-Over the union of the chunks' node boxes (nodes outside hold stale values; nothing reads them), each node
+Over the nodes of the block list (blocks.py: the blocks the particles' stencils touch; every other node
+of the grid fields is 0), or without one over the union of the chunks' node boxes (nodes outside hold
+stale values; nothing reads them), each node
 sums the P2G grid copies whose chunk box holds it (in a fixed order: bitwise reproducible), divides the
 momentum by the mass, adds ``dt g``, and then: a node touched by a fixed particle is pinned (velocity 0),
 any other gets the walls' and colliders' contact conditions (``boundary.GridBoundary.apply``). Empty nodes
@@ -15,10 +17,11 @@ with stdout_to_stderr():
     import taichi as ti
 
 
-def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
+def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip, blocks=None):
     """The ``ti.func`` ``grid_update(dt)``. ``boundary``: an object with a ``ti.func``
     ``apply(I, v, m) -> v``, or boundary.GridBoundary (``bind_grid`` and ``apply(I, v, m, dt, xm)``);
-    ``flip``: transfer.FlipTransfer or None (APIC).
+    ``flip``: transfer.FlipTransfer or None (APIC); ``blocks``: blocks.BlockList (the nodes of the blocks
+    that hold material) or None (every node of the particles' box).
     Reads grid, bbox, gravity; writes bbox_all, grid_v (and grid_m when allocated)."""
     dim, f, T, gdim, has_fixed = params.dim, params.dtype, params.T, params.gdim, params.has_fixed
     gap_ch, gap_aff = params.gap_ch, params.gap_aff
@@ -31,6 +34,7 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
     if with_grid:
         boundary.bind_grid(grid, bbox, T, gravity, gap_ch)
     use_flip = flip is not None
+    use_blocks = blocks is not None
 
     @ti.func
     def node_update(I, dt):
@@ -87,7 +91,12 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip):
         bbox_all[1] = hi
         a = bbox_all[0]
         b = bbox_all[1]
-        if ti.static(dim == 3):
+        if ti.static(use_blocks):  # the block list's nodes (blocks.py): the rest are 0 already
+            for q in range(blocks.n_nodes()):
+                I, ok = blocks.node(q, a, b)
+                if ok:
+                    node_update(I, dt)
+        elif ti.static(dim == 3):
             for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
                 node_update(ti.Vector([i, j, k]), dt)
         else:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from simcli.backend import stdout_to_stderr
+from simcli.solvers.mpm.blocks import build_block_list
 from simcli.solvers.mpm.fields import MPMFields, MPMParams
 from simcli.solvers.mpm.g2p import build_g2p
 from simcli.solvers.mpm.grid_update import build_grid_update
@@ -54,8 +55,14 @@ def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, fl
         params.dim, f, laws, fields.mid, fields.mat_mu, fields.mat_lam, fields.mat_law_id
     )
     ops_p2g = build_p2g(params, fields, stencil, dispatch.kirchhoff, flip, count)
-    clear_grid, p2g = ops_p2g.clear_grid, ops_p2g.p2g
-    grid_update = build_grid_update(params, fields, boundary, flip)
+    p2g = ops_p2g.p2g
+    blocks = None
+    if params.block_list:  # zero the last substep's blocks, list this one's (blocks.py), then P2G
+        blocks = build_block_list(params, fields, fields.blocks, stencil.base_node, flip, count)
+        clear_grid = blocks.prepare
+    else:
+        clear_grid = ops_p2g.clear_grid
+    grid_update = build_grid_update(params, fields, boundary, flip, blocks)
     ops_g2p = build_g2p(params, fields, stencil, laws, boundary, flip, count)
     g2p, node_boxes = ops_g2p.g2p, ops_g2p.node_boxes
 

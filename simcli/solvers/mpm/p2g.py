@@ -131,7 +131,7 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
     @ti.func
     def clear_grid():
         # chunked (CPU): each chunk clears its own copy at the start of its p2g task, see p2g
-        if ti.static(not chunked):
+        if ti.static(not chunked and not params.block_list):  # block list: blocks.py clears
             clear_copy(0)
 
     @ti.func
@@ -140,7 +140,8 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
             for j in range(T * CHUNK_STRIDE):
                 t = chunk_of(j)
                 if t >= 0:
-                    clear_copy(t)  # serial inside the chunk's task: saves a parallel launch
+                    if ti.static(not params.block_list):  # with the block list blocks.py clears
+                        clear_copy(t)  # serial inside the chunk's task: saves a parallel launch
                     for p in range(chunk_start[t], chunk_start[t + 1]):
                         p2g_particle(p, t, dt)
         else:

@@ -14,11 +14,13 @@ boundary.py, the per-frame kernels in outputs.py.
 
 Design choices (measured on a 2-core CPU, see benchmarks/mpm_micro.py):
 
-* **Grid work bounded by the particles' bounding box.** The grid is a dense array over the
-  domain plus ``PAD`` cells, but ``clear_grid`` and ``grid_update`` only sweep the box of nodes
-  the particles touch. g2p computes that box from the new positions into a tiny field; the next
-  substep's grid loops read their range-for bounds from it on the device: no host sync.
-  Nodes outside the box may hold stale values; nothing reads them.
+* **Grid work over the blocks that hold material.** The grid is a dense array over the domain
+  plus ``PAD`` cells, but ``clear_grid`` and ``grid_update`` only visit the blocks of 4^3 (2D: 8^2)
+  nodes the particles' stencils touch, inside the particles' node box (blocks.py: a marking pass
+  over the particles and a compaction into a list, on the device: no host sync). Every grid field is
+  0 off the list (the clear zeroes the last substep's blocks), so loops that still sweep the box
+  (the coupling phase) see what a box sweep wrote. g2p computes the box from the new positions into
+  a tiny field. ``grid_blocks = False`` sweeps the whole box instead (the comparison in the tests).
 * **P2G without atomics on the CPU.** Particles are split into ``T`` contiguous chunks
   (T = threads); chunk t scatters into its own copy t of the grid with plain read-add-write, and
   ``grid_update`` sums the copies in a fixed order. This removes the atomic float adds (a
@@ -57,6 +59,7 @@ from simcli.solvers.base import (
     initial_positions,
     upload_state_array,
 )
+from simcli.solvers.mpm.blocks import BlockFields
 from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import ConstitutiveLaw, elastic_moduli, law_key
 from simcli.solvers.mpm.fields import MPMFields, MPMParams
@@ -167,6 +170,9 @@ class MPMSolver(Solver):
         # "auto": private grid copies on the CPU, atomics elsewhere; "atomic" forces the GPU path
         # (tests run it on the CPU), "chunked" the CPU one
         self.p2g_mode = "auto"
+        # grid work over the blocks of nodes the particles' stencils touch (blocks.py); False: over the
+        # particles' node box (the same numbers: tests compare the two)
+        self.grid_blocks = True
         # emitters and sinks (simcli/solvers/sources.py): an active count; None in scenes without them
         self.sources = ActiveSet(scene, bodies, "MPM") if has_sources(scene, "MPM") else None
         self.active_set = self.sources
@@ -239,6 +245,7 @@ class MPMSolver(Solver):
         self.bbox = ti.Vector.field(dim, ti.i32, shape=(T, 2))  # per chunk [lo, hi) node box
         self.bbox_all = ti.Vector.field(dim, ti.i32, shape=2)
         self.chunk_start = ti.field(ti.i32, shape=T + 1)
+        self.blocks = BlockFields.allocate(dim, self.grid_shape) if self.grid_blocks else None
 
         # run-time parameters
         nm = len(self.materials)
@@ -378,6 +385,7 @@ class MPMSolver(Solver):
             n_bodies=len(self.bodies),
             gap_ch=self.gap_ch,
             gap_aff=self.gap_aff,
+            block_list=self.blocks is not None,
         )
         fields = MPMFields(
             x=self.x,
@@ -403,6 +411,7 @@ class MPMSolver(Solver):
             stat_speed=self.stat_speed,
             stat_bad=self.stat_bad,
             stat_stiff=self.stat_stiff,
+            blocks=self.blocks,
         )
         return params, fields
 
@@ -629,15 +638,24 @@ class MPMSolver(Solver):
     # ------------------------------------------------------------------ counts
 
     def counts(self) -> dict[str, int]:
-        active = 0
-        if self._built:  # node box the next substep works on (union over the chunks)
+        active = box = 0
+        if self._built:  # node box and nodes the next substep works on (union over the chunks)
             b = self.bbox.to_numpy()
-            active = int(np.prod(np.maximum(b[:, 1].max(axis=0) - b[:, 0].min(axis=0), 0)))
+            box = int(np.prod(np.maximum(b[:, 1].max(axis=0) - b[:, 0].min(axis=0), 0)))
+            # the nodes the grid work visits: the last substep's block list (blocks.py), else the box
+            if self.blocks is not None:  # the blocks the current particles' stencils touch, in the box
+                x = self.x.to_numpy()[: self.n_live()].astype(np.float64)
+                base = np.floor((x - self.origin) * self.inv_dx - 0.5).astype(np.int64)
+                base = np.clip(base, 0, np.asarray(self.grid_shape) - 3)
+                active = self.blocks.nodes(base, b[:, 0].min(axis=0), b[:, 1].max(axis=0))
+            else:
+                active = box
         return {
             "particles": self.n_live(),
             "grid_cells": int(np.prod(self.grid_shape)),
             "grid_copies": self.T if self._built else 0,
             "active_cells": active,
+            "box_cells": box,
         }
 
     def info(self) -> dict[str, Any]:
@@ -647,7 +665,12 @@ class MPMSolver(Solver):
                 if self.transfer == "flip"
                 else "MLS-MPM / APIC, quadratic B-splines"
             ),
-            "grid": f"dense {self.grid_shape}, work limited to the particles' bounding box",
+            "grid": (
+                f"dense {self.grid_shape}, work limited to the blocks of {self.blocks.edge}^{self.dim} nodes "
+                "the particles touch"
+                if self.blocks is not None
+                else f"dense {self.grid_shape}, work limited to the particles' bounding box"
+            ),
             "p2g": f"{self.T} private grid copies, no atomics" if self.chunked else "atomic adds",
             "laws": list(self.law_keys),
             "colliders": [c.kind for c in self.boundary.colliders] if self._built else [],
