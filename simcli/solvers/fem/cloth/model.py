@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simcli.solvers.fem.cloth.topology import bending_quads, dihedral_angles
+from simcli.solvers.fem.cloth.topology import bending_quads, dihedral_angles, dihedral_gradients
 
 
 def triangle_areas(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -60,24 +60,6 @@ def mesh_problems(x: np.ndarray, tris: np.ndarray) -> list[str]:
             f"between {np.round(x[uniq[k, 0]], 6).tolist()} and {np.round(x[uniq[k, 1]], 6).tolist()}"
         )
     return out
-
-
-def dihedral_gradients(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
-    """(k, 4, 3) gradients of the signed dihedral angles (Bridson et al. 2003, sec. 4; as
-    simcli.solvers.pbd.topology)."""
-    x1, x2, x3, x4 = (x[quads[:, k]] for k in range(4))
-    E = x4 - x3
-    le = np.linalg.norm(E, axis=1)
-    n1 = np.cross(x1 - x3, x1 - x4)
-    n2 = np.cross(x2 - x4, x2 - x3)
-    a1 = n1 / np.einsum("ij,ij->i", n1, n1)[:, None]
-    a2 = n2 / np.einsum("ij,ij->i", n2, n2)[:, None]
-    dot = lambda a, b: np.einsum("ij,ij->i", a, b)[:, None]  # noqa: E731
-    g1 = -le[:, None] * a1
-    g2 = -le[:, None] * a2
-    g3 = -(dot(x1 - x4, E) * a1 + dot(x2 - x4, E) * a2) / le[:, None]
-    g4 = (dot(x1 - x3, E) * a1 + dot(x2 - x3, E) * a2) / le[:, None]
-    return np.stack([g1, g2, g3, g4], axis=1)
 
 
 class ShellModel:

@@ -51,7 +51,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
-from simcli.solvers.fem.cloth.topology import bending_quads, dihedral_angles
+from simcli.solvers.fem.cloth.topology import bending_quads, dihedral_angles, dihedral_gradients
 
 
 def _assemble(Qe, ri, ci, nr, nc):
@@ -104,7 +104,6 @@ def plate_forms(X: np.ndarray, tris: np.ndarray, D, nu) -> np.ndarray:
 
 
 def _dihedral_gradients(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
-    from simcli.solvers.fem.cloth.model import dihedral_gradients
 
     return dihedral_gradients(x, quads)
 
