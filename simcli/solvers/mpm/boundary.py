@@ -78,6 +78,9 @@ class GridBoundary:
         self.colliders = collider_specs(scene, dim, scene_dir)
         self.walls = wall_specs(scene, dim)
         self.n_colliders = len(self.colliders)
+        # CPIC colliders (cpic.py) have no image (its mirror point lies across a thin plate) and their
+        # contact condition also acts on the nodes up to CPIC_REACH cells in front of them
+        self.cpic = frozenset(k for k, c in enumerate(scene.colliders) if getattr(c, "cpic", False))
         # moving and named colliders: poses uploaded per substep, loads summed (compiled only if any)
         self.poses = ColliderPoses(self.colliders, collider_motions(scene, dim, scene_dir), dim, dtype)
         self.any_moving, self.any_named, self.named = (
@@ -124,6 +127,8 @@ class GridBoundary:
     # docs/RIGID.md): 0.1-0.25 left the dropped rho-250 box 12.5% high, 0-0.1 let the rho-500 one sink
     # 5% deep and the held box at 0.02 m read -4.1%; 0.05-0.15 gives -8.7/+2.8/-0.9% and +0.3%.
     FADE_START = 0.05
+    # a CPIC collider's (cpic.py) contact condition acts on the nodes less than this [cells] in front of it
+    CPIC_REACH = 0.5
     FADE_END = 0.15
 
     def upload(self) -> None:
@@ -242,6 +247,8 @@ class GridBoundary:
 
     def reach(self, k: int) -> float:
         """Nodes of collider k's condition: phi below this (inside it; with an image, 1.5 dx in front)."""
+        if k in self.cpic:  # a thin CPIC plate: the nodes up to half a cell in front of it too (cpic.py)
+            return self.CPIC_REACH * self.dx
         return 1.5 * self.dx if self.has_image(k) else 0.0
 
     def has_image(self, k: int) -> bool:
@@ -252,7 +259,7 @@ class GridBoundary:
         0.057 m instead of 0.148 m of 0.221 m), and without friction on it a sliding block loses its
         Coulomb friction (+40% distance); nor sticky."""
         c = self.colliders[k]
-        return c.kind != "Mesh" and c.contact != "sticky" and c.friction <= 0
+        return c.kind != "Mesh" and c.contact != "sticky" and c.friction <= 0 and k not in self.cpic
 
     @ti.func
     def raw(self, J):
@@ -463,7 +470,7 @@ class GridBoundary:
             if phi < 0:
                 phm, _nm = self.sdf(k, xm)
                 touching = phm <= self._rest_gap(phi)
-        if phi < 0 and touching:
+        if (phi < 0 or ti.static(k in self.cpic)) and touching:
             if ti.static(self.gap_test(k) and self.material_velocity):
                 vs = v - va  # the material's velocity at xm: the node's less its APIC extrapolation
                 v = v + (contact_velocity(vs, n, vw, self.colliders[k].contact, self.col_friction[k]) - vs)

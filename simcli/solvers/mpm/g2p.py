@@ -32,12 +32,14 @@ class G2P:
 
 
 def build_g2p(
-    params: MPMParams, fields: MPMFields, stencil: Stencil, laws: list, boundary, flip, count
+    params: MPMParams, fields: MPMFields, stencil: Stencil, laws: list, boundary, flip, count, cpic=None
 ) -> G2P:
     """``laws``: the solver's constitutive laws (index = law id, see fields.MPMFields.mat_law_id); those with
     ``plastic`` set have their ``return_mapping`` compiled in. ``boundary``: boundary.GridBoundary
     (``n_colliders``, ``project_particle``); ``flip``: transfer.FlipTransfer or None; ``count``: ti.func,
-    the particle loop's bound. Reads grid_v, chunk_start; writes x, v, C, F, bbox (and the laws' state)."""
+    the particle loop's bound; ``cpic``: cpic.CPIC or None (the nodes across a CPIC collider give the
+    particle its ghost velocity). Reads grid_v, chunk_start; writes x, v, C, F, bbox (and the laws' state)."""
+    use_cpic = cpic is not None
     dim, f, T, chunked, has_fixed = params.dim, params.dtype, params.T, params.chunked, params.has_fixed
     inv_dx = params.inv_dx
     N = count
@@ -61,8 +63,24 @@ def build_g2p(
     bspline, base_node = stencil.bspline, stencil.base_node
 
     @ti.func
+    def node_v(node, mask, xp, vg, jj, dt, o: ti.template()):
+        """grid_v at a stencil node, or the ghost node's velocity across a CPIC collider (cpic.py)."""
+        r = grid_v[node]
+        if ti.static(use_cpic):
+            if (mask >> o) & 1 == 1:
+                r = cpic.node_velocity(node, xp, vg, jj, dt)
+        return r
+
+    @ti.func
     def g2p_particle(p, dt):
         base, fx, w = bspline(x[p])
+        mask = 0
+        jj = -1
+        vg = ti.Vector.zero(f, dim)
+        if ti.static(use_cpic):
+            mask, _W, _M1, vg, jj = cpic.classify(x[p], fx, v[p])
+            if jj >= 0:  # the momentum the nodes across give back (cpic.py, force)
+                cpic.add_load(jj, x[p], -mass[p] * cpic.ghost_sum(base, fx, mask, x[p], vg, jj, dt))
         new_v = ti.Vector.zero(f, dim)
         b = [ti.Vector.zero(f, dim) for _ in ti.static(range(dim))]  # columns of sum w v i^T
         for i in ti.static(range(3)):
@@ -70,11 +88,20 @@ def build_g2p(
                 wij = w[i][0] * w[j][1]
                 s0 = ti.Vector.zero(f, dim)  # sum_k w_k v
                 s1 = ti.Vector.zero(f, dim)  # sum_k w_k k v
-                if ti.static(dim == 2):
+                if ti.static(dim == 2 and use_cpic):
+                    s0 = node_v(base + ti.Vector([i, j]), mask, x[p], vg, jj, dt, i * 3 + j)
+                elif ti.static(dim == 2):
                     s0 = grid_v[base[0] + i, base[1] + j]
                 else:
                     for k in ti.static(range(3)):
-                        g = w[k][2] * grid_v[base[0] + i, base[1] + j, base[2] + k]
+                        gk = ti.Vector.zero(f, dim)
+                        if ti.static(use_cpic):
+                            gk = node_v(
+                                base + ti.Vector([i, j, k]), mask, x[p], vg, jj, dt, i * 9 + j * 3 + k
+                            )
+                        else:
+                            gk = grid_v[base[0] + i, base[1] + j, base[2] + k]
+                        g = w[k][2] * gk
                         s0 += g
                         if ti.static(k > 0):
                             s1 += g * k
@@ -117,6 +144,8 @@ def build_g2p(
                 # a particle that ended inside a collider goes back to its surface (the grid
                 # contact alone lets particles that start inside, or tunnel, stay there)
                 xp, new_v = boundary.project_particle(xp, new_v, mass[p])
+            if ti.static(use_cpic):  # no particle crosses a thin CPIC Box
+                xp, new_v = cpic.keep_side(x[p], xp, new_v, mass[p])
             xp = ti.min(ti.max(xp, dom_lo), dom_hi)
             v[p] = new_v
             C[p] = new_C
