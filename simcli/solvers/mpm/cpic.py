@@ -210,9 +210,12 @@ class CPIC:
 
     @ti.func
     def ghost_sum(self, base, fx, mask, xp, vg, jj, dt):
-        """sum over the incompatible stencil nodes of w_i times their ``node_velocity``."""
+        """(s, b) over the incompatible stencil nodes o: s = sum w_o v_o and b[d] = sum w_o v_o o[d], v_o
+        their ``node_velocity`` (G2P's velocity and the columns of its gradient sum). One run-time loop:
+        the node's velocity is inlined once, not once per stencil node."""
         dim = ti.static(self.dim)
         s = ti.Vector.zero(self.f, dim)
+        b = ti.Matrix.zero(self.f, dim, dim)  # column d: sum w v o[d]
         for o in range(3**dim):
             if (mask >> o) & 1 == 1:
                 off = ti.Vector.zero(ti.i32, dim)
@@ -229,8 +232,12 @@ class CPIC:
                     elif au < 1.5:
                         we = 0.5 * (1.5 - au) ** 2
                     w *= we
-                s += w * self.node_velocity(base + off, xp, vg, jj, dt)
-        return s
+                wv = w * self.node_velocity(base + off, xp, vg, jj, dt)
+                s += wv
+                for e in ti.static(range(dim)):
+                    for d in ti.static(range(dim)):
+                        b[d, e] += wv[d] * off[e]
+        return s, b
 
     @ti.func
     def _R(self, slot, j):

@@ -63,13 +63,10 @@ def build_g2p(
     bspline, base_node = stencil.bspline, stencil.base_node
 
     @ti.func
-    def node_v(node, mask, xp, vg, jj, dt, o: ti.template()):
-        """grid_v at a stencil node, or the ghost node's velocity across a CPIC collider (cpic.py)."""
-        r = grid_v[node]
-        if ti.static(use_cpic):
-            if (mask >> o) & 1 == 1:
-                r = cpic.node_velocity(node, xp, vg, jj, dt)
-        return r
+    def node_v(node, mask, o: ti.template()):
+        """grid_v at a stencil node, 0 across a CPIC collider (its ghost node's part is added after the
+        stencil loop, cpic.py)."""
+        return grid_v[node] * cpic.keep(mask, o)
 
     @ti.func
     def g2p_particle(p, dt):
@@ -79,8 +76,6 @@ def build_g2p(
         vg = ti.Vector.zero(f, dim)
         if ti.static(use_cpic):
             mask, _W, _M1, vg, jj = cpic.classify(x[p], fx, v[p])
-            if jj >= 0:  # the momentum the nodes across give back (cpic.py, force)
-                cpic.add_load(jj, x[p], -mass[p] * cpic.ghost_sum(base, fx, mask, x[p], vg, jj, dt))
         new_v = ti.Vector.zero(f, dim)
         b = [ti.Vector.zero(f, dim) for _ in ti.static(range(dim))]  # columns of sum w v i^T
         for i in ti.static(range(3)):
@@ -89,16 +84,14 @@ def build_g2p(
                 s0 = ti.Vector.zero(f, dim)  # sum_k w_k v
                 s1 = ti.Vector.zero(f, dim)  # sum_k w_k k v
                 if ti.static(dim == 2 and use_cpic):
-                    s0 = node_v(base + ti.Vector([i, j]), mask, x[p], vg, jj, dt, i * 3 + j)
+                    s0 = node_v(base + ti.Vector([i, j]), mask, i * 3 + j)
                 elif ti.static(dim == 2):
                     s0 = grid_v[base[0] + i, base[1] + j]
                 else:
                     for k in ti.static(range(3)):
                         gk = ti.Vector.zero(f, dim)
                         if ti.static(use_cpic):
-                            gk = node_v(
-                                base + ti.Vector([i, j, k]), mask, x[p], vg, jj, dt, i * 9 + j * 3 + k
-                            )
+                            gk = node_v(base + ti.Vector([i, j, k]), mask, i * 9 + j * 3 + k)
                         else:
                             gk = grid_v[base[0] + i, base[1] + j, base[2] + k]
                         g = w[k][2] * gk
@@ -114,6 +107,12 @@ def build_g2p(
                 if ti.static(dim == 3):
                     b[2] += wij * s1
         B = ti.Matrix.cols(b)
+        if ti.static(use_cpic):
+            if mask != 0:  # the nodes across a CPIC collider: their ghost nodes' velocities (cpic.py)
+                gs, gb = cpic.ghost_sum(base, fx, mask, x[p], vg, jj, dt)
+                new_v += gs
+                B += gb
+                cpic.add_load(jj, x[p], -mass[p] * gs)  # the momentum they give back: the collider's
         # C = D^-1 sum_i w_i v_i (x_i - x_p)^T = (4 / dx) (sum_i w_i v_i i^T - v fx^T)
         new_C = (4.0 * inv_dx) * (B - new_v.outer_product(fx))
         is_fixed = False

@@ -58,8 +58,8 @@ from simcli.solvers.base import (
     upload_state_array,
 )
 from simcli.solvers.mpm.boundary import GridBoundary
-from simcli.solvers.mpm.cpic import CPIC, cpic_indices
 from simcli.solvers.mpm.constitutive import ConstitutiveLaw, elastic_moduli, law_key
+from simcli.solvers.mpm.cpic import CPIC, cpic_indices
 from simcli.solvers.mpm.fields import MPMFields, MPMParams
 from simcli.solvers.mpm.kernels import build_kernels
 from simcli.solvers.mpm.laws import LAWS
