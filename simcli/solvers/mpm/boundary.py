@@ -219,7 +219,9 @@ class GridBoundary:
         (see :func:`simcli.colliders.project_out`); a named collider takes the momentum removed from the
         particle (mass ``mp``). Compiled only when colliders exist."""
         for k in ti.static(range(self.n_colliders)):
-            if ti.static(self.colliders[k].kind == "Mesh" and (self.colliders[k].moving or self.named[k])):
+            if ti.static(k in self.cpic and self.colliders[k].kind == "Box"):
+                pass  # a thin CPIC Box: cpic.CPIC.keep_side, onto the face of the particle's side
+            elif ti.static(self.colliders[k].kind == "Mesh" and (self.colliders[k].moving or self.named[k])):
                 phi, n, vw = self.sdf_at(k, x, 1)
                 if phi < 0:  # (only then: a particle away from it keeps its velocity bit for bit)
                     x_new, vr = self._project(x, v - vw, phi, n, k)
@@ -458,6 +460,24 @@ class GridBoundary:
                 v_new = v + dn * n
         return v_new
 
+    def thin_axis(self, k: int) -> int:
+        """A Box's thinnest axis (a CPIC plate's normal in its body frame)."""
+        c = self.colliders[k]
+        return int(np.argmin(np.asarray(c.b, float) - np.asarray(c.a, float)))
+
+    @ti.func
+    def _cpic_face(self, k: ti.template(), n):
+        """Is the normal n along CPIC collider k's thin axis (a broad face of a plate, not its edge; a
+        Plane: always)? Its edges get no band: a node band ahead of a moving edge pushed the material ahead
+        (a blade edge-first through sand heaved the cover by 4 cells' worth)."""
+        r = True
+        if ti.static(self.colliders[k].kind == "Box"):
+            nt = ti.Vector.unit(self.dim, ti.static(self.thin_axis(k)), self.dtype)
+            if ti.static(self.colliders[k].moving or self.named[k]):
+                nt = self.poses.normal_to_world(k, nt, 0)
+            r = ti.abs(n.dot(nt)) > 0.5
+        return r
+
     @ti.func
     def _node(self, k: ti.template(), xI, v, m, phi, n, vw, dt, xm, va):
         """Collider k's condition on a node at signed distance phi (below ``reach(k)``): inside it, the
@@ -470,7 +490,10 @@ class GridBoundary:
             if phi < 0:
                 phm, _nm = self.sdf(k, xm)
                 touching = phm <= self._rest_gap(phi)
-        if (phi < 0 or ti.static(k in self.cpic)) and touching:
+        in_band = False  # a thin CPIC plate: the nodes up to CPIC_REACH in front of its broad faces too
+        if ti.static(k in self.cpic):
+            in_band = self._cpic_face(k, n)
+        if (phi < 0 or in_band) and touching:
             if ti.static(self.gap_test(k) and self.material_velocity):
                 vs = v - va  # the material's velocity at xm: the node's less its APIC extrapolation
                 v = v + (contact_velocity(vs, n, vw, self.colliders[k].contact, self.col_friction[k]) - vs)

@@ -426,25 +426,31 @@ class CPIC:
 
     @ti.func
     def keep_side(self, x_old, x_new, v, mp):
-        """A particle whose path x_old (start of the substep) -> x_new (its end) crossed a thin Box goes
-        back onto the face on its side, its velocity into the plate (relative to it) removed. Returns
-        (x, v); a named collider takes the momentum removed (mass ``mp``)."""
+        """A particle that ended inside a thin CPIC Box, or whose path x_old (start of the substep) -> x_new
+        (its end) crossed it, goes onto the broad face on the side it started from, its velocity into the
+        plate (relative to it) removed: the plate's edge splits the material instead of pushing it ahead
+        (boundary.GridBoundary.project_particle leaves CPIC Boxes to this). Returns (x, v); a named
+        collider takes the momentum removed (mass ``mp``)."""
         for j in range(self.n):
             if self.kind[j] == 1:
                 y0 = self.to_body(0, j, x_old)
-                y1 = self.to_body(1, j, x_new)
-                if self._near(j, y0) and self._crosses(j, y0, y1):
-                    a = self.thin[j]
-                    s = ti.cast(self._side(j, y0), self.f)
+                if self._near(j, y0):
+                    y1 = self.to_body(1, j, x_new)
                     h = self.half[j]
+                    inside = True
                     for e in ti.static(range(self.dim)):
-                        if e == a:
-                            y1[e] = s * (h[e] + 1e-4 * self.dx)
-                    x_new = self.from_body(1, j, y1)
-                    n = self._R(1, j) @ (self._normal_body(j) * s)
-                    vr = self.surface_velocity(1, j, x_new)
-                    vn = (v - vr).dot(n)
-                    if vn < 0:
-                        v = v - vn * n
-                        self.add_load(j, x_new, mp * vn * n)
+                        inside = inside and ti.abs(y1[e]) < h[e]
+                    if inside or self._crosses(j, y0, y1):
+                        a = self.thin[j]
+                        s = ti.cast(self._side(j, y0), self.f)
+                        for e in ti.static(range(self.dim)):
+                            if e == a:
+                                y1[e] = s * (h[e] + 1e-4 * self.dx)
+                        x_new = self.from_body(1, j, y1)
+                        n = self._R(1, j) @ (self._normal_body(j) * s)
+                        vr = self.surface_velocity(1, j, x_new)
+                        vn = (v - vr).dot(n)
+                        if vn < 0:
+                            v = v - vn * n
+                            self.add_load(j, x_new, mp * vn * n)
         return x_new, v
