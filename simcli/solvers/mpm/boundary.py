@@ -475,7 +475,7 @@ class GridBoundary:
             nt = ti.Vector.unit(self.dim, ti.static(self.thin_axis(k)), self.dtype)
             if ti.static(self.colliders[k].moving or self.named[k]):
                 nt = self.poses.normal_to_world(k, nt, 0)
-            r = ti.abs(n.dot(nt)) > 0.5
+            r = ti.abs(n.dot(nt)) > 0.99
         return r
 
     @ti.func
