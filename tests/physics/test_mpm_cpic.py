@@ -129,3 +129,26 @@ def test_a_3d_cpic_plate_moving_and_turning_keeps_momentum_and_sides(ti_f32):
     p1 = (m[:, None] * s.v.to_numpy()).sum(axis=0)
     assert J[0] > p0[0]  # the cube bounced off the plate
     np.testing.assert_allclose(p1 + J, p0, atol=2e-3 * np.linalg.norm(p0))
+
+
+@pytest.mark.parametrize(
+    "extra, msg",
+    [
+        ("  mpm: {transfer: flip}\n", "needs solvers.mpm.transfer: apic"),
+        (None, "acts on MPM materials only"),
+    ],
+)
+def test_cpic_where_it_does_not_apply_is_refused_with_its_location(tmp_path, extra, msg):
+    from tests.cli.test_bad_input import _expect
+
+    material = "{type: MPM.Elastic, E: 3.0e5, nu: 0.2, rho: 1000}"
+    if extra is None:
+        material = "{type: PBD.Elastic, rho: 1000}"
+    text = (
+        "version: 1\nsim: {dim: 2, dt: 1.0e-3, duration: 0.01}\ndomain: {lower: [0, 0], upper: [1, 1]}\n"
+        "colliders:\n  - {type: Box, lower: [0.5, 0.0], upper: [0.505, 0.5], cpic: true}\n"
+        + ("solvers:\n" + extra if extra else "")
+        + f"entities:\n  - name: a\n    material: {material}\n"
+        "    morph: {type: Box, lower: [0.1, 0.1], upper: [0.3, 0.3]}\n"
+    )
+    _expect(tmp_path, text, ":5:", msg)
