@@ -4,14 +4,20 @@ thin colliders: a collider key ``cpic: true`` (Plane and Box colliders of MPM sc
 
 A particle and a grid node whose segment crosses a CPIC collider are *incompatible*:
 
-* P2G: the particle sends that node nothing (no mass, no momentum, no stress impulse);
-* G2P: the node contributes the particle's *ghost velocity* instead of its own, the particle's velocity
-  with its part towards the collider (relative to the collider's surface velocity at the particle)
-  removed: ``v_g = v_p - min(0, (v_p - v_r) . n) n``, n the collider's normal on the particle's side
-  (the paper's rule), to the velocity and to the APIC gradient C alike;
-* after advection a particle whose path crossed a thin Box (its mid-surface, within its extent) is put
-  back onto the face on its side, its velocity into the plate removed (the paper's penalty force is not
-  used: the projection enforces the same non-crossing).
+* P2G: the particle sends that node nothing; what it would have sent (mass, momentum, stress impulse)
+  goes into the node's ``dim + 1`` *ghost* channels (``ghost``): seen from the particle's side the node
+  is inside the wall, and its ghost channels hold that side's material as a thick wall's nodes would;
+* G2P: the node gives the particle its ghost node's velocity (``node_velocity``: ghost momentum / mass,
+  gravity, then the collider's contact condition with the normal towards the particle's side), to the
+  velocity and to the APIC gradient C alike, summed in one run-time loop after the stencil
+  (``ghost_sum``). The paper's ghost velocity, the particle's own less its approach to the collider,
+  ``v_g = v_p - min(0, (v_p - v_r) . n) n``, is used only where a ghost node holds no mass: with it
+  alone a liquid next to a thin wall compacted onto it (docs/MPM.md, CPIC);
+* the collider's contact condition also acts on the nodes less than half a cell in front of its broad
+  faces (boundary.GridBoundary: ``CPIC_REACH``, ``_cpic_face``);
+* after advection a particle that ended inside a thin Box, or whose path crossed its mid-plane, goes onto
+  the broad face of the side it started from, its velocity into the plate removed (``keep_side``; the
+  paper's penalty force is not used).
 
 So material on one side of a plate thinner than the kernel's support (1.5 cells each side) neither gives
 to nor takes from the nodes on the other side: it is not dragged across, and a plate cuts cleanly.
@@ -23,14 +29,14 @@ start of the substep (``set_time``): the particles' positions are those of the s
 
 Force on a named CPIC collider: momentum is exchanged with it only through the incompatible pairs, so its
 load is computed exactly from them: what a particle did not send (``sum_excl w_i (m v + Q (x_i - x_p))``)
-less what it took back from the ghost velocities (``m sum_excl w_i v_g``), plus what the non-crossing
-projection removed. Attributed to the particle's first CPIC collider that makes any of its nodes
+less what it took back from the ghost nodes (``m sum_excl w_i v_i``), plus what the non-crossing
+projection removed (and, as for every collider, the node band's momentum change). Attributed to the particle's first CPIC collider that makes any of its nodes
 incompatible.
 
 What is compiled: one run-time loop over the CPIC colliders (their geometry, kind and pose are fields),
 only when a scene has one (``n == 0``: nothing of this module is compiled in, every other scene is bit for
-bit the same). Under FLIP (transfer: flip) the FLIP increment is gathered from all nodes: CPIC is an APIC
-feature here.
+bit the same). Under FLIP (transfer: flip) the FLIP increment would be gathered from all nodes: the scene
+check refuses cpic with it.
 """
 
 from typing import Any
