@@ -30,8 +30,8 @@ start of the substep (``set_time``): the particles' positions are those of the s
 Force on a named CPIC collider: momentum is exchanged with it only through the incompatible pairs, so its
 load is computed exactly from them: what a particle did not send (``sum_excl w_i (m v + Q (x_i - x_p))``)
 less what it took back from the ghost nodes (``m sum_excl w_i v_i``), plus what the non-crossing
-projection removed (and, as for every collider, the node band's momentum change). Attributed to the particle's first CPIC collider that makes any of its nodes
-incompatible.
+projection removed (and, as for every collider, the node band's momentum change). Attributed to the
+particle's first CPIC collider that makes any of its nodes incompatible.
 
 What is compiled: one run-time loop over the CPIC colliders (their geometry, kind and pose are fields),
 only when a scene has one (``n == 0``: nothing of this module is compiled in, every other scene is bit for
