@@ -60,6 +60,17 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
                 base + ("upper",),
                 f"lower must be < upper on every axis (got lower {c.lower}, upper {c.upper})",
             )
+        if getattr(c, "cpic", False):  # CPIC (docs/MPM.md): an MPM feature of the APIC transfer
+            if not any(str(e.material.type).startswith("MPM.") for e in s.entities):
+                err(
+                    base + ("cpic",),
+                    "cpic: true acts on MPM materials only and the scene has none: remove it",
+                )
+            elif getattr(s.solvers.mpm, "transfer", "apic") == "flip":
+                err(
+                    base + ("cpic",),
+                    "cpic: true needs solvers.mpm.transfer: apic (FLIP's increment is not masked)",
+                )
         if c.type == "Mesh" or getattr(c, "restitution", 0.0) > 0:
             from simcli.collider_mesh import check_collider
 

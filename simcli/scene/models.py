@@ -229,16 +229,25 @@ class _ColliderBase(Strict):
     )
 
 
+_CPIC_DOC = (
+    "MPM: Compatible Particle-In-Cell (Hu et al. 2018) for this collider: a particle and a grid node on "
+    "opposite sides of it exchange nothing, so a plate thinner than the kernel's support cuts the material "
+    "cleanly (docs/MPM.md, CPIC). Default off."
+)
+
+
 class PlaneCollider(_ColliderBase):
     type: Literal["Plane"]
     point: Vec = Field(description="A point on the plane [m].")
     normal: Vec = Field(description="Outward normal (towards the free side) [-]; normalised on load.")
+    cpic: bool = Field(False, description=_CPIC_DOC)
 
 
 class BoxCollider(_ColliderBase):
     type: Literal["Box"]
     lower: Vec = Field(description="Lower corner [m].")
     upper: Vec = Field(description="Upper corner [m].")
+    cpic: bool = Field(False, description=_CPIC_DOC + " A Box is a plate along its thinnest axis.")
 
 
 class SphereCollider(_ColliderBase):

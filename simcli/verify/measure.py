@@ -633,6 +633,7 @@ def slide_stop_time(f, entity, direction=(1.0, 0.0), level=0.1, **_):
 # the PBD family's measurements register themselves in MEASUREMENTS on import
 from simcli.verify import cloth_measures as _cloth_measures  # noqa: E402,F401
 from simcli.verify import coupling_measures as _coupling_measures  # noqa: E402,F401
+from simcli.verify import cpic_measures as _cpic_measures  # noqa: E402,F401
 from simcli.verify import fem_measures as _fem_measures  # noqa: E402,F401
 from simcli.verify import pbd_measures as _pbd_measures  # noqa: E402,F401
 from simcli.verify import rigid_measures as _rigid_measures  # noqa: E402,F401

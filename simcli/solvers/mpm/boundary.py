@@ -78,6 +78,9 @@ class GridBoundary:
         self.colliders = collider_specs(scene, dim, scene_dir)
         self.walls = wall_specs(scene, dim)
         self.n_colliders = len(self.colliders)
+        # CPIC colliders (cpic.py) have no image (its mirror point lies across a thin plate) and their
+        # contact condition also acts on the nodes up to CPIC_REACH cells in front of them
+        self.cpic = frozenset(k for k, c in enumerate(scene.colliders) if getattr(c, "cpic", False))
         # moving and named colliders: poses uploaded per substep, loads summed (compiled only if any)
         self.poses = ColliderPoses(self.colliders, collider_motions(scene, dim, scene_dir), dim, dtype)
         self.any_moving, self.any_named, self.named = (
@@ -124,6 +127,8 @@ class GridBoundary:
     # docs/RIGID.md): 0.1-0.25 left the dropped rho-250 box 12.5% high, 0-0.1 let the rho-500 one sink
     # 5% deep and the held box at 0.02 m read -4.1%; 0.05-0.15 gives -8.7/+2.8/-0.9% and +0.3%.
     FADE_START = 0.05
+    # a CPIC collider's (cpic.py) contact condition acts on the nodes less than this [cells] in front of it
+    CPIC_REACH = 0.5
     FADE_END = 0.15
 
     def upload(self) -> None:
@@ -214,7 +219,9 @@ class GridBoundary:
         (see :func:`simcli.colliders.project_out`); a named collider takes the momentum removed from the
         particle (mass ``mp``). Compiled only when colliders exist."""
         for k in ti.static(range(self.n_colliders)):
-            if ti.static(self.colliders[k].kind == "Mesh" and (self.colliders[k].moving or self.named[k])):
+            if ti.static(k in self.cpic and self.colliders[k].kind == "Box"):
+                pass  # a thin CPIC Box: cpic.CPIC.keep_side, onto the face of the particle's side
+            elif ti.static(self.colliders[k].kind == "Mesh" and (self.colliders[k].moving or self.named[k])):
                 phi, n, vw = self.sdf_at(k, x, 1)
                 if phi < 0:  # (only then: a particle away from it keeps its velocity bit for bit)
                     x_new, vr = self._project(x, v - vw, phi, n, k)
@@ -242,6 +249,8 @@ class GridBoundary:
 
     def reach(self, k: int) -> float:
         """Nodes of collider k's condition: phi below this (inside it; with an image, 1.5 dx in front)."""
+        if k in self.cpic:  # a thin CPIC plate: the nodes up to half a cell in front of it too (cpic.py)
+            return self.CPIC_REACH * self.dx
         return 1.5 * self.dx if self.has_image(k) else 0.0
 
     def has_image(self, k: int) -> bool:
@@ -252,7 +261,7 @@ class GridBoundary:
         0.057 m instead of 0.148 m of 0.221 m), and without friction on it a sliding block loses its
         Coulomb friction (+40% distance); nor sticky."""
         c = self.colliders[k]
-        return c.kind != "Mesh" and c.contact != "sticky" and c.friction <= 0
+        return c.kind != "Mesh" and c.contact != "sticky" and c.friction <= 0 and k not in self.cpic
 
     @ti.func
     def raw(self, J):
@@ -451,6 +460,24 @@ class GridBoundary:
                 v_new = v + dn * n
         return v_new
 
+    def thin_axis(self, k: int) -> int:
+        """A Box's thinnest axis (a CPIC plate's normal in its body frame)."""
+        c = self.colliders[k]
+        return int(np.argmin(np.asarray(c.b, float) - np.asarray(c.a, float)))
+
+    @ti.func
+    def _cpic_face(self, k: ti.template(), n):
+        """Is the normal n along CPIC collider k's thin axis (a broad face of a plate, not its edge; a
+        Plane: always)? Its edges get no band: a node band ahead of a moving edge pushed the material ahead
+        (a blade edge-first through sand heaved the cover by 4 cells' worth)."""
+        r = True
+        if ti.static(self.colliders[k].kind == "Box"):
+            nt = ti.Vector.unit(self.dim, ti.static(self.thin_axis(k)), self.dtype)
+            if ti.static(self.colliders[k].moving or self.named[k]):
+                nt = self.poses.normal_to_world(k, nt, 0)
+            r = ti.abs(n.dot(nt)) > 0.99
+        return r
+
     @ti.func
     def _node(self, k: ti.template(), xI, v, m, phi, n, vw, dt, xm, va):
         """Collider k's condition on a node at signed distance phi (below ``reach(k)``): inside it, the
@@ -463,7 +490,10 @@ class GridBoundary:
             if phi < 0:
                 phm, _nm = self.sdf(k, xm)
                 touching = phm <= self._rest_gap(phi)
-        if phi < 0 and touching:
+        in_band = False  # a thin CPIC plate: the nodes up to CPIC_REACH in front of its broad faces too
+        if ti.static(k in self.cpic):
+            in_band = self._cpic_face(k, n)
+        if (phi < 0 or in_band) and touching:
             if ti.static(self.gap_test(k) and self.material_velocity):
                 vs = v - va  # the material's velocity at xm: the node's less its APIC extrapolation
                 v = v + (contact_velocity(vs, n, vw, self.colliders[k].contact, self.col_friction[k]) - vs)

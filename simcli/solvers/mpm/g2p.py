@@ -32,12 +32,14 @@ class G2P:
 
 
 def build_g2p(
-    params: MPMParams, fields: MPMFields, stencil: Stencil, laws: list, boundary, flip, count
+    params: MPMParams, fields: MPMFields, stencil: Stencil, laws: list, boundary, flip, count, cpic=None
 ) -> G2P:
     """``laws``: the solver's constitutive laws (index = law id, see fields.MPMFields.mat_law_id); those with
     ``plastic`` set have their ``return_mapping`` compiled in. ``boundary``: boundary.GridBoundary
     (``n_colliders``, ``project_particle``); ``flip``: transfer.FlipTransfer or None; ``count``: ti.func,
-    the particle loop's bound. Reads grid_v, chunk_start; writes x, v, C, F, bbox (and the laws' state)."""
+    the particle loop's bound; ``cpic``: cpic.CPIC or None (the nodes across a CPIC collider give the
+    particle its ghost velocity). Reads grid_v, chunk_start; writes x, v, C, F, bbox (and the laws' state)."""
+    use_cpic = cpic is not None
     dim, f, T, chunked, has_fixed = params.dim, params.dtype, params.T, params.chunked, params.has_fixed
     inv_dx = params.inv_dx
     N = count
@@ -61,8 +63,19 @@ def build_g2p(
     bspline, base_node = stencil.bspline, stencil.base_node
 
     @ti.func
+    def node_v(node, mask, o: ti.template()):
+        """grid_v at a stencil node, 0 across a CPIC collider (its ghost node's part is added after the
+        stencil loop, cpic.py)."""
+        return grid_v[node] * cpic.keep(mask, o)
+
+    @ti.func
     def g2p_particle(p, dt):
         base, fx, w = bspline(x[p])
+        mask = 0
+        jj = -1
+        vg = ti.Vector.zero(f, dim)
+        if ti.static(use_cpic):
+            mask, _W, _M1, vg, jj = cpic.classify(x[p], fx, v[p])
         new_v = ti.Vector.zero(f, dim)
         b = [ti.Vector.zero(f, dim) for _ in ti.static(range(dim))]  # columns of sum w v i^T
         for i in ti.static(range(3)):
@@ -70,11 +83,18 @@ def build_g2p(
                 wij = w[i][0] * w[j][1]
                 s0 = ti.Vector.zero(f, dim)  # sum_k w_k v
                 s1 = ti.Vector.zero(f, dim)  # sum_k w_k k v
-                if ti.static(dim == 2):
+                if ti.static(dim == 2 and use_cpic):
+                    s0 = node_v(base + ti.Vector([i, j]), mask, i * 3 + j)
+                elif ti.static(dim == 2):
                     s0 = grid_v[base[0] + i, base[1] + j]
                 else:
                     for k in ti.static(range(3)):
-                        g = w[k][2] * grid_v[base[0] + i, base[1] + j, base[2] + k]
+                        gk = ti.Vector.zero(f, dim)
+                        if ti.static(use_cpic):
+                            gk = node_v(base + ti.Vector([i, j, k]), mask, i * 9 + j * 3 + k)
+                        else:
+                            gk = grid_v[base[0] + i, base[1] + j, base[2] + k]
+                        g = w[k][2] * gk
                         s0 += g
                         if ti.static(k > 0):
                             s1 += g * k
@@ -87,6 +107,12 @@ def build_g2p(
                 if ti.static(dim == 3):
                     b[2] += wij * s1
         B = ti.Matrix.cols(b)
+        if ti.static(use_cpic):
+            if mask != 0:  # the nodes across a CPIC collider: their ghost nodes' velocities (cpic.py)
+                gs, gb = cpic.ghost_sum(base, fx, mask, x[p], vg, jj, dt)
+                new_v += gs
+                B += gb
+                cpic.add_load(jj, x[p], -mass[p] * gs)  # the momentum they give back: the collider's
         # C = D^-1 sum_i w_i v_i (x_i - x_p)^T = (4 / dx) (sum_i w_i v_i i^T - v fx^T)
         new_C = (4.0 * inv_dx) * (B - new_v.outer_product(fx))
         is_fixed = False
@@ -117,6 +143,8 @@ def build_g2p(
                 # a particle that ended inside a collider goes back to its surface (the grid
                 # contact alone lets particles that start inside, or tunnel, stay there)
                 xp, new_v = boundary.project_particle(xp, new_v, mass[p])
+            if ti.static(use_cpic):  # no particle crosses a thin CPIC Box
+                xp, new_v = cpic.keep_side(x[p], xp, new_v, mass[p])
             xp = ti.min(ti.max(xp, dom_lo), dom_hi)
             v[p] = new_v
             C[p] = new_C

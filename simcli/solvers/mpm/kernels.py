@@ -46,24 +46,29 @@ class MPMKernels:
     make_derive: Any = None
 
 
-def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, flip, count) -> MPMKernels:
+def build_kernels(
+    params: MPMParams, fields: MPMFields, laws: list, boundary, flip, count, cpic=None
+) -> MPMKernels:
     """``laws``: the constitutive laws (index = law id); ``boundary``: boundary.GridBoundary; ``flip``:
-    transfer.FlipTransfer or None (APIC); ``count``: ti.func, the particle loops' bound."""
+    transfer.FlipTransfer or None (APIC); ``count``: ti.func, the particle loops' bound; ``cpic``:
+    cpic.CPIC or None (no CPIC collider: nothing of it compiled)."""
     f = params.dtype
     stencil = build_stencil(params)
     dispatch = build_law_dispatch(
         params.dim, f, laws, fields.mid, fields.mat_mu, fields.mat_lam, fields.mat_law_id
     )
-    ops_p2g = build_p2g(params, fields, stencil, dispatch.kirchhoff, flip, count)
+    ops_p2g = build_p2g(params, fields, stencil, dispatch.kirchhoff, flip, count, cpic)
     p2g = ops_p2g.p2g
     blocks = None
-    if params.block_list:  # zero the last substep's blocks, list this one's (blocks.py), then P2G
+    if (
+        params.block_list
+    ):  # zero the last substep's blocks (all gdim channels, CPIC's ghosts too), list this one's
         blocks = build_block_list(params, fields, fields.blocks, stencil.base_node, flip, count)
         clear_grid = blocks.prepare
     else:
         clear_grid = ops_p2g.clear_grid
     grid_update = build_grid_update(params, fields, boundary, flip, blocks)
-    ops_g2p = build_g2p(params, fields, stencil, laws, boundary, flip, count)
+    ops_g2p = build_g2p(params, fields, stencil, laws, boundary, flip, count, cpic)
     g2p, node_boxes = ops_g2p.g2p, ops_g2p.node_boxes
 
     @ti.kernel

@@ -29,10 +29,14 @@ class P2G:
     p2g: Any
 
 
-def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff, flip, count) -> P2G:
+def build_p2g(
+    params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff, flip, count, cpic=None
+) -> P2G:
     """``kirchhoff(p, F, J, update)``: the particle's Kirchhoff stress (laws.LawDispatch.kirchhoff);
     ``flip``: the FLIP transfer (transfer.FlipTransfer) or None (APIC); ``count``: ti.func, the particle
-    loop's bound. Reads x, v, C, F, mass, vol, fixed, bbox, chunk_start; writes grid."""
+    loop's bound; ``cpic``: cpic.CPIC or None (a particle sends nothing to the nodes across a CPIC
+    collider). Reads x, v, C, F, mass, vol, fixed, bbox, chunk_start; writes grid."""
+    use_cpic = cpic is not None
     dim, f, T, gdim, gap_ch = params.dim, params.dtype, params.T, params.gdim, params.gap_ch
     gap_aff = params.gap_aff
     chunked, has_fixed = params.chunked, params.has_fixed
@@ -92,6 +96,11 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
         fm = 0.0
         if ti.static(has_fixed):
             fm = m * ti.cast(fixed[p], f)
+        mask = 0
+        if ti.static(use_cpic):  # the stencil nodes across a CPIC collider get nothing (cpic.py)
+            mask, W, M1, _vg, jj = cpic.classify(x[p], fx, v[p])
+            if jj >= 0:  # the momentum sent across: the collider's until G2P takes it back (cpic.py)
+                cpic.add_load(jj, x[p], W * mv + affine @ (M1 * dx))
         for i in ti.static(range(3)):
             qi = q0 + A[0] * i
             ai = a0 + Ac[0] * i
@@ -101,14 +110,33 @@ def build_p2g(params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff,
                 aij = ai + Ac[1] * j
                 wij = wi * w[j][1]
                 if ti.static(dim == 2):
-                    c = node_value(qij, wij, m, fm, mv, x[p], aij)
+                    c = ti.Vector.zero(f, gdim)
+                    if ti.static(use_cpic):  # across a CPIC collider: to the node's ghost channels
+                        kp = cpic.keep(mask, i * 3 + j)
+                        c = cpic.ghost(
+                            node_value(qij, wij * kp, m, fm, mv, x[p], aij), qij, wij * (1 - kp), m
+                        )
+                    else:
+                        c = node_value(qij, wij, m, fm, mv, x[p], aij)
                     if ti.static(chunked):  # chunk t owns copy t: plain read-add-write
                         grid[t, base[0] + i, base[1] + j] = grid[t, base[0] + i, base[1] + j] + c
                     else:
                         grid[0, base[0] + i, base[1] + j] += c
                 else:
                     for k in ti.static(range(3)):
-                        c = node_value(qij + A[2] * k, wij * w[k][2], m, fm, mv, x[p], aij + Ac[2] * k)
+                        c = ti.Vector.zero(f, gdim)
+                        if ti.static(use_cpic):
+                            wk = wij * w[k][2]
+                            kp = cpic.keep(mask, i * 9 + j * 3 + k)
+                            qk = qij + A[2] * k
+                            c = cpic.ghost(
+                                node_value(qk, wk * kp, m, fm, mv, x[p], aij + Ac[2] * k),
+                                qk,
+                                wk * (1 - kp),
+                                m,
+                            )
+                        else:
+                            c = node_value(qij + A[2] * k, wij * w[k][2], m, fm, mv, x[p], aij + Ac[2] * k)
                         if ti.static(chunked):
                             grid[t, base[0] + i, base[1] + j, base[2] + k] = (
                                 grid[t, base[0] + i, base[1] + j, base[2] + k] + c

@@ -62,6 +62,7 @@ from simcli.solvers.base import (
 from simcli.solvers.mpm.blocks import BlockFields
 from simcli.solvers.mpm.boundary import GridBoundary
 from simcli.solvers.mpm.constitutive import ConstitutiveLaw, elastic_moduli, law_key
+from simcli.solvers.mpm.cpic import CPIC, cpic_indices
 from simcli.solvers.mpm.fields import MPMFields, MPMParams
 from simcli.solvers.mpm.kernels import build_kernels
 from simcli.solvers.mpm.laws import LAWS
@@ -239,6 +240,10 @@ class MPMSolver(Solver):
                 self.gap_aff = True
                 self.boundary.material_velocity = True
                 self.gdim += dim
+        self.cpic_ch = -1  # the ghost momentum and mass of CPIC colliders (cpic.py)
+        if cpic_indices(self.scene):
+            self.cpic_ch = self.gdim
+            self.gdim += dim + 1
         self.grid = ti.Vector.field(self.gdim, f, shape=(T,) + self.grid_shape)
         self.grid_v = ti.Vector.field(dim, f, shape=self.grid_shape)
         self.grid_m = ti.field(f, shape=self.grid_shape) if self.store_node_mass else None
@@ -267,6 +272,12 @@ class MPMSolver(Solver):
             law.allocate(n)
             law.allocate_materials(self.materials)
         self.boundary.allocate()
+        # CPIC colliders (cpic.py): only scenes with one compile it
+        self.cpic = None
+        if cpic_indices(self.scene):
+            self.cpic = CPIC(self.boundary, self.scene, dim, f, self.origin, self.dx)
+            self.cpic.allocate()
+            self.cpic.bind(self.grid, self.bbox, T, self.gravity, self.cpic_ch)
 
         self._upload()
         for law in self.laws:
@@ -281,7 +292,7 @@ class MPMSolver(Solver):
         # the kernels (kernels.py), built from the explicit bundle, not from this object
         self.params, self.fields = self._bundle()
         self.kernels = build_kernels(
-            self.params, self.fields, self.laws, self.boundary, self.flip, self.count
+            self.params, self.fields, self.laws, self.boundary, self.flip, self.count, self.cpic
         )
         self._outputs = None  # the derived-outputs kernel, built on first use
         self.kernels.compute_bbox()
@@ -428,6 +439,8 @@ class MPMSolver(Solver):
             law.host_update(self.time, dt)
         if self.boundary.any_moving:  # collider poses of this substep (host, no sync)
             self.boundary.set_time(self.time, dt)
+        if self.cpic is not None:
+            self.cpic.set_time(self.time, dt)
         self.kernels.substep(dt)  # clear_grid -> p2g -> grid_update -> g2p, one kernel launch
         self.time += dt
         self._version += 1
@@ -442,6 +455,8 @@ class MPMSolver(Solver):
             law.host_update(self.time, dt)
         if self.boundary.any_moving:
             self.boundary.set_time(self.time, dt)
+        if self.cpic is not None:
+            self.cpic.set_time(self.time, dt)
         self.kernels.pre_couple(dt)
 
     def post_couple(self, dt: float) -> None:
