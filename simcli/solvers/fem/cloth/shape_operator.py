@@ -211,6 +211,8 @@ class MidedgeBending:
         d = self.angles(x)
         Kd = self._moment(d)
         energy = float(d @ Kd)
+        if order < 1:  # energy only
+            return energy, None, None
         g = _dihedral_gradients(x, self.quads)  # (k, 4, 3)
         ge = (2 * Kd)[:, None, None] * g
         grad = np.zeros_like(x)
