@@ -174,6 +174,10 @@ class MidedgeBending:
             else None
         )
         self.aux = None
+        # the Hessian's constant factors, doubled once here rather than at every Newton step (exact: x 2)
+        self._Att2 = (2 * self.Att).tocsr()
+        self._AtpT2 = (2 * self.Atp.T).tocsr()
+        self._App2 = 2 * self.App
         # sparsity of G (k x 3n): hinge h touches the 12 dofs of its quad
         self._gr = np.repeat(np.arange(k), 12)
         self._gc = (3 * self.quads[:, :, None] + np.arange(3)).reshape(k, 12).ravel()
@@ -221,8 +225,8 @@ class MidedgeBending:
         if order < 2:
             return energy, grad, None
         G = sp.csr_matrix((g.reshape(-1), (self._gr, self._gc)), shape=(k, 3 * len(x)))
-        H = (G.T @ (2 * self.Att) @ G).tocoo()
-        self.aux = ((2 * self.Atp.T @ G).tocsr(), 2 * self.App) if self._lu is not None else None
+        H = (G.T @ self._Att2 @ G).tocoo()
+        self.aux = ((self._AtpT2 @ G).tocsr(), self._App2) if self._lu is not None else None
         return energy, grad, (H.row.astype(np.int64), H.col.astype(np.int64), H.data)
 
     def condensed_hessian(self, x: np.ndarray) -> np.ndarray:
