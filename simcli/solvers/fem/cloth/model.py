@@ -173,6 +173,8 @@ class ShellModel:
         w = self.area * self.h  # rest volume
         psi = self.mu * np.einsum("kij,kij->k", Eg, Eg) + 0.5 * self.lam * tr**2
         energy = float(np.sum(w * psi))
+        if order < 1:  # energy only (the line search's trials)
+            return energy, None, None
         P = F @ S  # (m, 3, 2)
         # grad_{a,i} = w sum_j P_ij G_aj
         ge = w[:, None, None] * np.einsum("kij,kaj->kai", P, self.G)  # (m, 3 vertices, 3)
@@ -213,11 +215,13 @@ class ShellModel:
     # ------------------------------------------------------------ bending
     def bending(self, x: np.ndarray, order: int = 2):
         if not len(self.quads):
-            return 0.0, np.zeros_like(x), None
+            return 0.0, (np.zeros_like(x) if order >= 1 else None), None
         th = dihedral_angles(x, self.quads)
         d = th - self.theta0
         d = (d + np.pi) % (2 * np.pi) - np.pi  # across the +-pi cut
         energy = float(np.sum(self.kb * d**2))
+        if order < 1:
+            return energy, None, None
         g = dihedral_gradients(x, self.quads)  # (k, 4, 3)
         ge = (2 * self.kb * d)[:, None, None] * g
         grad = np.zeros_like(x)
@@ -237,11 +241,15 @@ class ShellModel:
             Q = self.quadratic  # scalar (n, n) matrix acting on each coordinate
             Qx = Q @ x
             eb += 0.5 * float(np.sum(x * Qx))
-            gb = gb + Qx
+            if order >= 1:
+                gb = gb + Qx
         if self.shape is not None:
             es, gs, Hs = self.shape(x, order)
             eb += es
-            gb = gb + gs
+            if order >= 1:
+                gb = gb + gs
+        if order < 1:  # energy only
+            return em + eb, None, None
         if order < 2:
             return em + eb, gm + gb, None
         rows = [self._rows_t, self._rows_q]

@@ -173,9 +173,25 @@ class MidedgeBending:
             else None
         )
         self.aux = None
+        # the Hessian's constant factors, doubled once here rather than at every Newton step (exact: x 2)
+        self._Att2 = (2 * self.Att).tocsr()
+        self._AtpT2 = (2 * self.Atp.T).tocsr()
+        self._App2 = 2 * self.App
         # sparsity of G (k x 3n): hinge h touches the 12 dofs of its quad
         self._gr = np.repeat(np.arange(k), 12)
         self._gc = (3 * self.quads[:, :, None] + np.arange(3)).reshape(k, 12).ravel()
+        # the value-independent sparsity of G^T 2 A_tt G and 2 A_tp^T G (scipy's products drop exact zeros,
+        # e.g. the in-plane parts of a flat hinge's gradient): their values are laid on it (_on_pattern), so
+        # the solver's cached Newton-matrix map stays valid while parts of the sheet are flat
+        Gs = sp.csr_matrix((np.ones(12 * k), (self._gr, self._gc)), shape=(k, 3 * self.n))
+        Hs = (Gs.T @ abs(self._Att2) @ Gs).tocsr()
+        Cs = (abs(self._AtpT2) @ Gs).tocsr()
+        Hs.sum_duplicates()  # canonical: sorted within rows
+        Cs.sum_duplicates()
+        self._pat_h = Hs.tocoo()
+        self._key_h = self._pat_h.row.astype(np.int64) * (3 * self.n) + self._pat_h.col
+        self._pat_c = Cs
+        self._key_c = Cs.tocoo().row.astype(np.int64) * (3 * self.n) + Cs.tocoo().col
 
     def edge_rotations(self, d: np.ndarray) -> np.ndarray:
         """phi* (the minimising mid-edge rotations) for the hinge-angle changes d."""
@@ -210,6 +226,8 @@ class MidedgeBending:
         d = self.angles(x)
         Kd = self._moment(d)
         energy = float(d @ Kd)
+        if order < 1:  # energy only
+            return energy, None, None
         g = _dihedral_gradients(x, self.quads)  # (k, 4, 3)
         ge = (2 * Kd)[:, None, None] * g
         grad = np.zeros_like(x)
@@ -218,9 +236,28 @@ class MidedgeBending:
         if order < 2:
             return energy, grad, None
         G = sp.csr_matrix((g.reshape(-1), (self._gr, self._gc)), shape=(k, 3 * len(x)))
-        H = (G.T @ (2 * self.Att) @ G).tocoo()
-        self.aux = ((2 * self.Atp.T @ G).tocsr(), 2 * self.App) if self._lu is not None else None
-        return energy, grad, (H.row.astype(np.int64), H.col.astype(np.int64), H.data)
+        H = (G.T @ self._Att2 @ G).tocsr()
+        hv = self._on_pattern(H, self._key_h)
+        if self._lu is not None:
+            C = (self._AtpT2 @ G).tocsr()
+            Cp = self._pat_c.copy()
+            Cp.data = self._on_pattern(C, self._key_c)
+            self.aux = (Cp, self._App2)
+        else:
+            self.aux = None
+        ph = self._pat_h
+        return energy, grad, (ph.row.astype(np.int64), ph.col.astype(np.int64), hv)
+
+    def _on_pattern(self, A, key):
+        """The values of the canonical CSR A laid on the (row-major sorted) structural pattern key (a
+        superset of A's): exact zeros A dropped are 0 there."""
+        A.sum_duplicates()
+        if A.nnz == len(key):
+            return A.data
+        ak = np.repeat(np.arange(A.shape[0], dtype=np.int64), np.diff(A.indptr)) * A.shape[1] + A.indices
+        out = np.zeros(len(key))
+        out[np.searchsorted(key, ak)] = A.data
+        return out
 
     def condensed_hessian(self, x: np.ndarray) -> np.ndarray:
         """Dense Gauss-Newton Hessian G^T 2 K G of the condensed energy (tests, small meshes)."""
