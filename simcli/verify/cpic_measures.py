@@ -10,7 +10,7 @@ def _plate(f, collider):
     """(spec, motion, thin axis) of the named Box collider of the run's scene."""
     from simcli.colliders import _collider_spec
     from simcli.motion import collider_motion
-    from simcli.verify.measure import _scene_of
+    from simcli.verify.registry import scene_of as _scene_of
 
     scene = _scene_of(f)
     dim = scene.sim.dim
@@ -31,7 +31,7 @@ def plate_crossings(f, entity, collider, **_):
     """Particles of ``entity`` that crossed the named Box collider (a plate along its thinnest axis) so far:
     between two frames a particle went from one side of its mid-plane to the other with both positions
     within the plate's extent along its other axes (each in the plate's body frame at its frame's time)."""
-    from simcli.verify.measure import _stack
+    from simcli.verify.registry import stack_field as _stack
 
     lo, hi, motion, ax = _plate(f, collider)
     cen, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
@@ -56,7 +56,7 @@ def plate_far_drag(f, entity, collider, distance, **_):
     """Mean displacement [m] since the first frame of the particles of ``entity`` that started more than
     ``distance`` [m] from the named Box collider's mid-plane (its plane at the first frame, along its
     thinnest axis): the material a thin plate moving in its own plane should leave where it is."""
-    from simcli.verify.measure import _stack
+    from simcli.verify.registry import stack_field as _stack
 
     lo, hi, motion, ax = _plate(f, collider)
     cen = 0.5 * (lo + hi)

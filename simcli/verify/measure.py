@@ -14,6 +14,8 @@ import numpy as np
 # the registry and its helper live in a leaf module that the family measurement modules import too
 from simcli.verify.registry import MEASUREMENTS, measurement  # noqa: F401  (MEASUREMENTS re-exported)
 from simcli.verify.registry import entity_group as _entity
+from simcli.verify.registry import scene_of as _scene_of  # noqa: F401 (measurement modules' helper)
+from simcli.verify.registry import stack_field as _stack
 
 
 def _positions(g: h5py.Group) -> np.ndarray:
@@ -132,16 +134,6 @@ def run_measurement(h5_path, quantity: str, entity: str | None, axis: int | None
 
 
 # ------------------------------------------------------------------ MPM validation measures
-
-
-def _stack(f, entity, field: str = "position") -> np.ndarray:
-    """``field`` of one entity, or of every entity side by side when ``entity`` is ``"*"``:
-    (frames, particles, ...) as float64."""
-    if entity == "*":
-        groups = list(f["entities"].values())
-        return np.concatenate([np.asarray(g[field][...], dtype=np.float64) for g in groups], axis=1)
-    _, g = _entity(f, entity)
-    return np.asarray(g[field][...], dtype=np.float64)
 
 
 @measurement("pressure_at_depth")
@@ -652,14 +644,6 @@ def collider_force(f, entity, collider, axis=None, component="force", **_):
     n = min(len(d), len(f["time"]))
     v = np.linalg.norm(d[:n], axis=1) if axis is None else d[:n, axis]
     return f["time"][:n], v
-
-
-def _scene_of(f):
-    import yaml
-
-    from simcli.scene.models import Scene
-
-    return Scene.model_validate(yaml.safe_load(f.attrs["scene"]))
 
 
 @measurement("collider_penetration")

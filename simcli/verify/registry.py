@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import h5py
+import numpy as np
 
 MEASUREMENTS: dict[str, Callable] = {}
 
@@ -27,3 +28,22 @@ def entity_group(f: h5py.File, entity: str | None) -> tuple[str, h5py.Group]:
     if entity not in names:
         raise KeyError(f"entity '{entity}' not in sim.h5 (has {', '.join(names)})")
     return entity, f["entities"][entity]
+
+
+def stack_field(f: h5py.File, entity: str, field: str = "position") -> np.ndarray:
+    """``field`` of one entity, or of every entity side by side when ``entity`` is ``"*"``:
+    (frames, particles, ...) as float64."""
+    if entity == "*":
+        groups = list(f["entities"].values())
+        return np.concatenate([np.asarray(g[field][...], dtype=np.float64) for g in groups], axis=1)
+    _, g = entity_group(f, entity)
+    return np.asarray(g[field][...], dtype=np.float64)
+
+
+def scene_of(f: h5py.File):
+    """The run's resolved scene (sim.h5's ``scene`` attribute) as a validated Scene."""
+    import yaml
+
+    from simcli.scene.models import Scene
+
+    return Scene.model_validate(yaml.safe_load(f.attrs["scene"]))
