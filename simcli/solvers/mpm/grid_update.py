@@ -91,11 +91,13 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip, bloc
         bbox_all[1] = hi
         a = bbox_all[0]
         b = bbox_all[1]
-        if ti.static(use_blocks):  # the block list's nodes (blocks.py): the rest are 0 already
-            for q in range(blocks.n_nodes()):
-                I, ok = blocks.node(q, a, b)
-                if ok:
-                    node_update(I, dt)
+        if ti.static(use_blocks):  # the nodes of the blocks in use (blocks.py): the rest are 0 already
+            for B in ti.grouped(blocks.used):
+                if blocks.in_use(B):
+                    for r in range(blocks.block_nodes):
+                        I, ok = blocks.node(B, r, a, b)
+                        if ok:
+                            node_update(I, dt)
         elif ti.static(dim == 3):
             for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
                 node_update(ti.Vector([i, j, k]), dt)

@@ -57,8 +57,8 @@ def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, fl
     ops_p2g = build_p2g(params, fields, stencil, dispatch.kirchhoff, flip, count)
     p2g = ops_p2g.p2g
     blocks = None
-    if params.block_list:  # zero the last substep's blocks, list this one's (blocks.py), then P2G
-        blocks = build_block_list(params, fields, fields.blocks, stencil.base_node, flip, count)
+    if params.block_list:  # zero the last substep's blocks, take G2P's marks as this one's (blocks.py)
+        blocks = build_block_list(params, fields, fields.blocks, flip)
         clear_grid = blocks.prepare
     else:
         clear_grid = ops_p2g.clear_grid
