@@ -19,7 +19,7 @@ P2G grid copy, in ``grid_v`` and, where allocated, in ``grid_m`` and FLIP's ``gr
 at 0, and only such nodes are ever written: P2G writes its particles' stencils, the grid update the
 ``used`` blocks' nodes in the box, the coupling phase nodes of positive mass), so after this loop every grid
 field is 0 everywhere. The grid update then walks the ``used`` blocks' nodes inside the particles' node box
-(``for_nodes``-style: ``block(b)`` tells whether block b is in use; never more nodes than the box sweep).
+(``span``: each block clipped to the box; never more nodes than the box sweep).
 Since every grid field is 0 off these blocks, a node of the box outside them holds exactly what the box
 sweep wrote there (velocity 0, mass 0, FLIP increment 0): the loops that still sweep the box (the coupling
 phase's, simcli/coupling/grid_contact.py; the colliders' image reads of the copies, boundary.py) see the
@@ -81,7 +81,7 @@ class BlockFields:
 
 def build_mark(params, bf: BlockFields):
     """``mark(base)``: ti.func flagging the blocks of the stencil that starts at node ``base`` for the next
-    P2G (plain stores of 1: concurrent writers write the same value)."""
+    P2G (plain stores of 1, only where not set yet: concurrent writers write the same value)."""
     dim, E, mark = params.dim, bf.edge, bf.mark
 
     @ti.func
@@ -93,7 +93,8 @@ def build_mark(params, bf: BlockFields):
             for d in ti.static(range(dim)):
                 if ti.static((c >> d) & 1):
                     b[d] = b1[d]
-            mark[b] = 1
+            if mark[b] == 0:  # read first: most stores would repeat, and each one dirties a shared line
+                mark[b] = 1
 
     return do_mark
 
@@ -101,16 +102,14 @@ def build_mark(params, bf: BlockFields):
 @dataclass(frozen=True)
 class BlockList:
     """``prepare()``: zero the last substep's blocks and make the marked blocks this substep's (call before
-    P2G); ``for_nodes(lo, hi, body)`` is not expressible in Taichi, so the grid update loops
-    ``for b in ti.grouped(used)`` itself with ``in_use(b)`` and ``node(b, r, lo, hi)``: the r-th node of
-    block b and whether it lies in the node box [lo, hi). All ``ti.func``; ``used``: the flag field;
-    ``block_nodes``: nodes per block."""
+    P2G). The grid update loops ``for B in ti.grouped(used)`` over the blocks with ``in_use(B)`` and
+    ``span(B, lo, hi)``: block B's nodes inside the node box [lo, hi) as per-axis ranges [a, c). All
+    ``ti.func``; ``used``: the flag field."""
 
     prepare: Any
     in_use: Any
-    node: Any
+    span: Any
     used: Any
-    block_nodes: int
 
 
 def build_block_list(params, fields, bf: BlockFields, flip) -> BlockList:
@@ -118,27 +117,29 @@ def build_block_list(params, fields, bf: BlockFields, flip) -> BlockList:
     transfer.FlipTransfer or None."""
     dim, f, T, gdim = params.dim, params.dtype, params.T, params.gdim
     E = bf.edge
-    BS = E**dim
     grid, grid_v, grid_m, bbox_all = fields.grid, fields.grid_v, fields.grid_m, fields.bbox_all
     keep_m = grid_m is not None
     use_flip = flip is not None
     mark, used = bf.mark, bf.used
 
     @ti.func
-    def node(b, r, lo, hi):
-        off = ti.Vector.zero(ti.i32, dim)
-        for d in ti.static(range(dim)):  # last axis fastest, as the dense layout
-            off[dim - 1 - d] = r % E
-            r = r // E
-        I = b * E + off
-        ok = True
-        for d in ti.static(range(dim)):
-            ok = ok and lo[d] <= I[d] and I[d] < hi[d]
-        return I, ok
+    def span(b, lo, hi):
+        """Block b's nodes inside the node box [lo, hi): [a, c) per axis (empty where c <= a)."""
+        return ti.max(b * E, lo), ti.min(b * E + E, hi)
 
     @ti.func
     def in_use(b):
         return used[b] != 0
+
+    @ti.func
+    def zero(I):
+        for t in ti.static(range(T)):
+            grid[t, I] = ti.Vector.zero(f, gdim)
+        grid_v[I] = ti.Vector.zero(f, dim)
+        if ti.static(keep_m):
+            grid_m[I] = 0.0
+        if ti.static(use_flip):
+            flip.grid_dv[I] = ti.Vector.zero(f, dim)
 
     @ti.func
     def prepare():
@@ -146,17 +147,17 @@ def build_block_list(params, fields, bf: BlockFields, flip) -> BlockList:
         hi = bbox_all[1]
         for b in ti.grouped(used):  # one parallel task
             if used[b] != 0:  # the nodes the last substep wrote back to 0
-                for r in range(BS):
-                    I, ok = node(b, r, lo, hi)
-                    if ok:
-                        for t in ti.static(range(T)):
-                            grid[t, I] = ti.Vector.zero(f, gdim)
-                        grid_v[I] = ti.Vector.zero(f, dim)
-                        if ti.static(keep_m):
-                            grid_m[I] = 0.0
-                        if ti.static(use_flip):
-                            flip.grid_dv[I] = ti.Vector.zero(f, dim)
+                a, c = span(b, lo, hi)
+                if ti.static(dim == 3):
+                    for i in range(a[0], c[0]):
+                        for j in range(a[1], c[1]):
+                            for k in range(a[2], c[2]):
+                                zero(ti.Vector([i, j, k]))
+                else:
+                    for i in range(a[0], c[0]):
+                        for j in range(a[1], c[1]):
+                            zero(ti.Vector([i, j]))
             used[b] = mark[b]  # this substep's blocks; the marks start over for the next one
             mark[b] = 0
 
-    return BlockList(prepare, in_use, node, used, BS)
+    return BlockList(prepare, in_use, span, used)

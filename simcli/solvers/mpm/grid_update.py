@@ -94,10 +94,16 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip, bloc
         if ti.static(use_blocks):  # the nodes of the blocks in use (blocks.py): the rest are 0 already
             for B in ti.grouped(blocks.used):
                 if blocks.in_use(B):
-                    for r in range(blocks.block_nodes):
-                        I, ok = blocks.node(B, r, a, b)
-                        if ok:
-                            node_update(I, dt)
+                    u, w = blocks.span(B, a, b)
+                    if ti.static(dim == 3):
+                        for i in range(u[0], w[0]):
+                            for j in range(u[1], w[1]):
+                                for k in range(u[2], w[2]):
+                                    node_update(ti.Vector([i, j, k]), dt)
+                    else:
+                        for i in range(u[0], w[0]):
+                            for j in range(u[1], w[1]):
+                                node_update(ti.Vector([i, j]), dt)
         elif ti.static(dim == 3):
             for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
                 node_update(ti.Vector([i, j, k]), dt)
