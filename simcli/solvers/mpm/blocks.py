@@ -50,18 +50,24 @@ def block_shape(grid_shape: tuple, edge: int) -> tuple:
 
 @dataclass
 class BlockFields:
-    """``mark`` (i32 per block: the next P2G's stencils touch it), ``used`` (i32 per block: the last P2G's,
-    after ``prepare()`` this substep's)."""
+    """``mark`` (i32 per block: the next P2G's stencils touch it), ``used`` (i32 per block: the last P2G's
+    until the grid update, then this substep's), ``wrote`` (per P2G copy, the box the last P2G wrote)."""
 
     edge: int
     mark: Any
     used: Any
+    wrote: Any  # per P2G copy t: the node box [lo, hi) the last P2G wrote that copy in (a chunk's box)
 
     @classmethod
-    def allocate(cls, dim: int, grid_shape: tuple, edge: int | None = None) -> BlockFields:
+    def allocate(cls, dim: int, grid_shape: tuple, T: int = 1, edge: int | None = None) -> BlockFields:
         edge = BLOCK_EDGE[dim] if edge is None else int(edge)
         bshape = block_shape(grid_shape, edge)
-        return cls(edge=edge, mark=ti.field(ti.i32, shape=bshape), used=ti.field(ti.i32, shape=bshape))
+        return cls(
+            edge=edge,
+            mark=ti.field(ti.i32, shape=bshape),
+            used=ti.field(ti.i32, shape=bshape),
+            wrote=ti.Vector.field(dim, ti.i32, shape=(T, 2)),
+        )
 
     def nodes(self, base: np.ndarray, lo, hi) -> int:
         """The nodes a grid update visits for particles whose stencils start at the nodes ``base`` (n x dim):
@@ -81,7 +87,7 @@ class BlockFields:
 
 def build_mark(params, bf: BlockFields):
     """``mark(base)``: ti.func flagging the blocks of the stencil that starts at node ``base`` for the next
-    P2G (plain stores of 1, only where not set yet: concurrent writers write the same value)."""
+    P2G (plain stores of 1: concurrent writers write the same value)."""
     dim, E, mark = params.dim, bf.edge, bf.mark
 
     @ti.func
@@ -93,34 +99,34 @@ def build_mark(params, bf: BlockFields):
             for d in ti.static(range(dim)):
                 if ti.static((c >> d) & 1):
                     b[d] = b1[d]
-            if mark[b] == 0:  # read first: most stores would repeat, and each one dirties a shared line
-                mark[b] = 1
+            mark[b] = 1  # (a read before the store changed the G2P loop's code: last-bit velocities)
 
     return do_mark
 
 
 @dataclass(frozen=True)
 class BlockList:
-    """``prepare()``: zero the last substep's blocks and make the marked blocks this substep's (call before
-    P2G). The grid update loops ``for B in ti.grouped(used)`` over the blocks with ``in_use(B)`` and
-    ``span(B, lo, hi)``: block B's nodes inside the node box [lo, hi) as per-axis ranges [a, c). All
-    ``ti.func``; ``used``: the flag field."""
+    """``prepare()``: without chunks, zero the copy the last P2G wrote (call before P2G; a no-op with
+    chunks); ``clear_copy(t)``: with chunks, the same for copy t, serially in chunk t's P2G task;
+    ``make_update(node_update)`` (Python) -> ``update(dt, plo, phi, lo, hi)``: the grid update over the
+    blocks (``node_update(I, dt)`` per node), which also zeroes the last substep's other nodes and hands
+    the marks over. The others are ``ti.func``."""
 
     prepare: Any
-    in_use: Any
-    span: Any
-    used: Any
+    clear_copy: Any
+    make_update: Any
 
 
 def build_block_list(params, fields, bf: BlockFields, flip) -> BlockList:
     """``params``/``fields``: fields.MPMParams/MPMFields; ``bf``: the block fields; ``flip``:
     transfer.FlipTransfer or None."""
-    dim, f, T, gdim = params.dim, params.dtype, params.T, params.gdim
+    dim, f, gdim, chunked = params.dim, params.dtype, params.gdim, params.chunked
     E = bf.edge
-    grid, grid_v, grid_m, bbox_all = fields.grid, fields.grid_v, fields.grid_m, fields.bbox_all
+    grid, grid_v, grid_m = fields.grid, fields.grid_v, fields.grid_m
+    bbox, bbox_all = fields.bbox, fields.bbox_all
     keep_m = grid_m is not None
     use_flip = flip is not None
-    mark, used = bf.mark, bf.used
+    mark, used, wrote = bf.mark, bf.used, bf.wrote
 
     @ti.func
     def span(b, lo, hi):
@@ -128,13 +134,20 @@ def build_block_list(params, fields, bf: BlockFields, flip) -> BlockList:
         return ti.max(b * E, lo), ti.min(b * E + E, hi)
 
     @ti.func
-    def in_use(b):
-        return used[b] != 0
+    def zero_copy(t, b, lo, hi):
+        u, w = span(b, lo, hi)
+        if ti.static(dim == 3):
+            for i in range(u[0], w[0]):
+                for j in range(u[1], w[1]):
+                    for k in range(u[2], w[2]):
+                        grid[t, i, j, k] = ti.Vector.zero(f, gdim)
+        else:
+            for i in range(u[0], w[0]):
+                for j in range(u[1], w[1]):
+                    grid[t, i, j] = ti.Vector.zero(f, gdim)
 
     @ti.func
-    def zero(I):
-        for t in ti.static(range(T)):
-            grid[t, I] = ti.Vector.zero(f, gdim)
+    def zero_node(I):
         grid_v[I] = ti.Vector.zero(f, dim)
         if ti.static(keep_m):
             grid_m[I] = 0.0
@@ -142,22 +155,84 @@ def build_block_list(params, fields, bf: BlockFields, flip) -> BlockList:
             flip.grid_dv[I] = ti.Vector.zero(f, dim)
 
     @ti.func
-    def prepare():
-        lo = bbox_all[0]  # the last substep's node box: it holds every node the last substep wrote
-        hi = bbox_all[1]
-        for b in ti.grouped(used):  # one parallel task
-            if used[b] != 0:  # the nodes the last substep wrote back to 0
-                a, c = span(b, lo, hi)
-                if ti.static(dim == 3):
-                    for i in range(a[0], c[0]):
-                        for j in range(a[1], c[1]):
-                            for k in range(a[2], c[2]):
-                                zero(ti.Vector([i, j, k]))
-                else:
-                    for i in range(a[0], c[0]):
-                        for j in range(a[1], c[1]):
-                            zero(ti.Vector([i, j]))
-            used[b] = mark[b]  # this substep's blocks; the marks start over for the next one
-            mark[b] = 0
+    def clear_copy(t):
+        """Serial (chunk t's P2G task): copy t back to 0 where the last P2G wrote it (the ``used`` blocks
+        in its box), then remember this P2G's box (the chunk's node box)."""
+        lo = wrote[t, 0]
+        hi = wrote[t, 1]
+        b0 = lo // E
+        b1 = (hi + E - 1) // E
+        if ti.static(dim == 3):
+            for bi in range(b0[0], b1[0]):
+                for bj in range(b0[1], b1[1]):
+                    for bk in range(b0[2], b1[2]):
+                        b = ti.Vector([bi, bj, bk])
+                        if used[b] != 0:
+                            zero_copy(t, b, lo, hi)
+        else:
+            for bi in range(b0[0], b1[0]):
+                for bj in range(b0[1], b1[1]):
+                    b = ti.Vector([bi, bj])
+                    if used[b] != 0:
+                        zero_copy(t, b, lo, hi)
+        wrote[t, 0] = bbox[t, 0]
+        wrote[t, 1] = bbox[t, 1]
 
-    return BlockList(prepare, in_use, span, used)
+    @ti.func
+    def prepare():
+        if ti.static(not chunked):  # one parallel task over the block flags (the GPU's path)
+            lo = bbox_all[0]  # the last substep's node box: it holds every node the last substep wrote
+            hi = bbox_all[1]
+            for b in ti.grouped(used):
+                if used[b] != 0:
+                    zero_copy(0, b, lo, hi)
+
+    def make_update(node_update):
+        """``update(dt, plo, phi, lo, hi)`` for the grid update's ``node_update(I, dt)``."""
+
+        @ti.func
+        def update(dt, plo, phi, lo, hi):
+            """Over the blocks: the marked ones' nodes in this substep's node box [lo, hi) get
+            ``node_update``; the last substep's (``used``) nodes in its box [plo, phi) that this one does not
+            update go back to 0 (grid_v, grid_m, FLIP's increment); then ``used`` takes the marks."""
+            for b in ti.grouped(used):  # one parallel task
+                p = used[b]
+                c = mark[b]
+                if c != 0:
+                    u, w = span(b, lo, hi)
+                    if ti.static(dim == 3):
+                        for i in range(u[0], w[0]):
+                            for j in range(u[1], w[1]):
+                                for k in range(u[2], w[2]):
+                                    node_update(ti.Vector([i, j, k]), dt)
+                    else:
+                        for i in range(u[0], w[0]):
+                            for j in range(u[1], w[1]):
+                                node_update(ti.Vector([i, j]), dt)
+                if p != 0:
+                    u, w = span(b, plo, phi)
+                    covered = c != 0  # the last box's part of the block lies in this box: all updated
+                    for d in ti.static(range(dim)):
+                        covered = covered and (w[d] <= u[d] or (lo[d] <= u[d] and w[d] <= hi[d]))
+                    if not covered:
+                        if ti.static(dim == 3):
+                            for i in range(u[0], w[0]):
+                                for j in range(u[1], w[1]):
+                                    for k in range(u[2], w[2]):
+                                        I = ti.Vector([i, j, k])
+                                        if c == 0 or (I < lo).any() or (I >= hi).any():
+                                            zero_node(I)
+                        else:
+                            for i in range(u[0], w[0]):
+                                for j in range(u[1], w[1]):
+                                    I = ti.Vector([i, j])
+                                    if c == 0 or (I < lo).any() or (I >= hi).any():
+                                        zero_node(I)
+                if p != c:
+                    used[b] = c
+                if c != 0:
+                    mark[b] = 0
+
+        return update
+
+    return BlockList(prepare, clear_copy, make_update)

@@ -80,8 +80,12 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip, bloc
         if ti.static(use_flip):
             flip.store(I, g, vI)
 
+    block_update = blocks.make_update(node_update) if use_blocks else None
+
     @ti.func
     def grid_update(dt):
+        pa = bbox_all[0]  # the last substep's node box (the block list zeroes what it wrote there)
+        pb = bbox_all[1]
         lo = bbox[0, 0]
         hi = bbox[0, 1]
         for t in ti.static(range(1, T)):
@@ -91,19 +95,8 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip, bloc
         bbox_all[1] = hi
         a = bbox_all[0]
         b = bbox_all[1]
-        if ti.static(use_blocks):  # the nodes of the blocks in use (blocks.py): the rest are 0 already
-            for B in ti.grouped(blocks.used):
-                if blocks.in_use(B):
-                    u, w = blocks.span(B, a, b)
-                    if ti.static(dim == 3):
-                        for i in range(u[0], w[0]):
-                            for j in range(u[1], w[1]):
-                                for k in range(u[2], w[2]):
-                                    node_update(ti.Vector([i, j, k]), dt)
-                    else:
-                        for i in range(u[0], w[0]):
-                            for j in range(u[1], w[1]):
-                                node_update(ti.Vector([i, j]), dt)
+        if ti.static(use_blocks):  # the marked blocks' nodes (blocks.py): the rest are 0
+            block_update(dt, pa, pb, a, b)
         elif ti.static(dim == 3):
             for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
                 node_update(ti.Vector([i, j, k]), dt)

@@ -54,14 +54,13 @@ def build_kernels(params: MPMParams, fields: MPMFields, laws: list, boundary, fl
     dispatch = build_law_dispatch(
         params.dim, f, laws, fields.mid, fields.mat_mu, fields.mat_lam, fields.mat_law_id
     )
-    ops_p2g = build_p2g(params, fields, stencil, dispatch.kirchhoff, flip, count)
-    p2g = ops_p2g.p2g
     blocks = None
-    if params.block_list:  # zero the last substep's blocks, take G2P's marks as this one's (blocks.py)
+    if params.block_list:  # zero what the last substep wrote, take G2P's marks (blocks.py)
         blocks = build_block_list(params, fields, fields.blocks, flip)
-        clear_grid = blocks.prepare
-    else:
-        clear_grid = ops_p2g.clear_grid
+    chunk_clear = blocks.clear_copy if blocks is not None and params.chunked else None
+    ops_p2g = build_p2g(params, fields, stencil, dispatch.kirchhoff, flip, count, chunk_clear)
+    p2g = ops_p2g.p2g
+    clear_grid = blocks.prepare if blocks is not None else ops_p2g.clear_grid
     grid_update = build_grid_update(params, fields, boundary, flip, blocks)
     ops_g2p = build_g2p(params, fields, stencil, laws, boundary, flip, count)
     g2p, node_boxes = ops_g2p.g2p, ops_g2p.node_boxes

@@ -245,7 +245,7 @@ class MPMSolver(Solver):
         self.bbox = ti.Vector.field(dim, ti.i32, shape=(T, 2))  # per chunk [lo, hi) node box
         self.bbox_all = ti.Vector.field(dim, ti.i32, shape=2)
         self.chunk_start = ti.field(ti.i32, shape=T + 1)
-        self.blocks = BlockFields.allocate(dim, self.grid_shape) if self.grid_blocks else None
+        self.blocks = BlockFields.allocate(dim, self.grid_shape, T) if self.grid_blocks else None
 
         # run-time parameters
         nm = len(self.materials)
