@@ -1,8 +1,8 @@
 """Grid update: node momentum -> node velocity, gravity, then the boundary conditions.
 
-Over the nodes of the block list (blocks.py: the blocks the particles' stencils touch; every other node
-of the grid fields is 0), or without one over the union of the chunks' node boxes (nodes outside hold
-stale values; nothing reads them), each node
+Over the nodes of the flagged blocks (blocks.py: the blocks the particles' stencils touch; every other
+node of the grid fields is 0; the loop also zeroes the last substep's other nodes), or without one
+over the union of the chunks' node boxes (nodes outside hold stale values; nothing reads them), each node
 sums the P2G grid copies whose chunk box holds it (in a fixed order: bitwise reproducible), divides the
 momentum by the mass, adds ``dt g``, and then: a node touched by a fixed particle is pinned (velocity 0),
 any other gets the walls' and colliders' contact conditions (``boundary.GridBoundary.apply``). Empty nodes
