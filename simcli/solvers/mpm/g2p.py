@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from simcli.backend import stdout_to_stderr
+from simcli.solvers.mpm.blocks import build_mark
 from simcli.solvers.mpm.fields import CHUNK_STRIDE, MPMFields, MPMParams
 from simcli.solvers.mpm.stencil import Stencil, chunk_of
 
@@ -60,6 +61,8 @@ def build_g2p(
     dom_lo = ti.Vector(list(params.domain_lo), dt=f)
     dom_hi = ti.Vector(list(params.domain_hi), dt=f)
     big = 1 << 30
+    marking = params.block_list  # flag the next P2G's blocks where the node boxes are made (blocks.py)
+    mark_blocks = build_mark(params, fields.blocks) if marking else None
     bspline, base_node = stencil.bspline, stencil.base_node
 
     @ti.func
@@ -168,6 +171,8 @@ def build_g2p(
                         if ti.static(move):
                             g2p_particle(p, dt)
                         bp = particle_base(p)
+                        if ti.static(marking):
+                            mark_blocks(bp)
                         lo = ti.min(lo, bp)
                         hi = ti.max(hi, bp)
                     bbox[t, 0] = lo
@@ -179,6 +184,8 @@ def build_g2p(
                 if ti.static(move):
                     g2p_particle(p, dt)
                 bp = particle_base(p)
+                if ti.static(marking):
+                    mark_blocks(bp)
                 for d in ti.static(range(dim)):
                     ti.atomic_min(bbox[0, 0][d], bp[d])
                     ti.atomic_max(bbox[0, 1][d], bp[d] + 3)

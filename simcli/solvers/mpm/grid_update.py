@@ -1,8 +1,8 @@
 """Grid update: node momentum -> node velocity, gravity, then the boundary conditions.
 
-Over the nodes of the block list (blocks.py: the blocks the particles' stencils touch; every other node
-of the grid fields is 0), or without one over the union of the chunks' node boxes (nodes outside hold
-stale values; nothing reads them), each node
+Over the nodes of the flagged blocks (blocks.py: the blocks the particles' stencils touch; every other
+node of the grid fields is 0; the loop also zeroes the last substep's other nodes), or without one
+over the union of the chunks' node boxes (nodes outside hold stale values; nothing reads them), each node
 sums the P2G grid copies whose chunk box holds it (in a fixed order: bitwise reproducible), divides the
 momentum by the mass, adds ``dt g``, and then: a node touched by a fixed particle is pinned (velocity 0),
 any other gets the walls' and colliders' contact conditions (``boundary.GridBoundary.apply``). Empty nodes
@@ -80,8 +80,12 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip, bloc
         if ti.static(use_flip):
             flip.store(I, g, vI)
 
+    block_update = blocks.make_update(node_update) if use_blocks else None
+
     @ti.func
     def grid_update(dt):
+        pa = bbox_all[0]  # the last substep's node box (the block list zeroes what it wrote there)
+        pb = bbox_all[1]
         lo = bbox[0, 0]
         hi = bbox[0, 1]
         for t in ti.static(range(1, T)):
@@ -91,11 +95,8 @@ def build_grid_update(params: MPMParams, fields: MPMFields, boundary, flip, bloc
         bbox_all[1] = hi
         a = bbox_all[0]
         b = bbox_all[1]
-        if ti.static(use_blocks):  # the block list's nodes (blocks.py): the rest are 0 already
-            for q in range(blocks.n_nodes()):
-                I, ok = blocks.node(q, a, b)
-                if ok:
-                    node_update(I, dt)
+        if ti.static(use_blocks):  # the marked blocks' nodes (blocks.py): the rest are 0
+            block_update(dt, pa, pb, a, b)
         elif ti.static(dim == 3):
             for i, j, k in ti.ndrange((a[0], b[0]), (a[1], b[1]), (a[2], b[2])):
                 node_update(ti.Vector([i, j, k]), dt)

@@ -57,16 +57,15 @@ def build_kernels(
     dispatch = build_law_dispatch(
         params.dim, f, laws, fields.mid, fields.mat_mu, fields.mat_lam, fields.mat_law_id
     )
-    ops_p2g = build_p2g(params, fields, stencil, dispatch.kirchhoff, flip, count, cpic)
-    p2g = ops_p2g.p2g
     blocks = None
     if (
         params.block_list
-    ):  # zero the last substep's blocks (all gdim channels, CPIC's ghosts too), list this one's
-        blocks = build_block_list(params, fields, fields.blocks, stencil.base_node, flip, count)
-        clear_grid = blocks.prepare
-    else:
-        clear_grid = ops_p2g.clear_grid
+    ):  # zero what the last substep wrote (all gdim channels, CPIC's ghosts too), take G2P's marks
+        blocks = build_block_list(params, fields, fields.blocks, flip)
+    chunk_clear = blocks.clear_copy if blocks is not None and params.chunked else None
+    ops_p2g = build_p2g(params, fields, stencil, dispatch.kirchhoff, flip, count, chunk_clear, cpic)
+    p2g = ops_p2g.p2g
+    clear_grid = blocks.prepare if blocks is not None else ops_p2g.clear_grid
     grid_update = build_grid_update(params, fields, boundary, flip, blocks)
     ops_g2p = build_g2p(params, fields, stencil, laws, boundary, flip, count, cpic)
     g2p, node_boxes = ops_g2p.g2p, ops_g2p.node_boxes

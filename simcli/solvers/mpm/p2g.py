@@ -30,11 +30,19 @@ class P2G:
 
 
 def build_p2g(
-    params: MPMParams, fields: MPMFields, stencil: Stencil, kirchhoff, flip, count, cpic=None
+    params: MPMParams,
+    fields: MPMFields,
+    stencil: Stencil,
+    kirchhoff,
+    flip,
+    count,
+    chunk_clear=None,
+    cpic=None,
 ) -> P2G:
     """``kirchhoff(p, F, J, update)``: the particle's Kirchhoff stress (laws.LawDispatch.kirchhoff);
     ``flip``: the FLIP transfer (transfer.FlipTransfer) or None (APIC); ``count``: ti.func, the particle
-    loop's bound; ``cpic``: cpic.CPIC or None (a particle sends nothing to the nodes across a CPIC
+    loop's bound; ``chunk_clear(t)``: with the block list and chunks, zeroes copy t in chunk t's task
+    (blocks.py); ``cpic``: cpic.CPIC or None (a particle sends nothing to the nodes across a CPIC
     collider). Reads x, v, C, F, mass, vol, fixed, bbox, chunk_start; writes grid."""
     use_cpic = cpic is not None
     dim, f, T, gdim, gap_ch = params.dim, params.dtype, params.T, params.gdim, params.gap_ch
@@ -52,6 +60,7 @@ def build_p2g(
         fields.fixed,
     )
     grid, bbox, chunk_start = fields.grid, fields.bbox, fields.chunk_start
+    own_clear = chunk_clear is not None
     use_flip = flip is not None
     bspline, cols = stencil.bspline, stencil.cols
 
@@ -168,7 +177,9 @@ def build_p2g(
             for j in range(T * CHUNK_STRIDE):
                 t = chunk_of(j)
                 if t >= 0:
-                    if ti.static(not params.block_list):  # with the block list blocks.py clears
+                    if ti.static(own_clear):  # the block list's (blocks.py)
+                        chunk_clear(t)
+                    elif ti.static(not params.block_list):
                         clear_copy(t)  # serial inside the chunk's task: saves a parallel launch
                     for p in range(chunk_start[t], chunk_start[t + 1]):
                         p2g_particle(p, t, dt)

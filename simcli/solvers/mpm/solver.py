@@ -16,11 +16,11 @@ Design choices (measured on a 2-core CPU, see benchmarks/mpm_micro.py):
 
 * **Grid work over the blocks that hold material.** The grid is a dense array over the domain
   plus ``PAD`` cells, but ``clear_grid`` and ``grid_update`` only visit the blocks of 4^3 (2D: 8^2)
-  nodes the particles' stencils touch, inside the particles' node box (blocks.py: a marking pass
-  over the particles and a compaction into a list, on the device: no host sync). Every grid field is
-  0 off the list (the clear zeroes the last substep's blocks), so loops that still sweep the box
-  (the coupling phase) see what a box sweep wrote. g2p computes the box from the new positions into
-  a tiny field. ``grid_blocks = False`` sweeps the whole box instead (the comparison in the tests).
+  nodes the particles' stencils touch, inside the particles' node box (blocks.py: g2p flags the
+  blocks where it computes the box from the new positions, on the device: no host sync, no extra
+  pass). Every grid field is 0 off the flagged blocks (P2G's chunk tasks and the grid update zero what
+  the last substep wrote), so loops that still sweep the box (the coupling phase) see what a box sweep
+  wrote. ``grid_blocks = False`` sweeps the whole box instead (the comparison in the tests).
 * **P2G without atomics on the CPU.** Particles are split into ``T`` contiguous chunks
   (T = threads); chunk t scatters into its own copy t of the grid with plain read-add-write, and
   ``grid_update`` sums the copies in a fixed order. This removes the atomic float adds (a
@@ -250,7 +250,7 @@ class MPMSolver(Solver):
         self.bbox = ti.Vector.field(dim, ti.i32, shape=(T, 2))  # per chunk [lo, hi) node box
         self.bbox_all = ti.Vector.field(dim, ti.i32, shape=2)
         self.chunk_start = ti.field(ti.i32, shape=T + 1)
-        self.blocks = BlockFields.allocate(dim, self.grid_shape) if self.grid_blocks else None
+        self.blocks = BlockFields.allocate(dim, self.grid_shape, T) if self.grid_blocks else None
 
         # run-time parameters
         nm = len(self.materials)
