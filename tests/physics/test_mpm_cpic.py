@@ -55,7 +55,14 @@ def test_a_cpic_wall_thinner_than_the_kernel_keeps_two_liquid_columns_apart(ti_f
     assert abs(force[1]) < 0.03 * force[0]  # a frictionless wall
 
 
-@pytest.mark.parametrize("kind, moving", [("Box", False), ("Box", True), ("Plane", True)])
+@pytest.mark.parametrize(
+    "kind, moving",
+    [
+        ("Box", False),
+        ("Box", True),
+        pytest.param("Plane", True, marks=pytest.mark.slow),  # 18 CPU s: the moving Box covers the path
+    ],
+)
 def test_the_force_on_a_named_cpic_plate_is_the_momentum_the_material_lost(ti_f32, kind, moving):
     """An elastic disk without gravity thrown at a thin plate (static, or moving towards it) or a Plane:
     the material's momentum plus the impulse the collider reports stays what it was, and nothing crosses
