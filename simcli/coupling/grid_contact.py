@@ -64,6 +64,20 @@ SEPARATION = 0.05
 OVERLAP_TOL = 0.3
 
 
+def pbd_vertex_mass(pbd: Any):
+    """A ti.func i -> PBD particle i's mass, 1 / w (0 for a pinned particle, w = 0)."""
+    w, f = pbd.w, pbd.f
+
+    @ti.func
+    def m(i):
+        r = ti.cast(0.0, f)
+        if w[i] > 0:
+            r = 1.0 / w[i]
+        return r
+
+    return m
+
+
 class GridContact:
     def __init__(self, mpm: Any, other: ParticleSet, name: str) -> None:
         self.mpm, self.other, self.name = mpm, other, name

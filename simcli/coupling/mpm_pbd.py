@@ -21,7 +21,7 @@ from typing import Any
 
 import taichi as ti
 
-from simcli.coupling.grid_contact import GridContact, ParticleSet
+from simcli.coupling.grid_contact import GridContact, ParticleSet, pbd_vertex_mass
 from simcli.coupling.sheet_contact import SheetContact
 
 
@@ -57,19 +57,13 @@ def make_mpm_pbd(mpm: Any, pbd: Any) -> MpmPbd:
 
 def _grid(mpm: Any, pbd: Any) -> GridContact:
     dim = mpm.dim
-    xp, w = pbd.xp, pbd.w
-    f = pbd.f
+    xp = pbd.xp
 
     @ti.func
     def pos(i):
         return ti.Vector([xp[i][d] for d in ti.static(range(dim))])
 
-    @ti.func
-    def m(i):
-        r = ti.cast(0.0, f)
-        if w[i] > 0:
-            r = 1.0 / w[i]
-        return r
+    m = pbd_vertex_mass(pbd)
 
     ents = [e for e in list(pbd.scene.entities) + list(pbd.scene.emitters) if e.family == "PBD"]
     rho = min(float(e.material.rho) for e in ents)
@@ -90,14 +84,7 @@ def _grid(mpm: Any, pbd: Any) -> GridContact:
 
 
 def _sheet(mpm: Any, pbd: Any) -> SheetContact:
-    w, f = pbd.w, pbd.f
-
-    @ti.func
-    def m(i):
-        r = ti.cast(0.0, f)
-        if w[i] > 0:
-            r = 1.0 / w[i]
-        return r
+    m = pbd_vertex_mass(pbd)
 
     count = pbd.count if pbd.active_set is not None else None
     sweeps = [k for k in (pbd._solve_stretch, pbd._solve_volume) if k is not None]

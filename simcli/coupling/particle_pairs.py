@@ -15,25 +15,20 @@ from typing import Any
 
 import taichi as ti
 
-from simcli.coupling.grid_contact import ParticleSet
+from simcli.coupling.grid_contact import ParticleSet, pbd_vertex_mass
 from simcli.coupling.mpm_fem import fem_particle_set
 from simcli.coupling.mpm_sph import sph_particle_set
 from simcli.coupling.particle_contact import ParticleContact
 
 
 def pbd_particle_set(pbd: Any) -> ParticleSet:
-    xp, w, f = pbd.xp, pbd.w, pbd.f
+    xp = pbd.xp
 
     @ti.func
     def pos(i):
         return xp[i]
 
-    @ti.func
-    def m(i):
-        r = ti.cast(0.0, f)
-        if w[i] > 0:
-            r = 1.0 / w[i]
-        return r
+    m = pbd_vertex_mass(pbd)
 
     ents = [e for e in pbd.scene.entities if e.family == "PBD"]
     # particles and soft bodies (tet meshes: lumped vertex masses, as FEM's) fill space; cloth and rods do not
