@@ -83,10 +83,11 @@ def main() -> None:
     ap.add_argument("--grid", type=int, default=64)
     ap.add_argument("--substeps", type=int, default=200)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: Taichi's, all cores)")
     a = ap.parse_args()
     from simcli.backend import init_taichi
 
-    init_taichi("cpu", "f32")
+    init_taichi("cpu", "f32", threads=a.threads)
     import taichi as ti
 
     solvers = {}
@@ -123,7 +124,10 @@ def main() -> None:
             s.boundary.set_time = upload
     base = statistics.median(cpu["still Cylinder (primitive)"])
     n = len(next(iter(solvers.values())).entity_arrays("sand", ["position"])["position"])
-    print(f"grid {a.grid}, {n} particles, {a.substeps} substeps x {a.repeats} interleaved repeats, CPU time")
+    print(
+        f"grid {a.grid}, {n} particles, {a.substeps} substeps x {a.repeats} interleaved repeats, CPU time, "
+        f"threads {a.threads or 'all'}"
+    )
     print(
         "| collider | CPU ms per substep | vs still Cylinder | without the pose upload | vs still Cylinder |"
     )
