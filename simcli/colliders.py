@@ -434,6 +434,7 @@ class ColliderPoses:
         self.pivot.from_numpy(piv)
         self.load.fill(0.0)
         self._buf = np.zeros((2, nc, POSE_LEN), npf)  # the host side of ``pose``, refilled every substep
+        self._static_filled = False
         self._dt_last = None
         self.set_time(0.0, 0.0)
 
@@ -445,16 +446,24 @@ class ColliderPoses:
         buf = self._buf
         for k, c in enumerate(self.specs):
             m = self.motions[k]
+            if m is None and self._static_filled:
+                continue  # a still (named) collider's pose never changes: written once
             for slot, ts in enumerate((t + 0.5 * dt, t + dt)):
                 if m is None:
                     R, cen, v, w = np.eye(d), np.asarray(c.centre or (0.0,) * d), np.zeros(d), np.zeros(3)
+                elif m.constant:  # plain floats, the same arithmetic as pose() (tests/unit/test_motion.py)
+                    R9, cen3, v3, w = m.constant_pose_flat(ts)
+                    R = [R9[3 * i + j] for i in range(d) for j in range(d)]
+                    cen, v = cen3[:d], v3[:d]
                 else:
                     ps = m.pose(ts)
-                    R, cen, v, w = ps.R, ps.c, ps.v, ps.w
-                buf[slot, k, : d * d] = R.reshape(-1)
-                buf[slot, k, 9 : 9 + d] = cen
-                buf[slot, k, 12 : 12 + d] = v
-                buf[slot, k, 15:18] = w
+                    R, cen, v, w = ps.R.reshape(-1), ps.c, ps.v, ps.w
+                row = buf[slot, k]
+                row[: d * d] = R if not isinstance(R, np.ndarray) else R.reshape(-1)
+                row[9 : 9 + d] = cen
+                row[12 : 12 + d] = v
+                row[15:18] = w
+        self._static_filled = True
         self._upload(buf)  # (a kernel with an array argument: about half of from_numpy's cost a substep)
         if dt != self._dt_last:  # (dt rarely changes: one field write less a substep)
             self.dt[None] = dt

@@ -157,6 +157,7 @@ class Motion:
         self.q = q  # (k, 4) quaternions, or None
         self.v = v  # constant linear velocity (3,), or None
         self.w = w  # constant angular velocity (3,), or None
+        self._flat = None  # (w, v, pivot) as floats, for constant_pose_flat
 
     @property
     def constant(self) -> bool:
@@ -185,6 +186,39 @@ class Motion:
         r = quat_to_rotvec(quat_mul(quat_conj(q0), q1))
         w = quat_to_matrix(q0) @ r / T
         return quat_to_matrix(q), d, v, w
+
+    def constant_pose_flat(self, t: float) -> tuple[list, list, list, list]:
+        """A constant motion's pose at time t as plain floats (R row-major 3x3, moving pivot, v, w): the
+        arithmetic of ``pose`` (the rotation vector's quaternion, normalised, then its matrix) without
+        numpy's per-call cost on 3-vectors, for the per-substep pose upload (ColliderPoses.set_time)."""
+        if self._flat is None:
+            self._flat = (
+                [float(x) for x in self.w],
+                [float(x) for x in self.v],
+                [float(x) for x in self.pivot],
+            )
+        (w0, w1, w2), (v0, v1, v2), (p0, p1, p2) = self._flat
+        r0, r1, r2 = w0 * t, w1 * t, w2 * t
+        n = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        if n == 0.0:
+            qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
+        else:
+            sn = math.sin(0.5 * n)
+            qw, qx, qy, qz = math.cos(0.5 * n), r0 / n * sn, r1 / n * sn, r2 / n * sn
+            m = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+            qw, qx, qy, qz = qw / m, qx / m, qy / m, qz / m
+        R = [
+            1 - 2 * (qy * qy + qz * qz),
+            2 * (qx * qy - qz * qw),
+            2 * (qx * qz + qy * qw),
+            2 * (qx * qy + qz * qw),
+            1 - 2 * (qx * qx + qz * qz),
+            2 * (qy * qz - qx * qw),
+            2 * (qx * qz - qy * qw),
+            2 * (qy * qz + qx * qw),
+            1 - 2 * (qx * qx + qy * qy),
+        ]
+        return R, [p0 + v0 * t, p1 + v1 * t, p2 + v2 * t], [v0, v1, v2], [w0, w1, w2]
 
     def pose(self, t: float) -> Pose:
         R, d, v, w = self._full(float(t))

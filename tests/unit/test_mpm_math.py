@@ -321,3 +321,69 @@ def test_uniform_velocity_is_transferred_exactly(transfer_solver):
     solver.kernels.stage_g2p(dt)
     assert np.allclose(solver.v.to_numpy(), u, atol=1e-6)
     assert np.abs(solver.C.to_numpy()).max() < 1e-3  # partition of unity: no spurious gradient
+
+
+@pytest.fixture(scope="module")
+def svd_kernels(ti_f32):
+    import taichi as ti
+
+    from simcli.solvers.mpm.constitutive import mat_to_quat, quat_to_mat
+    from simcli.solvers.mpm.plasticity import svd3_via_b, svd3_via_b_warm
+
+    n = 64
+    F = ti.Matrix.field(3, 3, ti.f32, shape=n)
+    U0 = ti.Matrix.field(3, 3, ti.f32, shape=n)
+    out = {k: ti.Matrix.field(3, 3, ti.f32, shape=n) for k in ("Uc", "Vc", "Uw", "Vw", "Rq")}
+    s = {k: ti.Vector.field(3, ti.f32, shape=n) for k in ("sc", "sw")}
+
+    @ti.kernel
+    def run():
+        for p in range(n):
+            Uc, sc, Vc = svd3_via_b(F[p])
+            Uw, sw, Vw = svd3_via_b_warm(F[p], U0[p])
+            out["Uc"][p], out["Vc"][p], s["sc"][p] = Uc, Vc, sc
+            out["Uw"][p], out["Vw"][p], s["sw"][p] = Uw, Vw, sw
+            out["Rq"][p] = quat_to_mat(mat_to_quat(U0[p]))
+
+    return {"n": n, "F": F, "U0": U0, "run": run, **out, **s}
+
+
+@pytest.mark.parametrize("guess", ["identity", "random", "near"])
+def test_warm_started_svd_is_the_svd_from_any_start(svd_kernels, guess):
+    """svd3_via_b_warm (the plastic laws' decomposition, warm-started from the particle's last U) gives
+    F = U diag(s) V^T with U, V rotations and the same singular values as the cold start, whatever the
+    guess: identity, an unrelated rotation, or the true U turned by a few degrees (the case it is for).
+    mat_to_quat inverts quat_to_mat on rotations."""
+    k = svd_kernels
+    n = k["n"]
+    rng = np.random.default_rng(7)
+    Fs = np.stack([random_F(rng, invert=(i % 8 == 0)) for i in range(n)])
+    if guess == "identity":
+        U0 = np.stack([np.eye(3)] * n)
+    elif guess == "random":
+        U0 = np.stack([random_rotation(rng) for _ in range(n)])
+    else:
+        U0 = []
+        for F in Fs:
+            U = np.linalg.svd(F)[0]
+            U = U if np.linalg.det(U) > 0 else U @ np.diag([1, 1, -1])
+            a = rng.normal(size=3)
+            a *= np.radians(5) / np.linalg.norm(a)
+            K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+            th = np.linalg.norm(a)
+            U0.append(U @ (np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th**2 * K @ K))
+        U0 = np.stack(U0)
+    k["F"].from_numpy(Fs.astype(np.float32))
+    k["U0"].from_numpy(U0.astype(np.float32))
+    k["run"]()
+    Uw, Vw, sw = k["Uw"].to_numpy(), k["Vw"].to_numpy(), k["sw"].to_numpy()
+    sc = k["sc"].to_numpy()
+    for i in range(n):
+        np.testing.assert_allclose(Uw[i] @ np.diag(sw[i]) @ Vw[i].T, Fs[i], atol=2e-5)
+        np.testing.assert_allclose(Uw[i].T @ Uw[i], np.eye(3), atol=2e-6)
+        np.testing.assert_allclose(Vw[i].T @ Vw[i], np.eye(3), atol=2e-5)
+        assert np.linalg.det(Uw[i]) > 0 and np.linalg.det(Vw[i]) > 0
+        # singular values as a set (the order of the columns depends on the start), signs included
+        np.testing.assert_allclose(np.sort(sw[i]), np.sort(sc[i]), rtol=2e-5, atol=2e-6)
+        np.testing.assert_allclose(np.sort(np.abs(sw[i])), np.linalg.svd(Fs[i])[1][::-1], rtol=2e-5)
+    np.testing.assert_allclose(k["Rq"].to_numpy(), U0, atol=2e-6)

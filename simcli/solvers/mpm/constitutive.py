@@ -50,6 +50,27 @@ def quat_to_mat(q):
 
 
 @ti.func
+def mat_to_quat(R):
+    """Unit quaternion (w, x, y, z) of the rotation matrix R (Shepperd 1978: divide by the largest of
+    4 w^2, 4 x^2, 4 y^2, 4 z^2, so no branch loses precision); normalised."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    q = ti.Vector([1.0, 0.0, 0.0, 0.0])
+    if tr > 0.0:
+        s = 2.0 * ti.sqrt(tr + 1.0)  # 4 w
+        q = ti.Vector([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * ti.sqrt(ti.max(1.0 + R[0, 0] - R[1, 1] - R[2, 2], 1.0e-12))  # 4 x
+        q = ti.Vector([(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s])
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * ti.sqrt(ti.max(1.0 + R[1, 1] - R[0, 0] - R[2, 2], 1.0e-12))  # 4 y
+        q = ti.Vector([(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s])
+    else:
+        s = 2.0 * ti.sqrt(ti.max(1.0 + R[2, 2] - R[0, 0] - R[1, 1], 1.0e-12))  # 4 z
+        q = ti.Vector([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s])
+    return q / q.norm()
+
+
+@ti.func
 def quat_mul(a, b):
     """Hamilton product a*b of quaternions (w, x, y, z)."""
     return ti.Vector(

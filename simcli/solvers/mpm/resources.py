@@ -20,11 +20,12 @@ def baseline(scene) -> int:
 
 
 # MPM, per particle at f32: x, v (dim), C, F (dim^2), mass, volume, material id, fixed flag; the laws'
-# state (plastic J, a warm-start rotation: up to 5); the five derived output fields (J, stress, pressure,
-# Jp, energy) once written. Host: the sampled bodies (x, v f64, volume, mass f64, fixed), the upload's
-# f32 copies, each frame's output copies. Host factor measured.
-def _mpm_particle_bytes(dim: int, fp: int) -> int:
-    device = 4 * fp * (2 * dim + 2 * dim * dim + 2 + 5 + 5) + 4 + 1
+# state (at least 5: the corotated law's quaternion, muscle fibres; the plastic laws' _plastic_floats);
+# the five derived output fields (J, stress, pressure, Jp, energy) once written. Host: the sampled bodies
+# (x, v f64, volume, mass f64, fixed), the upload's f32 copies, each frame's output copies. Host factor
+# measured.
+def _mpm_particle_bytes(dim: int, fp: int, law: int = 5) -> int:
+    device = 4 * fp * (2 * dim + 2 * dim * dim + 2 + law + 5) + 4 + 1
     host = 8 * (2 * dim + 2) + 1 + 4 * fp * (2 * dim + dim * dim)
     return device + host
 
@@ -59,6 +60,16 @@ def _image(c) -> bool:
     )
 
 
+def _plastic_floats(scene, dim: int) -> int:
+    """Per-particle floats of the plastic MPM laws (plasticity.py), 0 without them: the Kirchhoff stress
+    (dim^2), J_p and sand's volume correction, in 2D the out-of-plane strain, in 3D the warm-start
+    quaternion of U (4)."""
+    plastic = ("MPM.Sand", "MPM.Snow", "MPM.ElastoPlastic")
+    if any(e.family == "MPM" and e.material.type in plastic for e in scene.entities):
+        return dim * dim + 2 + (4 if dim == 3 else 1)
+    return 0
+
+
 def estimate(scene, scene_dir, lo, hi) -> Part | None:
     dim = scene.sim.dim
     mpm = scene.solvers.mpm
@@ -80,7 +91,8 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
     t = threads_for(scene)
     copies = t if t * copy <= MPM_PRIVATE_GRID_BYTES and scene.sim.backend in ("cpu", "auto") else 1
     grid = copies * copy + nodes * (dim * 4 * fp + 4)
-    b = int(n * _mpm_particle_bytes(dim, fp) * MPM_HOST_FACTOR) + grid
+    plastic = _plastic_floats(scene, dim)
+    b = int(n * _mpm_particle_bytes(dim, fp, max(5, plastic)) * MPM_HOST_FACTOR) + grid
     return Part(
         "MPM",
         f"{n:,} particles, {nodes:,} grid nodes x {copies} copies",
@@ -89,6 +101,6 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
         "lower solvers.mpm.grid_density (or raise solvers.mpm.particle_size), or shrink the domain",
         out_bytes=n * out_floats(scene, DEFAULT_FIELDS, dim) * 4,  # output is float32 at either precision
         # x, v, C, H (the solver's precision), F in float64, the laws' state (Jp, ...): measured 447 MB at
-        # 2.6 M particles (3D, f32), 176 B each by this count
-        state_bytes=n * (4 * fp * (2 * dim + 2 * dim * dim + 2) + 8 * dim * dim),
+        # 2.6 M particles (3D, f32), 176 B each by this count (a liquid); the plastic laws' state on top
+        state_bytes=n * (4 * fp * (2 * dim + 2 * dim * dim + 2 + plastic) + 8 * dim * dim),
     )
