@@ -936,6 +936,10 @@ class Runner:
                 )
             grid = s.entity_grid(e.name)
             kw = {} if grid is None else {"grid_shape": grid[0], "origin": grid[1], "spacing": grid[2]}
+            # a reusing emitter's particles carry their emission number and birth time (solvers/sources.py)
+            extra = {}
+            if s.active_set is not None and s.active_set.reusing(e.name) is not None:
+                extra = {"emission": (1, "1", "int64"), "birth_time": (1, "s", "float64")}
             metas.append(
                 EntityMeta(
                     name=e.name,
@@ -943,7 +947,7 @@ class Runner:
                     n=s.entity_size(e.name) - (1 if getattr(e, "is_emitter", False) else 0),
                     variable=s.active_set is not None,
                     dim=self.scene.sim.dim,
-                    fields={f: avail[f] for f in fields},
+                    fields={**{f: avail[f] for f in fields}, **extra},
                     cells=s.entity_cells(e.name),
                     cell_fields=tuple(f for f in fields if f in s.cell_fields),
                     **kw,
@@ -1015,7 +1019,12 @@ class Runner:
         return out
 
     def _frame_data(self):
-        return {name: s.entity_arrays(name, fields) for name, (s, fields) in self._entity_fields.items()}
+        out = {}
+        for name, (s, fields) in self._entity_fields.items():
+            out[name] = s.entity_arrays(name, fields)
+            if s.active_set is not None:  # a reusing emitter's emission numbers and birth times
+                out[name].update(s.active_set.emitter_arrays(name))
+        return out
 
     def _check_frame(self, solvers, frame: int, sub_dt: float, step: int = 0) -> None:
         """Once per frame: NaN/Inf and runaway speeds; fail with advice, keeping every earlier frame."""

@@ -81,7 +81,15 @@ class Emitter(_Strict):
     max_particles: int = Field(
         gt=0,
         description="Particles this emitter can emit over the run, reserved up front (inactive slots cost "
-        "nothing per substep); reaching it stops the emitter with a warning.",
+        "nothing per substep); reaching it stops the emitter with a warning. With reuse: true the "
+        "particles alive at once from this emitter (a sink frees their slots).",
+    )
+    reuse: bool = Field(
+        False,
+        description="Reuse the slots of particles a sink removed (SPlisHSPlasH's emitters): the emitter "
+        "runs as long as its live particles fit max_particles; each particle carries a unique `emission` "
+        "number and its `birth_time` in the output. Default false: a slot is never reused, the particles "
+        "keep the order they entered (DualSPHysics's ids) and existing scenes run as before.",
     )
 
     @field_validator("name")
@@ -285,6 +293,8 @@ def check_sources(scene, err) -> None:
                     "of the collider",
                 )
                 break
+        if em.reuse:
+            _check_reuse(scene, em, base, len(pts), err)
     for i, s in enumerate(scene.sinks):
         base = ("sinks", i)
         if s.name in taken:
@@ -312,6 +322,25 @@ def check_sources(scene, err) -> None:
                 f"sinks remove MPM, SPH and PBD particles; this scene also has {', '.join(other)} entities, "
                 "which a sink would not remove. Remove the sinks or those entities",
             )
+
+
+def _check_reuse(scene, em, base, npl: int, err) -> None:
+    """``reuse: true``: something must free slots (a sink), and one layer must fit the capacity (an emission
+    takes whole layers of free slots)."""
+    if not scene.sinks:
+        err(
+            base + ("reuse",),
+            f"emitter '{em.name}': reuse: true reuses the slots of particles a sink removed, and this "
+            "scene has no sinks, so no slot would ever be freed; add a sink (sinks: [{name, type: Box, "
+            "lower, upper}]) or remove reuse",
+        )
+    if em.max_particles < npl:
+        err(
+            base + ("max_particles",),
+            f"emitter '{em.name}': with reuse: true each emission takes a whole layer of {npl} free slots, "
+            f"and max_particles = {em.max_particles} holds none; raise max_particles to at least {npl} "
+            "(a few times the particles alive at once)",
+        )
 
 
 def _fmt(v) -> str:

@@ -28,6 +28,18 @@ out its pids in order.
   per-particle field copies the survivors into the holes (parallel: sources and targets are disjoint).
   The serial pass keeps the order deterministic (a resumed run equals an uninterrupted one) and sums the
   removed mass per sink in f64.
+* **Slot reuse** (an emitter's ``reuse: true``; SPlisHSPlasH's emitters do the same). Without it a pid is
+  handed out once (pid - pid0 = the particle's emission number: layer x particles per layer + lattice
+  point), so an emitter stops at ``max_particles`` emitted however many a sink removed. With it the sink's
+  serial pass pushes the pid of each removed particle of a reusing emitter onto that emitter's ring of free
+  pids (``free``, at the emitter's own pid range; ``ftail`` counts the pushes), and an emission pops the
+  ring (from ``head``, which the host keeps) before it takes fresh pids. The emission number then lives in
+  ``serial``, indexed by pid: the pid travels with its particle through compaction and SPH's cell sort, so
+  no per-slot field is added to the solvers' reorder lists. The layer (MPM's stagger, the SPH inflow
+  buffer's age) comes from ``serial``. Only whole layers are emitted; a layer due while too few pids are
+  free is skipped (its mass is not counted as emitted; a warning, run.json's ``layers_skipped``). Slots
+  (storage) stay dense as before: reuse changes which pid a new particle gets, never the active count's
+  compaction. The checkpoint holds the rings, their counters and ``serial``.
 """
 
 import math
@@ -93,8 +105,17 @@ class ActiveSet:
                     "mass": 0.0,  # set by the solver (its particle mass)
                     "dt_layer": self.spacing / float(em.speed),  # set by build from the mass flux
                     "area": nozzle_area(em.shape, self.dim),
+                    # reuse (see "Slot reuse" above): the free ring's pops (head) and pushes (tail), the
+                    # fresh slots handed out, the particles emitted and the layers skipped for want of slots
+                    "reuse": bool(getattr(em, "reuse", False)),
+                    "head": 0,
+                    "tail": 0,
+                    "next": 0,
+                    "emitted": 0,
+                    "skipped": 0,
                 }
             )
+        self.reuse = any(e["reuse"] for e in self.emitters)
         # MPM: each layer's lattice shifted in the nozzle's plane (layer_shift in build); SPH and PBD keep
         # the layers stacked (a liquid's inflow at its rest lattice)
         self.stagger = family == "MPM"
@@ -187,6 +208,22 @@ class ActiveSet:
         holes, movers, nmove = self.holes, self.movers, self.nmove
         em_i, em_t = self.em_i, self.em_t
         n_sinks = len(self.sinks)
+        n_em = len(self.emitters)
+        caps = ti.field(ti.i32, shape=ne)
+        for k, e in enumerate(self.emitters):
+            caps[k] = e["cap"]
+        # slot reuse (module docstring): by pid, a particle's emission number (its layer x particles per
+        # layer + its lattice point), which moves with the pid through compaction and the SPH cell sort;
+        # per emitter a ring of free pids (at the emitter's own pids' index range) and its push count
+        reuse = self.reuse
+        serial = free = ftail = em_re = None
+        if reuse:
+            self.serial = serial = ti.field(ti.i32, shape=self.n_alloc)
+            self.free = free = ti.field(ti.i32, shape=self.n_alloc)
+            self.ftail = ftail = ti.field(ti.i64, shape=ne)
+            em_re = ti.field(ti.i32, shape=ne)
+            for k, e in enumerate(self.emitters):
+                em_re[k] = int(e["reuse"])
 
         @ti.func
         def layer_shift(e, layer):
@@ -204,8 +241,20 @@ class ActiveSet:
 
         @ti.kernel
         def emit(
-            slot0: ti.i32, pid0: ti.i32, k0: ti.i32, npl: ti.i32, nl: ti.i32, age0: f, dage: f, e: ti.i32
+            slot0: ti.i32,
+            pid0: ti.i32,
+            k0: ti.i32,
+            npl: ti.i32,
+            nl: ti.i32,
+            age0: f,
+            dage: f,
+            e: ti.i32,
+            serial0: ti.i32,
+            ntake: ti.i32,
+            head: ti.i64,
         ):
+            """``nl`` layers at slots slot0..: emission numbers serial0.. (layer serial0 / npl first); pids
+            pid0.., with reuse the first ``ntake`` popped from the emitter's free ring at ``head``."""
             g = gravity[None]
             for q in range(nl * npl):
                 s = slot0 + q
@@ -216,9 +265,16 @@ class ActiveSet:
                     const_fields[c][0][s] = const_fields[c][1][e]
                 a = age0 - layer * dage
                 x[s] = em_c[e] + lat_f[k0 + q % npl] + a * em_u[e] + (0.5 * a * a) * g
-                x[s] += layer_shift(e, (pid0 + q - em_i[e, 0]) // npl)
+                x[s] += layer_shift(e, (serial0 + q) // npl)
                 v[s] = em_u[e] + a * g
-                pid[s] = pid0 + q
+                p = pid0 + q
+                if ti.static(reuse):
+                    if q < ntake:
+                        p = free[em_i[e, 0] + ti.cast((head + q) % caps[e], ti.i32)]
+                    else:
+                        p = pid0 + q - ntake
+                    serial[p] = serial0 + q
+                pid[s] = p
             nact[None] = slot0 + nl * npl
 
         @ti.func
@@ -253,6 +309,13 @@ class ActiveSet:
                     if k >= 0:
                         removed[k] += ti.cast(mass[i], ti.f64)
                         removed_n[k] += 1
+                        if ti.static(reuse):  # a reusing emitter's particle: its pid to the free ring
+                            p = pid[i]
+                            for e in range(n_em):
+                                q = p - em_i[e, 0]
+                                if em_re[e] != 0 and 0 <= q and q < caps[e]:
+                                    free[em_i[e, 0] + ti.cast(ftail[e] % caps[e], ti.i32)] = p
+                                    ftail[e] += 1
                         if i < new_n:
                             holes[h] = i
                             h += 1
@@ -270,11 +333,6 @@ class ActiveSet:
                 for c in ti.static(range(nP)):
                     P[c][a] = P[c][b]
 
-        n_em = len(self.emitters)
-        caps = ti.field(ti.i32, shape=ne)
-        for k, e in enumerate(self.emitters):
-            caps[k] = e["cap"]
-
         @ti.kernel
         def drive(t: ti.f64):
             """The inflow buffer: particles younger than buffer_layers layer intervals move as the nozzle
@@ -285,6 +343,8 @@ class ActiveSet:
                 for e in range(n_em):
                     q = p - em_i[e, 0]
                     if 0 <= q and q < caps[e]:
+                        if ti.static(reuse):  # the slot's particle's own emission number
+                            q = serial[p]
                         npl = em_i[e, 1]
                         a64 = t - (em_t[e, 0] + (q // npl + 0.5) * em_t[e, 1])
                         if a64 < em_t[e, 2]:
@@ -302,7 +362,7 @@ class ActiveSet:
         )
         # compiled now, with the build (run.json's compile time), not at the first emission: no-op launches
         if self.emitters:
-            emit(self.n_active, 0, 0, 1, 0, 0.0, 0.0, 0)
+            emit(self.n_active, 0, 0, 1, 0, 0.0, 0.0, 0, 0, 0, 0)
             if buffer_layers:
                 drive(0.0)
         if self.sinks:
@@ -351,6 +411,9 @@ class ActiveSet:
             if nl <= 0:
                 continue
             npl = len(e["lattice"])
+            if e["reuse"]:
+                changed = self._emit_reusing(k, e, t, nl) or changed
+                continue
             room = (e["cap"] - e["layers"] * npl) // npl
             if nl > room:
                 nl = room
@@ -371,11 +434,62 @@ class ActiveSet:
                 age0,
                 dtl,
                 k,
+                e["layers"] * npl,
+                0,
+                0,
             )
             e["layers"] += nl
+            e["next"] = e["emitted"] = e["layers"] * npl
             self.n_active += nl * npl
             changed = True
         return changed
+
+    def _emit_reusing(self, k: int, e: dict, t: float, nl: int) -> bool:
+        """A reusing emitter's ``nl`` due layers: the oldest that the free slots (the free ring, then the
+        fresh ones) hold whole are emitted, the rest skipped (their mass is not emitted; a warning the
+        first time). True if any was emitted."""
+        cfg, npl, dtl = e["cfg"], len(e["lattice"]), e["dt_layer"]
+        if (e["layers"] + nl) * npl >= 2**31 - 1:  # the emission numbers are int32
+            nl = max(0, (2**31 - 2) // npl - e["layers"])
+            e["full"] = True
+            self.warnings.append(
+                f"emitter '{cfg.name}' has emitted the most particles an int32 emission number counts "
+                f"({e['layers'] * npl}) at t = {t:.4g} s and stopped emitting"
+            )
+        nfree = e["tail"] - e["head"]
+        room = (nfree + e["cap"] - e["next"]) // npl
+        ne = min(nl, room)
+        if ne < nl:
+            if e["skipped"] == 0:
+                self.warnings.append(
+                    f"emitter '{cfg.name}' (reuse) had no {npl} free slots for a layer at t = {t:.4g} s: "
+                    f"{e['cap'] - nfree} of its max_particles = {e['cap']} are alive; the layers due "
+                    "while none is free are skipped (run.json sources: layers_skipped); raise max_particles"
+                )
+            e["skipped"] += nl - ne
+        if ne > 0:
+            n = ne * npl
+            take = min(nfree, n)
+            age0 = t - (cfg.start + (e["layers"] + 0.5) * dtl)
+            self._emit(
+                self.n_active,
+                e["pid0"] + e["next"],
+                int(self.lat_off[k]),
+                npl,
+                ne,
+                age0,
+                dtl,
+                k,
+                e["layers"] * npl,
+                take,
+                e["head"],
+            )
+            e["head"] += take
+            e["next"] += n - take
+            e["emitted"] += n
+            self.n_active += n
+        e["layers"] += nl
+        return ne > 0
 
     def after_step(self) -> bool:
         """Remove the particles inside sinks (one host read); True if any was removed."""
@@ -387,11 +501,15 @@ class ActiveSet:
         self._sink_plan(cnt)
         self._sink_move()
         self.n_active -= cnt
+        if self.reuse:  # the reusing emitters' freed slots (one small read, only when a sink removed any)
+            tails = self.ftail.to_numpy()
+            for k, e in enumerate(self.emitters):
+                e["tail"] = int(tails[k])
         return True
 
     # ------------------------------------------------------------------ reporting
     def emitted_mass(self) -> dict[str, float]:
-        return {e["cfg"].name: e["layers"] * len(e["lattice"]) * e["mass"] for e in self.emitters}
+        return {e["cfg"].name: e["emitted"] * e["mass"] for e in self.emitters}
 
     def removed_mass(self) -> dict[str, float]:
         if not self.sinks:
@@ -407,12 +525,43 @@ class ActiveSet:
                 "particles_per_layer": npl,
                 "layer_interval_s": e["dt_layer"],
                 "layer_gap_m": e.get("layer_gap"),
-                "particles_emitted": e["layers"] * npl,
+                "particles_emitted": e["emitted"],
                 "capacity": e["cap"],
                 "particle_mass_kg": e["mass"],
                 "nozzle_area": e["area"],
             }
+            if e["reuse"]:
+                d[e["cfg"].name].update(
+                    reuse=True,
+                    slots_reused=e["head"],
+                    slots_free=e["tail"] - e["head"] + e["cap"] - e["next"],
+                    layers_skipped=e["skipped"],
+                )
         return d
+
+    # ------------------------------------------------------------------ output
+    def reusing(self, name: str) -> dict | None:
+        """The emitter ``name`` if it reuses slots, else None."""
+        return next((e for e in self.emitters if e["reuse"] and e["cfg"].name == name), None)
+
+    def emitter_arrays(self, name: str, pid: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """A reusing emitter's per-particle output beside its solver's fields, in the same rows (its live
+        particles in pid order): ``emission`` (int64, the particle's number among the particles the
+        emitter has let in, 0 for the first: unique over the run, so it tells apart the successive
+        particles of one slot) and ``birth_time`` (float64 [s], when it left the nozzle). {} otherwise.
+        ``pid``: the solver's pid field on the host, if it has it."""
+        e = self.reusing(name)
+        if e is None:
+            return {}
+        if pid is None:
+            pid = self.solver.pid.to_numpy()
+        pid = np.asarray(pid)[: self.n_active]
+        lo = e["pid0"]
+        live = np.sort(pid[(pid >= lo) & (pid < lo + e["cap"])])
+        num = self.serial.to_numpy()[live].astype(np.int64)
+        npl = len(e["lattice"])
+        birth = float(e["cfg"].start) + (num // npl + 0.5) * e["dt_layer"]
+        return {"emission": num, "birth_time": birth}
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, np.ndarray]:
@@ -424,6 +573,11 @@ class ActiveSet:
         if self.sinks:
             d["src_removed"] = self.removed.to_numpy()
             d["src_removed_n"] = self.removed_n.to_numpy()
+        if self.reuse:  # the free rings, their counters and every pid's emission number
+            for key in ("head", "tail", "next", "emitted", "skipped"):
+                d[f"src_{key}"] = np.array([e[key] for e in self.emitters] + [0], dtype=np.int64)
+            d["src_free"] = self.free.to_numpy()
+            d["src_serial"] = self.serial.to_numpy()
         return d
 
     def set_state(self, state: dict) -> None:
@@ -437,6 +591,20 @@ class ActiveSet:
             raise ValueError("the checkpoint's emitters differ from the scene's")
         for k, e in enumerate(self.emitters):
             e["layers"], e["full"] = int(layers[k]), bool(full[k])
+            e["next"] = e["emitted"] = e["layers"] * len(e["lattice"])
+        if self.reuse:
+            if "src_free" not in state:
+                raise ValueError(
+                    "the checkpoint holds no slot-reuse state (written by a scene without an emitter's "
+                    "reuse: true)"
+                )
+            for key in ("head", "tail", "next", "emitted", "skipped"):
+                vals = np.asarray(state[f"src_{key}"]).reshape(-1)
+                for k, e in enumerate(self.emitters):
+                    e[key] = int(vals[k])
+            self.free.from_numpy(np.asarray(state["src_free"], dtype=np.int32))
+            self.serial.from_numpy(np.asarray(state["src_serial"], dtype=np.int32))
+            self.ftail.from_numpy(np.array([e["tail"] for e in self.emitters] or [0], dtype=np.int64))
         if self.sinks:
             self.removed.from_numpy(np.asarray(state["src_removed"], dtype=np.float64))
             self.removed_n.from_numpy(np.asarray(state["src_removed_n"], dtype=np.int64))

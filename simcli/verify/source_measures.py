@@ -72,3 +72,21 @@ def jet_speed(f, entity, axis=1, level=0.0, band=0.01, lo=None, hi=None, **_):
             out[k] = -float(u[sel, axis].mean())
     n = min(len(out), len(f["time"]))
     return f["time"][:n], out[:n]
+
+
+@measurement("mass_balance")
+def mass_balance(f, entity=None, name=None, sink=None, probe=None, **_):
+    """emitted - removed - (alive - alive at the start) [kg] (per metre of depth in 2D) at each frame: an
+    emitter's /emitters/<name>/emitted_mass, a sink's /sinks/<sink>/removed_mass and a total-mass probe
+    (/probes/<probe>/value, entity "*", interpolated to the frame times): zero to round-off when nothing
+    is lost or created (a reusing emitter's slots included)."""
+    t, emitted = _series(f, "emitters", name, "emitted_mass")
+    _t, removed = _series(f, "sinks", sink, "removed_mass")
+    if "probes" not in f or probe not in f["probes"]:
+        raise KeyError(f"probe '{probe}' not in sim.h5; give params: {{probe: <a total mass probe>}}")
+    pt = np.asarray(f["probes"][probe]["time"][...], dtype=np.float64)
+    pm = np.asarray(f["probes"][probe]["value"][...], dtype=np.float64).reshape(len(pt), -1)[:, 0]
+    n = min(len(t), len(removed))
+    t = np.asarray(t[:n], dtype=np.float64)
+    alive = np.interp(t, pt, pm)
+    return t, emitted[:n] - removed[:n] - (alive - pm[0])
