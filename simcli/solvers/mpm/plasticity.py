@@ -1,8 +1,8 @@
 """Plastic MPM laws: von Mises and clamped elasto-plasticity, Drucker-Prager sand, snow.
 
 All four work on the singular values of the trial elastic deformation gradient
-F_E = U diag(s) V^T (3D: Jacobi eigen-decomposition of F F^T, ``svd3_via_b``; 2D: ``ti.svd``), after
-the update F <- (I + dt C) F of g2p:
+F_E = U diag(s) V^T (3D: Jacobi eigen-decomposition of F F^T warm-started from the particle's U of the
+last substep, ``svd3_via_b_warm``; 2D: ``ti.svd``), after the update F <- (I + dt C) F of g2p:
 
 * ``von_mises`` (``MPM.ElastoPlastic``, ``use_von_mises: true``): Hencky elasticity
   tau = U (2 mu eps + lambda tr(eps) I) U^T, eps = log(s), and J2 plasticity by radial return on
