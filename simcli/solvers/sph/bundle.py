@@ -60,10 +60,6 @@ class SPHParams:
     max_density_iterations: int
     cpu: bool  # a CPU backend (the counting sort's serial count)
     volume_map: bool = False  # walls and static colliders as precomputed maps (volume_map.py), nbp = 0
-    # the cell grid's origin and cell size (CellGrid.origin, .cell): the stencil skips the cells beyond the
-    # support (stencil.make_row_span); None: the whole (2 R + 1)^dim stencil is scanned
-    grid_origin: tuple[float, ...] | None = None
-    grid_cell: float | None = None
 
     @property
     def h2(self) -> float:

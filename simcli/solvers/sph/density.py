@@ -8,7 +8,6 @@ liquid ones, and the boundary particles in reach are flagged."""
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
 from simcli.solvers.sph.kernels import VISC_EPS, kernel_constant
-from simcli.solvers.sph.stencil import make_row_span
 
 with stdout_to_stderr():
     import taichi as ti
@@ -44,9 +43,8 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     has_boundary = P.nbp > 0
     ext_walls, nbw_end, bflag = P.ext_walls and has_boundary, F.nbw_end, F.bflag
     linear = fn.linear
-    rows, mass_of, volume_of = fn.rows, fn.mass_of, fn.volume_of
+    rows, row_cell, mass_of, volume_of = fn.rows, fn.row_cell, fn.mass_of, fn.volume_of
     row = 2 * R + 1
-    row_span = make_row_span(P, fn)
     from simcli.solvers.sph.dfsph import BFAC as bfac
 
     if P.volume_map and F.Hb is not None:
@@ -72,8 +70,8 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         Mtr = ti.cast(0.0, f)  # its trace (gradient_correction: scalar)
         cnt = 0
         for a in range(row ** (dim - 1)):  # a run-time loop: unrolled, it compiles for minutes
-            l0, l1 = row_span(xi, c0, a)  # the row's cells within reach
-            for j in range(start[l0], start[l1]):
+            lin = row_cell(c0, a)
+            for j in range(start[lin], start[lin + row]):
                 d = xi - x[j]
                 r2 = d.dot(d)
                 if r2 < h2 and j != i:
@@ -114,8 +112,8 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         if ti.static(has_boundary):  # noqa: SIM102 - compile-time, then run-time test
             if bnear[linear(c0) + R] != 0:  # most particles have no boundary particle in reach
                 for a in range(row ** (dim - 1)):
-                    l0, l1 = row_span(xi, c0, a)
-                    for b in range(bstart[l0], bstart[l1]):
+                    lin = row_cell(c0, a)
+                    for b in range(bstart[lin], bstart[lin + row]):
                         d = xi - bx[b]
                         r2 = d.dot(d)
                         if r2 < h2:

@@ -610,8 +610,6 @@ class SPHSolver(Solver):
             max_density_iterations=o.max_density_iterations,
             cpu=self.arch in ("x64", "arm64"),
             volume_map=self.vmap is not None,
-            grid_origin=tuple(float(v) for v in self.grid.origin),
-            grid_cell=float(self.grid.cell),
         )
 
     def _fields(self) -> SPHFields:

@@ -50,7 +50,6 @@ from types import SimpleNamespace
 
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
-from simcli.solvers.sph.stencil import make_row_span
 
 with stdout_to_stderr():
     import taichi as ti
@@ -72,9 +71,8 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     bx, start = F.bx, F.start
     nb_cnt, nb_j, nb_g, nbw_end = F.nb_cnt, F.nb_j, F.nb_g, F.nbw_end
     Wk, h2 = fn.Wk, P.h2
-    gravity, rows, overflow = F.gravity, fn.rows, F.overflow
+    gravity, rows, row_cell, overflow = F.gravity, fn.rows, fn.row_cell, F.overflow
     bflag = F.bflag
-    row_span = make_row_span(P, fn)
     # several materials: the walls carry a pressure, the Shepard average of rho0_f k_f (plus rho0_f g . (x_b -
     # x_f)), which liquid particle i feels as the stiffness p_b / rho0_i; with one material simply the average
     # of k_f
@@ -116,8 +114,8 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             sh = ti.cast(0.0, f)
             cnt = 0
             for a in range(row ** (dim - 1)):
-                l0, l1 = row_span(xb, c0, a)  # the row's cells within reach
-                for j in range(start[l0], start[l1]):
+                lin = row_cell(c0, a)
+                for j in range(start[lin], start[lin + row]):
                     d = xb - x[j]
                     r2 = d.dot(d)
                     if r2 < h2:
