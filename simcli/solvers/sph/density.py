@@ -194,6 +194,11 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             # -dt k_i (G + bfac B) against the density rate's (G + B), plus the neighbours' reaction
             Gt = G + Bi
             den = ti.max((G + bfac * Bi).dot(Gt), 0.0) + sumsq
+            if ti.static(kgc_scalar):
+                # the solve applies c_i grad W in the velocity update and in the density rate: its diagonal
+                # is c_i^2 times the uncorrected one (c_i up to 1 / FULL_MOMENT = 1.33 in a partial
+                # neighbourhood, where the Jacobi step without it was up to 1.78x the intended)
+                den *= Lc[i] * Lc[i]
             alpha[i] = 1.0 / den if den > 1e-9 else 0.0
 
     return neighbours_density
