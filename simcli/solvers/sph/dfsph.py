@@ -167,7 +167,9 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
                 if ti.static(uniform):
                     g += (kci + k_[j] * Lc[j]) * fn.volume_of(j) * ((xi - x[j]) * nb_s[i, k])
                 else:
-                    g += (fn.volume_of(j) * kci + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j] * Lc[j]) * ((xi - x[j]) * nb_s[i, k])
+                    g += (fn.volume_of(j) * kci + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j] * Lc[j]) * (
+                        (xi - x[j]) * nb_s[i, k]
+                    )
         elif ti.static(kgc):
             kLi = ki * Lm[i]
             for k in range(nb_cnt[i]):
@@ -175,14 +177,18 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
                 if ti.static(uniform):
                     g += fn.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ ((xi - x[j]) * nb_s[i, k]))
                 else:
-                    g += (fn.volume_of(j) * kLi + (fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * Lm[j]) @ ((xi - x[j]) * nb_s[i, k])
+                    g += (fn.volume_of(j) * kLi + (fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * Lm[j]) @ (
+                        (xi - x[j]) * nb_s[i, k]
+                    )
         else:
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
                 if ti.static(uniform):
                     g += (ki + k_[j]) * fn.volume_of(j) * ((xi - x[j]) * nb_s[i, k])
                 else:
-                    g += (fn.volume_of(j) * ki + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * ((xi - x[j]) * nb_s[i, k])
+                    g += (fn.volume_of(j) * ki + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * (
+                        (xi - x[j]) * nb_s[i, k]
+                    )
         return g
 
     @ti.func
