@@ -174,3 +174,43 @@ def test_box_collider_lattice_fits_the_box(width):
     ).sum()
     assert near == pytest.approx(ref, rel=0.02)
     assert np.all(bp.x[:, 0] < 0.2 + width) and np.all(bp.x[:, 0] > 0.2)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_gradient_factor_rebuilds_the_gradient(ti_f32, dim):
+    """W_gradW_s (the neighbour lists' factor s, grad W = x s): W and grad W are W_gradW's to the bit, x s is
+    grad W to the bit, and s is 0 beyond the support and at r = 0."""
+    import taichi as ti
+
+    from simcli.solvers.sph.kernels import make_kernel_factor, make_kernels
+
+    h = 0.04
+    _, _, _, W_gradW = make_kernels(h, dim, ti.f32)
+    W_gradW_s = make_kernel_factor(h, dim, ti.f32)
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-1.1 * h, 1.1 * h, size=(500, dim)).astype(np.float32)
+    pts[0] = 0.0
+    n = len(pts)
+    xs = ti.Vector.field(dim, ti.f32, shape=n)
+    out_w = [ti.field(ti.f32, shape=n) for _ in range(2)]
+    out_g = [ti.Vector.field(dim, ti.f32, shape=n) for _ in range(3)]
+    out_s = ti.field(ti.f32, shape=n)
+    xs.from_numpy(pts)
+
+    @ti.kernel
+    def run():
+        for i in xs:
+            r = xs[i].norm()
+            w, g = W_gradW(xs[i], r)
+            w2, g2, s = W_gradW_s(xs[i], r)
+            out_w[0][i], out_g[0][i] = w, g
+            out_w[1][i], out_g[1][i], out_s[i] = w2, g2, s
+            out_g[2][i] = xs[i] * s
+
+    run()
+    np.testing.assert_array_equal(out_w[1].to_numpy(), out_w[0].to_numpy())
+    np.testing.assert_array_equal(out_g[1].to_numpy(), out_g[0].to_numpy())
+    np.testing.assert_array_equal(out_g[2].to_numpy(), out_g[0].to_numpy())
+    s = out_s.to_numpy()
+    r = np.linalg.norm(pts.astype(np.float64), axis=1)
+    assert s[0] == 0.0 and np.all(s[r > 1.0001 * h] == 0.0) and np.all(s[(r > 0) & (r < 0.999 * h)] < 0)

@@ -99,7 +99,7 @@ def _build(solver: str):
         nb_cnt=ti.field(ti.i32, shape=n),
         nbb_cnt=ti.field(ti.i32, shape=n),
         nb_j=ti.field(ti.i32, shape=(n, P.K)),
-        nb_g=ti.Vector.field(2, f, shape=(n, P.K)) if dfsph else None,
+        nb_s=ti.field(f, shape=(n, P.K)) if dfsph else None,
         nrm=None,
         Mv=None,
         mw=None,

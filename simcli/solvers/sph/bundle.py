@@ -93,7 +93,9 @@ class SPHFields:
     nb_cnt: Any  # liquid neighbours listed
     nbb_cnt: Any  # boundary neighbours counted
     nb_j: Any  # neighbour list (n, K); extrapolated walls: boundary neighbours from nb_cnt to nbw_end
-    nb_g: Any  # grad W_ij per list entry (DFSPH), else None
+    # DFSPH: per list entry the kernel gradient's factor s, grad W_ij = (x_i - x_j) s (boundary entries: V_b
+    # grad W_ib = V_b (x_i - x_b) s), 4 bytes instead of the vector's 12; else None
+    nb_s: Any
     nrm: Any  # surface normals (surface tension)
     Mv: Any  # no-slip walls' viscous matrix and vector
     mw: Any

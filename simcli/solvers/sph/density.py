@@ -7,7 +7,7 @@ liquid ones, and the boundary particles in reach are flagged."""
 
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
-from simcli.solvers.sph.kernels import VISC_EPS, kernel_constant
+from simcli.solvers.sph.kernels import VISC_EPS, kernel_constant, make_kernel_factor
 
 with stdout_to_stderr():
     import taichi as ti
@@ -24,11 +24,11 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     h = P.h
     h2 = h * h
     eps_visc = VISC_EPS * h2
-    W_gradW = fn.W_gradW
+    W_gradW_s = make_kernel_factor(h, dim, f)
     store_grad = P.store_grad
     W0 = kernel_constant(h, dim)  # W(0)
     x, mid, rho = F.x, F.mid, F.rho
-    nb_cnt, nbb_cnt, nb_j, nb_g, B, Sb = F.nb_cnt, F.nbb_cnt, F.nb_j, F.nb_g, F.B, F.Sb
+    nb_cnt, nbb_cnt, nb_j, nb_s, B, Sb = F.nb_cnt, F.nbb_cnt, F.nb_j, F.nb_s, F.B, F.Sb
     nrm, Mv, mw, alpha, shift = F.nrm, F.Mv, F.mw, F.alpha, F.shift
     has_shift = shift is not None
     shift_c = float(P.shifting * P.ps**2)
@@ -76,7 +76,7 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                 r2 = d.dot(d)
                 if r2 < h2 and j != i:
                     r = ti.sqrt(r2)
-                    w, g = W_gradW(d, r)
+                    w, g, s = W_gradW_s(d, r)
                     Vg = volume_of(j) * g
                     if ti.static(uniform):
                         r_i += mass_of(j) * w
@@ -97,7 +97,7 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                     if cnt < K:
                         nb_j[i, cnt] = j
                         if ti.static(store_grad):
-                            nb_g[i, cnt] = g
+                            nb_s[i, cnt] = s  # grad W_ij = d s
                     cnt += 1
         if cnt > K:
             ti.atomic_add(overflow[None], cnt - K)
@@ -119,7 +119,7 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                         if r2 < h2:
                             r = ti.sqrt(r2)
                             Vb = bV[b]
-                            w, g = W_gradW(d, r)
+                            w, g, s = W_gradW_s(d, r)
                             r_i += rho0_i * Vb * w
                             Bi += Vb * g
                             if ti.static(ext_walls):
@@ -127,7 +127,7 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                                 if cnt_w < K:
                                     nb_j[i, cnt_w] = b
                                     if ti.static(store_grad):
-                                        nb_g[i, cnt_w] = Vb * g
+                                        nb_s[i, cnt_w] = s  # V_b grad W_ib = V_b (d s)
                                 cnt_w += 1
                             Si += Vb * bvel[b].dot(g)
                             if ti.static(kgc_scalar):
@@ -194,6 +194,11 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             # -dt k_i (G + bfac B) against the density rate's (G + B), plus the neighbours' reaction
             Gt = G + Bi
             den = ti.max((G + bfac * Bi).dot(Gt), 0.0) + sumsq
+            if ti.static(kgc_scalar):
+                # the solve applies c_i grad W in the velocity update and in the density rate: its diagonal
+                # is c_i^2 times the uncorrected one (c_i up to 1 / FULL_MOMENT = 1.33 in a partial
+                # neighbourhood, where the Jacobi step without it was up to 1.78x the intended)
+                den *= Lc[i] * Lc[i]
             alpha[i] = 1.0 / den if den > 1e-9 else 0.0
 
     return neighbours_density

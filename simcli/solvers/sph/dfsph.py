@@ -82,7 +82,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
     has them)."""
     f, dim = P.f, P.dim
     rho, p, mid, v, vnew = F.rho, F.p, F.mid, F.v, F.vnew
-    nb_cnt, nb_j, nb_g, B, Sb, nbb_cnt = F.nb_cnt, F.nb_j, F.nb_g, F.B, F.Sb, F.nbb_cnt
+    nb_cnt, nb_j, nb_s, B, Sb, nbb_cnt = F.nb_cnt, F.nb_j, F.nb_s, F.B, F.Sb, F.nbb_cnt
+    x = F.x
     alpha, kk, kacc, kappa, kappav = F.alpha, F.kk, F.kacc, F.kappa, F.kappav
     mat_rho0 = F.mat_rho0
     err_acc = F.err_acc
@@ -116,10 +117,11 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
     def density_rate(i):
         """(D rho_i / Dt) / rho0 from the current velocities [1/s]."""
         vi = v[i]
+        xi = x[i]
         s = vi.dot(corr(i, B[i])) - Sb[i]
         for k in range(nb_cnt[i]):
             j = nb_j[i, k]
-            s += fn.volume_of(j) * (vi - v[j]).dot(corr(i, nb_g[i, k]))
+            s += fn.volume_of(j) * (vi - v[j]).dot(corr(i, ((xi - x[j]) * nb_s[i, k])))
         return s
 
     @ti.func
@@ -157,33 +159,36 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
         constraints C_i = sum_j V_j W_ij - 1 with multipliers m_i k_i, whose pair forces are opposite
         (SPlisHSPlasH's TimeStepDFSPH: k_i + (rho0_j / rho0_i) k_j); with one material the same."""
         ki = k_[i]
+        xi = x[i]  # grad W_ij = (x_i - x_j) s_ij (the list's factor)
         if ti.static(kgc_scalar):  # (k_i c_i + k_j c_j) grad W_ij
             kci = ki * Lc[i]
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
                 if ti.static(uniform):
-                    g += (kci + k_[j] * Lc[j]) * fn.volume_of(j) * nb_g[i, k]
+                    g += (kci + k_[j] * Lc[j]) * fn.volume_of(j) * ((xi - x[j]) * nb_s[i, k])
                 else:
-                    g += (fn.volume_of(j) * kci + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j] * Lc[j]) * nb_g[
-                        i, k
-                    ]
+                    g += (fn.volume_of(j) * kci + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j] * Lc[j]) * (
+                        (xi - x[j]) * nb_s[i, k]
+                    )
         elif ti.static(kgc):
             kLi = ki * Lm[i]
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
                 if ti.static(uniform):
-                    g += fn.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ nb_g[i, k])
+                    g += fn.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ ((xi - x[j]) * nb_s[i, k]))
                 else:
-                    g += (fn.volume_of(j) * kLi + (fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * Lm[j]) @ nb_g[
-                        i, k
-                    ]
+                    g += (fn.volume_of(j) * kLi + (fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * Lm[j]) @ (
+                        (xi - x[j]) * nb_s[i, k]
+                    )
         else:
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
                 if ti.static(uniform):
-                    g += (ki + k_[j]) * fn.volume_of(j) * nb_g[i, k]
+                    g += (ki + k_[j]) * fn.volume_of(j) * ((xi - x[j]) * nb_s[i, k])
                 else:
-                    g += (fn.volume_of(j) * ki + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * nb_g[i, k]
+                    g += (fn.volume_of(j) * ki + fn.mass_of(j) / mat_rho0[mid[i]] * k_[j]) * (
+                        (xi - x[j]) * nb_s[i, k]
+                    )
         return g
 
     @ti.func
@@ -238,10 +243,11 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             dvt[i] = -dt * pressure_gradient(i, cg_p, BFAC * cg_p[i] * corr(i, B[i]))
         for i in range(N()):  # Ap = -dt D(dvt) = dt^2 D G p
             dv = dvt[i]
+            xi = x[i]
             d = dv.dot(corr(i, B[i]))
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
-                d += fn.volume_of(j) * (dv - dvt[j]).dot(corr(i, nb_g[i, k]))
+                d += fn.volume_of(j) * (dv - dvt[j]).dot(corr(i, ((xi - x[j]) * nb_s[i, k])))
             cg_Ap[i] = -dt * d
         serial_dot(cg_p, cg_Ap, 1)
         a = ti.cast(0.0, ti.f64)

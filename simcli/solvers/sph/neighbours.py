@@ -15,8 +15,10 @@ boundary particles), rebuilt every substep by a counting sort that also reorders
   copy of the state per substep (a few percent of a WCSPH substep); a solver with many neighbour
   passes per substep (DFSPH) gains most from it. ``pid`` keeps each particle's original index for output.
 * **Neighbour lists.** The first pass of a substep stores, per particle, up to ``capacity`` neighbour
-  indices and the kernel gradients grad W_ij; every later pass of the substep (viscosity, pressure,
-  DFSPH iterations) walks that list instead of the cells. A particle with more neighbours than the
+  indices and (DFSPH) the kernel gradient's factor s_ij, grad W_ij = (x_i - x_j) s_ij (4 bytes, not the
+  vector's 12: the iterations rebuild the vector from the positions, which a substep's solves do not
+  move); every later pass of the substep (viscosity, pressure, DFSPH iterations) walks that list instead
+  of the cells. A particle with more neighbours than the
   capacity (a compression far beyond any liquid's) drops the excess; the count is reported.
 * **Boundary particles** are static: sorted into the same cells once, at build.
 """

@@ -26,7 +26,7 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     gradW, Ckern = fn.gradW, fn.Ckern
     store_grad = P.store_grad
     x, v, mid, rho = F.x, F.v, F.mid, F.rho
-    nb_cnt, nb_j, nb_g = F.nb_cnt, F.nb_j, F.nb_g
+    nb_cnt, nb_j, nb_s = F.nb_cnt, F.nb_j, F.nb_s
     nrm, Mv, mw = F.nrm, F.Mv, F.mw
     mat_rho0, mat_nu, mat_gamma, gravity = F.mat_rho0, F.mat_nu, F.mat_gamma, F.gravity
     has_tension, has_noslip, has_visc = P.has_tension, P.has_noslip, P.has_viscosity
@@ -69,7 +69,7 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                     r2 = d.dot(d)
                 g = ti.Vector.zero(f, dim)
                 if ti.static(store_grad):
-                    g = nb_g[i, k]
+                    g = (xi - x[j]) * nb_s[i, k]  # the list's factor: grad W_ij
                 else:
                     g = gradW(d, ti.sqrt(r2))
                 rj = rho[j]

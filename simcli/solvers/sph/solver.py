@@ -282,7 +282,8 @@ class SPHSolver(Solver):
         # more (the force pass, which loads x_j anyway) and recomputes it there: 4 instead of 16 (3D) bytes
         # per entry, a quarter of the list's memory and traffic
         self.store_grad = self.opts.pressure_solver == "DFSPH"
-        self.nb_g = ti.Vector.field(dim, f, shape=(n, self.K)) if self.store_grad else None
+        # DFSPH: grad W_ij's factor per list entry (grad W_ij = (x_i - x_j) s_ij; bundle.py)
+        self.nb_s = ti.field(f, shape=(n, self.K)) if self.store_grad else None
         self.nrm = vec() if self.has_tension else None
         self.Mv = ti.Matrix.field(dim, dim, f, shape=n) if self.has_noslip else None
         self.shift = vec() if self.opts.shifting > 0 else None

@@ -68,8 +68,8 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         8, P.K // 2
     )  # liquid neighbours listed per boundary particle: a half neighbourhood at rest is K / 4
     x = F.x
-    bx, start = F.bx, F.start
-    nb_cnt, nb_j, nb_g, nbw_end = F.nb_cnt, F.nb_j, F.nb_g, F.nbw_end
+    bx, bV, start = F.bx, F.bV, F.start
+    nb_cnt, nb_j, nb_s, nbw_end = F.nb_cnt, F.nb_j, F.nb_s, F.nbw_end
     Wk, h2 = fn.Wk, P.h2
     gravity, rows, row_cell, overflow = F.gravity, fn.rows, fn.row_cell, F.overflow
     bflag = F.bflag
@@ -159,8 +159,10 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         """sum_b V_b val_b grad W_ib over liquid particle i's boundary neighbours (listed after its liquid
         ones, with V_b grad W_ib)."""
         out = ti.Vector.zero(f, dim)
+        xi = x[i]
         for k in range(nb_cnt[i], nbw_end[i]):
-            out += val[nb_j[i, k]] * nb_g[i, k]
+            b = nb_j[i, k]
+            out += val[b] * (bV[b] * ((xi - bx[b]) * nb_s[i, k]))  # the list's factor: V_b grad W_ib
         if ti.static(not uniform):
             out /= mat_rho0[mid[i]]
         return out
