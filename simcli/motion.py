@@ -165,9 +165,9 @@ class Motion:
 
     def _full(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(R 3x3, d (3,), v (3,), w (3,)) at time t."""
-        if self.constant:
-            R = quat_to_matrix(quat_from_rotvec(self.w * t))
-            return R, self.v * t, self.v.copy(), self.w.copy()
+        if self.constant:  # one implementation with the per-substep upload's (constant_pose_flat)
+            R9, c, v, w = self.constant_pose_flat(t)
+            return np.array(R9).reshape(3, 3), np.array(v) * t, np.array(v), np.array(w)  # (pivot + v t = c)
         ts = self.times
         if t <= ts[0] or len(ts) == 1:
             return quat_to_matrix(self.q[0]), self.d[0].copy(), np.zeros(3), np.zeros(3)
@@ -189,8 +189,9 @@ class Motion:
 
     def constant_pose_flat(self, t: float) -> tuple[list, list, list, list]:
         """A constant motion's pose at time t as plain floats (R row-major 3x3, moving pivot, v, w): the
-        arithmetic of ``pose`` (the rotation vector's quaternion, normalised, then its matrix) without
-        numpy's per-call cost on 3-vectors, for the per-substep pose upload (ColliderPoses.set_time)."""
+        rotation vector's quaternion, normalised, then its matrix (``quat_to_matrix(quat_from_rotvec(w t))``
+        to f64 round-off), without numpy's per-call cost on 3-vectors. ``pose`` uses it too, so the
+        per-substep upload (ColliderPoses.set_time), CPIC's poses and the host's are the same numbers."""
         if self._flat is None:
             self._flat = (
                 [float(x) for x in self.w],

@@ -486,6 +486,11 @@ def resolved_scene_dict(scene: Scene, name: str) -> dict:
         for key in ("name", "motion"):
             if c.get(key) is None:
                 c.pop(key, None)
+        if c.get("cpic") is False:  # (so a run checkpointed before CPIC existed resumes)
+            c.pop("cpic")
+    for em in d.get("emitters") or []:  # the same for emitters before slot reuse existed
+        if em.get("reuse") is False:
+            em.pop("reuse")
     if not d.get("rigid_bodies"):  # scenes without rigid bodies echo as before
         d.pop("rigid_bodies", None)
     if d.get("coupling") is None:  # scenes without the key echo as before

@@ -89,6 +89,8 @@ def estimate_disk(scene, est: Estimate) -> int:
     checkpoint.keep states) are counted as state copies of the estimate's solver share."""
     frames = scene.sim.n_steps // scene.output.every + 1
     per_frame = sum(p.out_bytes for p in est.parts)
+    # reusing emitters also write each slot's emission number (int64) and birth time (float64) every frame
+    per_frame += sum(16 * (em.max_particles + 1) for em in getattr(scene, "emitters", []) if em.reuse)
     static = sum(p.static_out_bytes for p in est.parts)
     nfmt = len(set(scene.output.formats))
     ckpt = 0

@@ -9,7 +9,8 @@ slot, is never active: a *fresh* row whose per-particle state (a law's Jp, quate
 initial one). The active particles are the slots ``[0, n_active)``, dense; every particle loop of the
 solver runs over ``range(count())``, so inactive slots cost nothing per substep. A particle's identity is
 its ``pid`` (the writers' order): entity k owns pids ``offsets[k] .. offsets[k + 1]``; an emitter hands
-out its pids in order.
+out its pids in order (with ``reuse: true``, freed pids first, so a pid is then a slot, not an identity:
+the emission number is).
 
 * **Emission** (before a substep, no host sync: the host knows ``n_active``): layer q of an emitter leaves
   its nozzle at t_q = start + q spacing / speed; the layers due by the substep's start t are written at
@@ -463,7 +464,7 @@ class ActiveSet:
             if e["skipped"] == 0:
                 self.warnings.append(
                     f"emitter '{cfg.name}' (reuse) had no {npl} free slots for a layer at t = {t:.4g} s: "
-                    f"{e['cap'] - nfree} of its max_particles = {e['cap']} are alive; the layers due "
+                    f"{e['next'] - nfree} of its max_particles = {e['cap']} are alive; the layers due "
                     "while none is free are skipped (run.json sources: layers_skipped); raise max_particles"
                 )
             e["skipped"] += nl - ne

@@ -7,7 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from simcli.motion import MotionError, make_motion, quat_from_euler_xyz_deg, quat_to_matrix, read_motion_csv
+from simcli.motion import (
+    MotionError,
+    make_motion,
+    quat_from_euler_xyz_deg,
+    quat_from_rotvec,
+    quat_to_matrix,
+    read_motion_csv,
+)
 from simcli.scene.models import Motion as MotionModel
 
 
@@ -99,24 +106,20 @@ def test_one_kind_of_motion():
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_constant_pose_flat_is_pose_in_plain_floats(dim):
-    """The per-substep upload's scalar path (Motion.constant_pose_flat) gives pose()'s numbers: to f64
-    round-off, and the same float32 values the solvers receive."""
+    """The per-substep upload's scalar path (Motion.constant_pose_flat) gives pose()'s numbers exactly (pose
+    uses it), and both are the rotation vector's quaternion matrix to f64 round-off."""
     if dim == 3:
-        m = _m(
-            3,
-            centre=(0.2, -0.1, 0.3),
-            linear_velocity=[0.3, -0.2, 0.1],
-            angular_velocity=[1.0, -2.0, 4.0 * math.pi],
-        )
+        w3 = [1.0, -2.0, 4.0 * math.pi]
+        m = _m(3, centre=(0.2, -0.1, 0.3), linear_velocity=[0.3, -0.2, 0.1], angular_velocity=w3)
     else:
+        w3 = [0.0, 0.0, 4.0 * math.pi]
         m = _m(2, centre=(0.2, -0.1), linear_velocity=[0.3, -0.2], angular_velocity=[4.0 * math.pi])
     for t in np.linspace(0.0, 7.3, 211):
         p = m.pose(t)
         R9, c, v, w = m.constant_pose_flat(t)
-        R = np.array(R9).reshape(3, 3)[:dim, :dim]
-        np.testing.assert_allclose(R, p.R, rtol=0, atol=1e-13)  # 1 ulp of the angle (92 rad at 7.3 s)
-        np.testing.assert_allclose(c[:dim], p.c, rtol=0, atol=1e-14)
-        np.testing.assert_array_equal(np.float32(R), np.float32(p.R))
-        np.testing.assert_array_equal(np.float32(c[:dim]), np.float32(p.c))
+        np.testing.assert_array_equal(np.array(R9).reshape(3, 3)[:dim, :dim], p.R)
+        np.testing.assert_array_equal(c[:dim], p.c)
         np.testing.assert_array_equal(v[:dim], p.v)
         np.testing.assert_array_equal(w, p.w)
+        R_ref = quat_to_matrix(quat_from_rotvec(np.array(w3) * t))[:dim, :dim]
+        np.testing.assert_allclose(p.R, R_ref, rtol=0, atol=1e-13)  # 1 ulp of the angle (92 rad at 7.3 s)

@@ -65,9 +65,10 @@ def _plastic_floats(scene, dim: int) -> int:
     (dim^2), J_p and sand's volume correction, in 2D the out-of-plane strain, in 3D the warm-start
     quaternion of U (4)."""
     plastic = ("MPM.Sand", "MPM.Snow", "MPM.ElastoPlastic")
-    if any(e.family == "MPM" and e.material.type in plastic for e in scene.entities):
-        return dim * dim + 2 + (4 if dim == 3 else 1)
-    return 0
+    bodies = [*scene.entities, *getattr(scene, "emitters", [])]  # an emitter-fed pour has no sand entity
+    n_laws = len({b.material.type for b in bodies if b.family == "MPM" and b.material.type in plastic})
+    # each plastic law allocates its state for the whole particle range
+    return n_laws * (dim * dim + 2 + (4 if dim == 3 else 1))
 
 
 def estimate(scene, scene_dir, lo, hi) -> Part | None:

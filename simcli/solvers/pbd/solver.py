@@ -883,7 +883,8 @@ class PBDSolver(Solver):
         }
 
     def _live_slots(self, k: int) -> np.ndarray:
-        """Active mode: the slots of entity k's live particles, in pid order (the order they entered)."""
+        """Active mode: the slots of entity k's live particles, in pid order (the order they entered, unless a
+        reusing emitter handed out a freed pid again)."""
         lo, hi = self.offsets[k], self.offsets[k + 1]
         pid = self.pid.to_numpy()[: self.sources.n_active]
         slots = np.flatnonzero((pid >= lo) & (pid < hi))
