@@ -24,8 +24,9 @@ density as with particles.
   integral along the face, a lattice in the normal direction), give a table in d (``H``). The walls are
   the union of the faces' half-spaces; inclusion-exclusion removes the edges' lattice counted twice
   (``Q``, a table in two distances: lattice in both normals) and restores the corners' (3D: ``O``, a lattice
-  sum in three distances). Exact to the tables' interpolation for any box; no-slip viscosity takes the
-  faces' terms without the edge correction.
+  sum in three distances). Exact to the tables' interpolation for any box; the hydrostatic moment (the
+  extrapolated wall pressure) is corrected the same way (session 10: counted twice at the edges it kicked the
+  DFSPH tank's lower corners); no-slip viscosity takes the faces' terms without the edge correction.
 * Static colliders: the collider's boundary particles (boundary.collider_particles, the same sampling) are
   deposited on a grid of spacing particle_size / 4 (2D) or / 3 (3D) by cloud-in-cell weights and
   convolved with the kernel's stencils (FFT), once at build; each liquid particle interpolates the grid
@@ -86,6 +87,10 @@ def _integrands(a: list[np.ndarray], t2: np.ndarray, h: float, dim: int, eps: fl
     m = np.where(r > 1e-12 * h, dw / safe, 0.0)  # the moment sum_b V_b grad W (x - x_b)^T
     out["mnn"] = m * a[0] * a[0]
     out["mtt"] = m * (t2 / ntan if ntan else 0.0 * t2)
+    # the moment's components in the normals' frame (edges, corners): m a_k a_l, and along the edge's axis
+    for k in range(len(a)):
+        for l in range(k, len(a)):
+            out[f"m{k}{l}"] = m * a[k] * a[l]
     return out
 
 
@@ -106,8 +111,10 @@ def wall_tables(ps: float, h: float, dim: int, V: float) -> WallTables:
     as 1 / ps, the no-slip matrix as 1 / ps^2)."""
     t = _unit_wall_tables(dim, round(h / ps, 12), round(V / ps**dim, 12))
     face = t.face * np.array([1.0, 1.0 / ps, 1.0, 1.0, ps**-2, ps**-2, 1.0, 1.0])
-    edge = t.edge * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0, 1.0])
-    corner = None if t.corner is None else t.corner * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0 / ps, 1.0, 1.0])
+    edge = t.edge * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+    corner = None
+    if t.corner is not None:
+        corner = t.corner * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0 / ps] + [1.0] * 8)
     return WallTables(h, face, edge, corner)
 
 
@@ -141,7 +148,7 @@ def _unit_wall_tables(dim: int, h: float, V: float) -> WallTables:
     # edge: a lattice in both normals; 3D: the third axis integrated (row by row: bounded memory)
     d2 = np.linspace(0.0, h, N_EDGE + 1)
     fac = V / ps ** (dim - 2)
-    keys = ("psi", "g0", "g1", "cnt", "T")
+    keys = ("psi", "g0", "g1", "cnt", "T", "m00", "m11", "m01", "mtt")
     edge = np.zeros((d2.size, d2.size, len(keys)))
     if dim == 3:
         tl = kt
@@ -168,7 +175,7 @@ def _unit_wall_tables(dim: int, h: float, V: float) -> WallTables:
         corner = np.stack(
             [
                 V * it[k].sum(axis=(3, 4, 5)) * (1.0 / V if k == "cnt" else 1.0)
-                for k in ("psi", "g0", "g1", "g2", "cnt", "T")
+                for k in ("psi", "g0", "g1", "g2", "cnt", "T", "m00", "m11", "m22", "m01", "m02", "m12")
             ],
             axis=-1,
         )
@@ -472,6 +479,21 @@ class VolumeMap:
                                 B[k1 // 2] -= faces[k1][2] * q[2]
                                 cnt -= q[3]
                                 T -= q[4]
+                                if ti.static(with_hyd):
+                                    a0, a1 = ti.static(k0 // 2, k1 // 2)
+                                    s0, s1 = ti.static(faces[k0][2], faces[k1][2])
+                                    Mo = ti.Matrix.zero(f, dim, dim)
+                                    Mo[a0, a0] = q[5]
+                                    Mo[a1, a1] = q[6]
+                                    Mo[a0, a1] = s0 * s1 * q[7]
+                                    Mo[a1, a0] = s0 * s1 * q[7]
+                                    if ti.static(dim == 3):
+                                        a2 = ti.static(3 - a0 - a1)
+                                        Mo[a2, a2] = q[8]
+                                    Bo = ti.Vector.zero(f, dim)
+                                    Bo[a0] = s0 * q[1]
+                                    Bo[a1] = s1 * q[2]
+                                    Hy -= hydrostatic(Bo, Mo, g)
                 if ti.static(dim == 3):  # corners: counted three times, removed three times
                     for c in ti.static(range(8)):
                         k0, k1, k2 = ti.static(c & 1, 2 + ((c >> 1) & 1), 4 + ((c >> 2) & 1))
@@ -483,6 +505,18 @@ class VolumeMap:
                             B[2] += faces[k2][2] * o[3]
                             cnt += o[4]
                             T += o[5]
+                            if ti.static(with_hyd):
+                                sg = ti.static((faces[k0][2], faces[k1][2], faces[k2][2]))
+                                comps = ti.static(
+                                    ((0, 0, 6), (1, 1, 7), (2, 2, 8), (0, 1, 9), (0, 2, 10), (1, 2, 11))
+                                )
+                                Mo = ti.Matrix.zero(f, dim, dim)
+                                for m in ti.static(range(6)):
+                                    i0, i1, ch = ti.static(comps[m])
+                                    Mo[i0, i1] = sg[i0] * sg[i1] * o[ch]
+                                    Mo[i1, i0] = sg[i0] * sg[i1] * o[ch]
+                                Bo = ti.Vector([sg[0] * o[1], sg[1] * o[2], sg[2] * o[3]])
+                                Hy += hydrostatic(Bo, Mo, g)
             for c in ti.static(range(len(cols))):
                 org, inv = ti.static(col_meta[c][0], col_meta[c][1])
                 s = (xi - ti.Vector(org, dt=f)) * inv
@@ -543,14 +577,51 @@ class VolumeMap:
         self.collider_terms = [make_collider_terms(c) for c in range(len(cols))]
         return boundary
 
+    @staticmethod
+    def make_wall_k(F, fn):
+        """Taichi func ``wall_k(i, k_) -> k_b``: the stiffness DFSPH's maps give the boundary next to liquid
+        particle i, the Shepard average of the stiffness field ``k_`` over i's liquid neighbours and itself,
+        sum_j V_j W_ij k_j / sum_j V_j W_ij (as boundary particles' extrapolated k, wall_pressure.py, is
+        the Shepard average of the liquid's next to each boundary particle). Zero work for a particle with no
+        boundary in reach (B_i = 0). Why not k_i itself (the mirror, session 9): with the mirror a particle
+        next to a wall is pushed off it by 2 k_i, its own stiffness, which the solve raises wherever the
+        particle is compressed; a DFSPH tank at rest then kept 3.5-4 cm/s of noise with wall particles
+        kicked to 25-37 cm/s (docs/SPH.md, Gaps). Linear in ``k_``, so the iterations' increments add up to
+        the average of the total."""
+        from simcli.backend import stdout_to_stderr
+
+        with stdout_to_stderr():
+            import taichi as ti
+
+        x, B, nb_cnt, nb_j = F.x, F.B, F.nb_cnt, F.nb_j
+        W, volume_of = fn.Wk, fn.volume_of
+
+        @ti.func
+        def wall_k(i, k_):
+            kb = k_[i] * 0.0
+            if B[i].norm_sqr() > 0:
+                xi = x[i]
+                w0 = volume_of(i) * W(0.0)
+                num = w0 * k_[i]
+                den = w0
+                for k in range(nb_cnt[i]):
+                    j = nb_j[i, k]
+                    w = volume_of(j) * W((xi - x[j]).norm())
+                    num += w * k_[j]
+                    den += w
+                kb = num / den
+            return kb
+
+        return wall_k
+
     def make_loads(self, P, F, fn, poses):
         """Taichi funcs ``(pressure(i, dt), viscous(i, dt))`` that add the liquid's loads on the named static
         colliders to ``poses`` (as moving.make_loads does with boundary particles): the impulse the collider's
         map gave liquid particle i this substep, reversed, applied at x_i. DFSPH: dt m_i (k_i L_i B_c +
-        k_i B_c + H_c) with the substep's total stiffness in F.kk (the mirrored wall stiffness and the
-        hydrostatic term with the extrapolated wall pressure, else Akinci's term alone); WCSPH: dt m_i rho0
-        p_i / rho_i^2 B_c (plus rho0 / rho_w^2 (p_w B_c + rho0 H_c) with the extrapolated wall pressure);
-        no-slip: -dt m_i 2 (dim + 2) nu M_c v_i."""
+        kb_i B_c + H_c) with the substep's total stiffness in F.kk (kb_i its Shepard average, make_wall_k,
+        and the hydrostatic term with the extrapolated wall pressure, else Akinci's term alone); WCSPH:
+        dt m_i rho0 p_i / rho_i^2 B_c (plus rho0 / rho_w^2 (p_w B_c + rho0 H_c) with the extrapolated wall
+        pressure); no-slip: -dt m_i 2 (dim + 2) nu M_c v_i."""
         from simcli.backend import stdout_to_stderr
         from simcli.solvers.sph.dfsph import BFAC
 
@@ -584,7 +655,7 @@ class VolumeMap:
                         gi = Lm[i] @ Bo
                     J = BFAC * kk[i] * gi  # as the velocity update (dfsph.py) and moving.py's loads
                     if ti.static(ext_map):
-                        J += kk[i] * Bo + Hc
+                        J += fn.map_wall_k(i, kk) * Bo + Hc
                     J *= dt * mi
                 else:
                     ri = rho[i]
