@@ -192,6 +192,7 @@ class ColliderMap:
     no_slip: bool
     nparticles: int = 0
     sym: list = field(default_factory=list)  # (i, j) of the moment's and the no-slip matrix's channels
+    moving: bool = False  # in the collider's body frame (its pose at t = 0), queried through ColliderPoses
 
 
 def collider_map(spec, lo, hi, ps: float, h: float, dim: int, V: float, layers: int) -> ColliderMap | None:
@@ -202,6 +203,10 @@ def collider_map(spec, lo, hi, ps: float, h: float, dim: int, V: float, layers: 
 
     from simcli.solvers.sph.boundary import collider_particles
 
+    if spec.moving:  # its whole shell, in its body frame, as boundary particles sample it (moving.py)
+        from simcli.solvers.sph.moving import moving_bounds
+
+        lo, hi = moving_bounds(spec, lo, hi)
     bp = collider_particles(spec, lo, hi, ps, dim, layers)
     if bp.n == 0:
         return None
@@ -244,7 +249,7 @@ def collider_map(spec, lo, hi, ps: float, h: float, dim: int, V: float, layers: 
         c = np.where(r > 1e-12 * h, dw / (safe * (r2 + eps)), 0.0)
         for i, j in sym:
             chans.append(fftconvolve(dep, c * U[..., i] * U[..., j], mode="same"))
-    return ColliderMap(origin, dx, np.stack(chans, axis=-1), no_slip, bp.n, sym)
+    return ColliderMap(origin, dx, np.stack(chans, axis=-1), no_slip, bp.n, sym, bool(spec.moving))
 
 
 class VolumeMap:
@@ -257,13 +262,6 @@ class VolumeMap:
         self.dim, self.ps, self.h = dim, ps, h
         lo, hi = scene.domain.bounds(dim)
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
-        moving = [c for c in specs if c.moving]
-        if moving:
-            raise ValueError(
-                "solvers.sph.boundary: volume_map supports static colliders only; collider(s) "
-                + ", ".join(repr(getattr(c, "name", None) or "?") for c in moving)
-                + " move: set solvers.sph.boundary: particles"
-            )
         self.walls = wall_specs(scene, dim)
         self.wall_tables = wall_tables(ps, h, dim, V)
         self.colliders = []
@@ -296,7 +294,7 @@ class VolumeMap:
 
     # ---------------------------------------------------------------- Taichi side
 
-    def build(self, f, npf, with_noslip: bool, with_hyd: bool = False):
+    def build(self, f, npf, with_noslip: bool, with_hyd: bool = False, poses=None):
         """Taichi fields and the func ``boundary(xi, g) -> (psi, B, cnt, T, M, m_w, S, H)``; ``with_noslip``:
         the no-slip sums are wanted (a viscous liquid); ``with_hyd``: H, the walls' hydrostatic pressure term
         for gravity g (the extrapolated wall pressure, see ``hydrostatic``), else zero."""
@@ -327,6 +325,8 @@ class VolumeMap:
         ]
         col_noslip = [m.no_slip and with_noslip for m in self.colliders]
         col_sym = [m.sym for m in self.colliders]
+        col_moving = [m.moving for m in self.colliders]  # queried in the body frame through ``poses``
+        col_k = list(self.spec_index)
         lo = tuple(float(v) for v in self.lo)
         hi = tuple(float(v) for v in self.hi)
         # faces: (axis, side, inward normal sign, no-slip, velocity)
@@ -423,6 +423,47 @@ class VolumeMap:
                     Hv -= hn * nh
             return Hv
 
+        def make_collider_at(c):
+            @ti.func
+            def collider_at(xi):
+                """Collider map c at world point xi: (psi, B, cnt, T, moment, no-slip matrix, surface
+                velocity), vectors and matrices in the world frame. A moving collider's (or rigid body's) map
+                is its body frame's: the point goes to the body frame at the substep's middle pose
+                (ColliderPoses slot 0, as moving boundary particles take it), x0 = R^T (x - c) + p, and the
+                map's gradient and matrices come back rotated (R B, R M R^T); the scalars do not change."""
+                org, inv = ti.static(col_meta[c][0], col_meta[c][1])
+                nsym = ti.static(len(col_sym[c]))
+                xq = xi
+                Rm = ti.Matrix.identity(f, dim)
+                vs = ti.Vector.zero(f, dim)
+                if ti.static(col_moving[c]):
+                    Rm, cen, vel, w = poses.get(0, col_k[c])
+                    xq = Rm.transpose() @ (xi - cen) + poses.pivot[col_k[c]]
+                    vs = vel + poses.cross(w, xi - cen)  # the surface's velocity at x_i
+                v = col_at[c]((xq - ti.Vector(org, dt=f)) * inv)
+                Bo = ti.Vector.zero(f, dim)
+                for a in ti.static(range(dim)):
+                    Bo[a] = v[1 + a]
+                Mo = ti.Matrix.zero(f, dim, dim)  # the moment's channels, then the no-slip matrix's
+                Mc = ti.Matrix.zero(f, dim, dim)
+                for m in ti.static(range(nsym)):
+                    i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
+                    if ti.static(with_hyd):
+                        Mo[i, j] = v[3 + dim + m]
+                        Mo[j, i] = v[3 + dim + m]
+                    if ti.static(col_noslip[c]):
+                        Mc[i, j] = v[3 + dim + nsym + m]
+                        Mc[j, i] = v[3 + dim + nsym + m]
+                if ti.static(col_moving[c]):
+                    Bo = Rm @ Bo
+                    Mo = Rm @ Mo @ Rm.transpose()
+                    Mc = Rm @ Mc @ Rm.transpose()
+                return v[0], Bo, v[1 + dim], v[2 + dim], Mo, Mc, vs
+
+            return collider_at
+
+        collider_at = [make_collider_at(c) for c in range(len(cols))]
+
         @ti.func
         def boundary(xi, g):
             Hy = ti.Vector.zero(f, dim)
@@ -518,59 +559,31 @@ class VolumeMap:
                                 Bo = ti.Vector([sg[0] * o[1], sg[1] * o[2], sg[2] * o[3]])
                                 Hy += hydrostatic(Bo, Mo, g)
             for c in ti.static(range(len(cols))):
-                org, inv = ti.static(col_meta[c][0], col_meta[c][1])
-                s = (xi - ti.Vector(org, dt=f)) * inv
-                v = col_at[c](s)
-                psi += v[0]
-                for a in ti.static(range(dim)):
-                    B[a] += v[1 + a]
-                cnt += v[1 + dim]
-                T += v[2 + dim]
-                nsym = ti.static(len(col_sym[c]))
+                cpsi, cB, ccnt, cT, Mo, Mc, vs = collider_at[c](xi)
+                psi += cpsi
+                B += cB
+                cnt += ccnt
+                T += cT
+                if ti.static(col_moving[c]):  # the wall's velocity: the surface's at x_i (module docstring)
+                    S += vs.dot(cB)
                 if ti.static(with_hyd):
-                    Mo = ti.Matrix.zero(f, dim, dim)
-                    Bo = ti.Vector.zero(f, dim)
-                    for a in ti.static(range(dim)):
-                        Bo[a] = v[1 + a]
-                    for m in ti.static(range(len(col_sym[c]))):
-                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
-                        Mo[i, j] = v[3 + dim + m]
-                        Mo[j, i] = v[3 + dim + m]
-                    Hy += hydrostatic(Bo, Mo, g)
+                    Hy += hydrostatic(cB, Mo, g)
                 if ti.static(col_noslip[c]):
-                    for m in ti.static(range(len(col_sym[c]))):
-                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
-                        M[i, j] += v[3 + dim + nsym + m]
-                        if ti.static(i != j):
-                            M[j, i] += v[3 + dim + nsym + m]
+                    M += Mc
+                    if ti.static(col_moving[c]):
+                        mw += Mc @ vs
             return psi, B, cnt, T, M, mw, S, Hy
 
         def make_collider_terms(c):
             @ti.func
             def collider_terms(xi, g):
-                """Collider map c's own B, hydrostatic term (zero unless with_hyd) and no-slip matrix at xi
-                (the loads on a named collider)."""
-                s = (xi - ti.Vector(col_meta[c][0], dt=f)) * col_meta[c][1]
-                v = col_at[c](s)
-                Bo = ti.Vector.zero(f, dim)
-                for a in ti.static(range(dim)):
-                    Bo[a] = v[1 + a]
+                """Collider map c's own B, hydrostatic term (zero unless with_hyd), no-slip matrix and surface
+                velocity at xi (the loads on a named collider), in the world frame."""
+                _, Bo, _, _, Mo, Mc, vs = collider_at[c](xi)
                 Hc = ti.Vector.zero(f, dim)
-                nsym = ti.static(len(col_sym[c]))
                 if ti.static(with_hyd):
-                    Mo = ti.Matrix.zero(f, dim, dim)
-                    for m in ti.static(range(len(col_sym[c]))):
-                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
-                        Mo[i, j] = v[3 + dim + m]
-                        Mo[j, i] = v[3 + dim + m]
                     Hc = hydrostatic(Bo, Mo, g)
-                Mc = ti.Matrix.zero(f, dim, dim)
-                if ti.static(col_noslip[c]):
-                    for m in ti.static(range(len(col_sym[c]))):
-                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
-                        Mc[i, j] = v[3 + dim + nsym + m]
-                        Mc[j, i] = v[3 + dim + nsym + m]
-                return Bo, Hc, Mc
+                return Bo, Hc, Mc, vs
 
             return collider_terms
 
@@ -615,13 +628,16 @@ class VolumeMap:
         return wall_k
 
     def make_loads(self, P, F, fn, poses):
-        """Taichi funcs ``(pressure(i, dt), viscous(i, dt))`` that add the liquid's loads on the named static
-        colliders to ``poses`` (as moving.make_loads does with boundary particles): the impulse the collider's
-        map gave liquid particle i this substep, reversed, applied at x_i. DFSPH: dt m_i (k_i L_i B_c +
-        kb_i B_c + H_c) with the substep's total stiffness in F.kk (kb_i its Shepard average, make_wall_k,
-        and the hydrostatic term with the extrapolated wall pressure, else Akinci's term alone); WCSPH:
-        dt m_i rho0 p_i / rho_i^2 B_c (plus rho0 / rho_w^2 (p_w B_c + rho0 H_c) with the extrapolated wall
-        pressure); no-slip: -dt m_i 2 (dim + 2) nu M_c v_i."""
+        """Taichi funcs ``(pressure(i, dt), viscous(i, dt))`` that add the liquid's loads on the named
+        colliders (static or moving, rigid bodies included) to ``poses`` (as moving.make_loads does with
+        boundary particles): the impulse the collider's map gave liquid particle i this substep, reversed,
+        applied at x_i. DFSPH: dt m_i (k_i L_i B_c + kb_i B_c + H_c) with the substep's total stiffness in
+        F.kk (kb_i its Shepard average, make_wall_k, and the hydrostatic term with the extrapolated wall
+        pressure, else Akinci's term alone); WCSPH: dt m_i rho0 p_i / rho_i^2 B_c (plus rho0 / rho_w^2 (p_w
+        B_c + rho0 H_c) with the extrapolated wall pressure); no-slip: -dt m_i 2 (dim + 2) nu M_c (v_i -
+        v_s), v_s the surface's velocity at x_i. Applied at x_i, not at the boundary points (the map has
+        none), the moment is still the boundary particles' own: every pair force lies along x_i - x_b (grad
+        W_ib is radial, also with the scalar gradient correction), so (x_b - c) x J_b = (x_i - c) x J_b."""
         from simcli.backend import stdout_to_stderr
         from simcli.solvers.sph.dfsph import BFAC
 
@@ -645,7 +661,7 @@ class VolumeMap:
             xi = x[i]
             mi = fn.mass_of(i)
             for c in ti.static(named):
-                Bo, Hc, _ = terms[c](xi, gravity[None])
+                Bo, Hc, _, _ = terms[c](xi, gravity[None])
                 J = ti.Vector.zero(f, dim)
                 if ti.static(dfsph):
                     gi = Bo
@@ -674,8 +690,9 @@ class VolumeMap:
             if ti.static(len(named_noslip) > 0):
                 xi = x[i]
                 for c in ti.static(named_noslip):
-                    _, _, Mc = terms[c](xi, gravity[None])
-                    J = -dt * fn.mass_of(i) * visc_c * mat_nu[mid[i]] * (Mc @ v[i])
+                    _, _, Mc, vs = terms[c](xi, gravity[None])
+                    # relative to the surface's velocity at x_i (zero for a static collider)
+                    J = -dt * fn.mass_of(i) * visc_c * mat_nu[mid[i]] * (Mc @ (v[i] - vs))
                     if J.norm_sqr() > 0:
                         poses.add_load(kidx[c], xi, J, 0)
 
