@@ -579,7 +579,7 @@ class VolumeMap:
             def collider_terms(xi, g):
                 """Collider map c's own B, hydrostatic term (zero unless with_hyd), no-slip matrix and surface
                 velocity at xi (the loads on a named collider), in the world frame."""
-                _, Bo, _, _, Mo, Mc, vs = collider_at[c](xi)
+                _psi, Bo, _cnt, _T, Mo, Mc, vs = collider_at[c](xi)
                 Hc = ti.Vector.zero(f, dim)
                 if ti.static(with_hyd):
                     Hc = hydrostatic(Bo, Mo, g)
@@ -661,7 +661,7 @@ class VolumeMap:
             xi = x[i]
             mi = fn.mass_of(i)
             for c in ti.static(named):
-                Bo, Hc, _, _ = terms[c](xi, gravity[None])
+                Bo, Hc, _Mc, _vs = terms[c](xi, gravity[None])
                 J = ti.Vector.zero(f, dim)
                 if ti.static(dfsph):
                     gi = Bo
@@ -690,7 +690,7 @@ class VolumeMap:
             if ti.static(len(named_noslip) > 0):
                 xi = x[i]
                 for c in ti.static(named_noslip):
-                    _, _, Mc, vs = terms[c](xi, gravity[None])
+                    _Bo, _Hc, Mc, vs = terms[c](xi, gravity[None])
                     # relative to the surface's velocity at x_i (zero for a static collider)
                     J = -dt * fn.mass_of(i) * visc_c * mat_nu[mid[i]] * (Mc @ (v[i] - vs))
                     if J.norm_sqr() > 0:
