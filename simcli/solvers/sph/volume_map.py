@@ -26,7 +26,8 @@ density as with particles.
   (``Q``, a table in two distances: lattice in both normals) and restores the corners' (3D: ``O``, a lattice
   sum in three distances). Exact to the tables' interpolation for any box; the hydrostatic moment (the
   extrapolated wall pressure) is corrected the same way (session 10: counted twice at the edges it kicked the
-  DFSPH tank's lower corners); no-slip viscosity takes the faces' terms without the edge correction.
+  DFSPH tank's lower corners), and so is the no-slip matrix, whose edges and corners take the first face's
+  kind and velocity as boundary particles do (boundary.wall_particles).
 * Static colliders: the collider's boundary particles (boundary.collider_particles, the same sampling) are
   deposited on a grid of spacing particle_size / 4 (2D) or / 3 (3D) by cloud-in-cell weights and
   convolved with the kernel's stencils (FFT), once at build; each liquid particle interpolates the grid
@@ -91,6 +92,8 @@ def _integrands(a: list[np.ndarray], t2: np.ndarray, h: float, dim: int, eps: fl
     for k in range(len(a)):
         for l in range(k, len(a)):
             out[f"m{k}{l}"] = m * a[k] * a[l]
+            out[f"c{k}{l}"] = c * a[k] * a[l]  # the no-slip matrix's
+    out["ctt"] = c * (t2 / ntan if ntan else 0.0 * t2)
     return out
 
 
@@ -111,10 +114,10 @@ def wall_tables(ps: float, h: float, dim: int, V: float) -> WallTables:
     as 1 / ps, the no-slip matrix as 1 / ps^2)."""
     t = _unit_wall_tables(dim, round(h / ps, 12), round(V / ps**dim, 12))
     face = t.face * np.array([1.0, 1.0 / ps, 1.0, 1.0, ps**-2, ps**-2, 1.0, 1.0])
-    edge = t.edge * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+    edge = t.edge * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0] + [ps**-2] * 4)
     corner = None
     if t.corner is not None:
-        corner = t.corner * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0 / ps] + [1.0] * 8)
+        corner = t.corner * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0 / ps] + [1.0] * 8 + [ps**-2] * 6)
     return WallTables(h, face, edge, corner)
 
 
@@ -148,7 +151,7 @@ def _unit_wall_tables(dim: int, h: float, V: float) -> WallTables:
     # edge: a lattice in both normals; 3D: the third axis integrated (row by row: bounded memory)
     d2 = np.linspace(0.0, h, N_EDGE + 1)
     fac = V / ps ** (dim - 2)
-    keys = ("psi", "g0", "g1", "cnt", "T", "m00", "m11", "m01", "mtt")
+    keys = ("psi", "g0", "g1", "cnt", "T", "m00", "m11", "m01", "mtt", "c00", "c11", "c01", "ctt")
     edge = np.zeros((d2.size, d2.size, len(keys)))
     if dim == 3:
         tl = kt
@@ -175,7 +178,10 @@ def _unit_wall_tables(dim: int, h: float, V: float) -> WallTables:
         corner = np.stack(
             [
                 V * it[k].sum(axis=(3, 4, 5)) * (1.0 / V if k == "cnt" else 1.0)
-                for k in ("psi", "g0", "g1", "g2", "cnt", "T", "m00", "m11", "m22", "m01", "m02", "m12")
+                for k in (
+                    *("psi", "g0", "g1", "g2", "cnt", "T", "m00", "m11", "m22", "m01", "m02", "m12"),
+                    *("c00", "c11", "c22", "c01", "c02", "c12"),
+                )
             ],
             axis=-1,
         )
@@ -535,6 +541,22 @@ class VolumeMap:
                                     Bo[a0] = s0 * q[1]
                                     Bo[a1] = s1 * q[2]
                                     Hy -= hydrostatic(Bo, Mo, g)
+                                if ti.static(faces[k1][3]):
+                                    # no-slip: boundary particles give the edge's lattice the first face's
+                                    # kind and velocity (boundary.wall_particles): the second face's copy goes
+                                    a0, a1 = ti.static(k0 // 2, k1 // 2)
+                                    s0, s1 = ti.static(faces[k0][2], faces[k1][2])
+                                    Mq = ti.Matrix.zero(f, dim, dim)
+                                    Mq[a0, a0] = q[9]
+                                    Mq[a1, a1] = q[10]
+                                    Mq[a0, a1] = s0 * s1 * q[11]
+                                    Mq[a1, a0] = s0 * s1 * q[11]
+                                    if ti.static(dim == 3):
+                                        a2 = ti.static(3 - a0 - a1)
+                                        Mq[a2, a2] = q[12]
+                                    M -= Mq
+                                    if ti.static(any_vel[k1]):
+                                        mw -= Mq @ ti.Vector(faces[k1][4], dt=f)
                 if ti.static(dim == 3):  # corners: counted three times, removed three times
                     for c in ti.static(range(8)):
                         k0, k1, k2 = ti.static(c & 1, 2 + ((c >> 1) & 1), 4 + ((c >> 2) & 1))
@@ -558,6 +580,19 @@ class VolumeMap:
                                     Mo[i1, i0] = sg[i0] * sg[i1] * o[ch]
                                 Bo = ti.Vector([sg[0] * o[1], sg[1] * o[2], sg[2] * o[3]])
                                 Hy += hydrostatic(Bo, Mo, g)
+                            if ti.static(faces[k2][3]):  # no-slip: the third face's copy, removed twice
+                                sg = ti.static((faces[k0][2], faces[k1][2], faces[k2][2]))
+                                comps = ti.static(
+                                    ((0, 0, 12), (1, 1, 13), (2, 2, 14), (0, 1, 15), (0, 2, 16), (1, 2, 17))
+                                )
+                                Mq = ti.Matrix.zero(f, dim, dim)
+                                for m in ti.static(range(6)):
+                                    i0, i1, ch = ti.static(comps[m])
+                                    Mq[i0, i1] = sg[i0] * sg[i1] * o[ch]
+                                    Mq[i1, i0] = sg[i0] * sg[i1] * o[ch]
+                                M += Mq
+                                if ti.static(any_vel[k2]):
+                                    mw += Mq @ ti.Vector(faces[k2][4], dt=f)
             for c in ti.static(range(len(cols))):
                 cpsi, cB, ccnt, cT, Mo, Mc, vs = collider_at[c](xi)
                 psi += cpsi
