@@ -202,21 +202,6 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
             "rest density. Use clamp_pressure: true (a free surface), pressure_solver: WCSPH, or one rho "
             "for every SPH.Liquid",
         )
-    if sph.boundary == "volume_map" and any(e.family == "SPH" for e in s.entities):
-        # volume maps are precomputed for static boundaries only (simcli/solvers/sph/volume_map.py)
-        for k, c in enumerate(s.colliders):
-            if c.motion is not None:
-                err(
-                    ("colliders", k, "motion"),
-                    "solvers.sph.boundary: volume_map supports static colliders only: remove the motion "
-                    "or set solvers.sph.boundary: particles",
-                )
-        if getattr(s, "rigid_bodies", None):
-            err(
-                ("solvers", "sph", "boundary"),
-                "solvers.sph.boundary: volume_map supports static colliders only, not rigid bodies: set "
-                "solvers.sph.boundary: particles",
-            )
     from simcli.scene.limits import check_limits  # bounds, names, stability, overlaps (docs/LIMITS.md)
 
     errors += check_limits(loaded, geometry_ok=not errors)

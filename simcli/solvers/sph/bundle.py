@@ -165,3 +165,4 @@ class SPHFuncs:
     load_pressure: Any = None  # moving.py
     load_viscous: Any = None
     boundary_map: Any = None  # volume_map.py: boundary(x) -> the walls' and static colliders' sums
+    map_wall_k: Any = None  # volume_map.py: DFSPH's boundary stiffness next to a particle (Shepard average)

@@ -92,15 +92,16 @@ class SPHOptions(_Options):
     )
     boundary: Literal["particles", "volume_map"] = Field(
         "particles",
-        description="How walls and static colliders enter the liquid's sums. particles: layers of boundary "
+        description="How walls and colliders enter the liquid's sums. particles: layers of boundary "
         "particles (Akinci et al. 2012) in the neighbour search. volume_map: no boundary particles; the sums "
         "those particles would give (density, the pressure terms' sum V_b grad W_ib, no-slip viscosity) are "
         "precomputed once per boundary (tables against the distances to the domain's faces, a grid per "
         "collider) and looked up per liquid particle, as SPlisHSPlasH's volume maps (Bender et al. 2019) "
-        "and density maps (Koschier & Bender 2017) do. Static colliders only (a moving collider or rigid "
-        "body needs particles). wall_pressure: extrapolated (auto with a free surface) mirrors each "
-        "particle's own pressure into the boundary (WCSPH: relaxing towards it, "
-        "wall_pressure_relaxation) plus the hydrostatic difference to it. "
+        "and density maps (Koschier & Bender 2017) do. A moving collider's or rigid body's map is built in "
+        "its body frame and queried at its pose. wall_pressure: extrapolated (auto with a free surface) "
+        "gives the boundary the liquid's pressure next to it (DFSPH: the Shepard average of the particle's "
+        "neighbours; WCSPH: the particle's own, relaxing towards it, wall_pressure_relaxation) plus the "
+        "hydrostatic difference to it. "
         "docs/SPH.md, volume maps.",
     )
     wall_pressure: Literal["auto", "akinci", "extrapolated"] = Field(

@@ -198,7 +198,9 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
         if ti.static(ext):
             dv += wp.wall_sum(i, wp.bval)  # the walls' k: the average of the liquid's next to them
         if ti.static(ext_map):
-            dv += ki * B[i]  # the map's boundary k: the particle's own (mirrored)
+            # the map's boundary k: the Shepard average of the liquid's next to the particle (its own
+            # included), as boundary particles' extrapolated k (volume_map.py, shepard_k)
+            dv += fn.map_wall_k(i, kk) * B[i]
         v[i] -= dt * pressure_gradient(i, kk, dv)
         kacc[i] += ki
 

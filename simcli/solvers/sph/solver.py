@@ -551,7 +551,14 @@ class SPHSolver(Solver):
         fn.Wk, fn.gradW, fn.Ckern, fn.W_gradW = make_kernels(P.h, P.dim, P.f)
         fn.rows, fn.row_cell, fn.mass_of, fn.volume_of = make_stencil(P, F, fn)
         if self.vmap is not None:
-            fn.boundary_map = self.vmap.build(self.f, self.npf, self.has_noslip, self.Hb is not None)
+            fn.boundary_map = self.vmap.build(
+                self.f,
+                self.npf,
+                self.has_noslip,
+                self.Hb is not None,
+                self.poses if self.poses.any_moving else None,
+            )
+            fn.map_wall_k = self.vmap.make_wall_k(F, fn)
         fn.neighbours_density = make_neighbours_density(P, F, fn)
         fn.non_pressure = make_non_pressure(P, F, fn)
         fn.advect = make_advect(P, F, fn)

@@ -24,8 +24,10 @@ density as with particles.
   integral along the face, a lattice in the normal direction), give a table in d (``H``). The walls are
   the union of the faces' half-spaces; inclusion-exclusion removes the edges' lattice counted twice
   (``Q``, a table in two distances: lattice in both normals) and restores the corners' (3D: ``O``, a lattice
-  sum in three distances). Exact to the tables' interpolation for any box; no-slip viscosity takes the
-  faces' terms without the edge correction.
+  sum in three distances). Exact to the tables' interpolation for any box; the hydrostatic moment (the
+  extrapolated wall pressure) is corrected the same way (session 10: counted twice at the edges it kicked the
+  DFSPH tank's lower corners), and so is the no-slip matrix, whose edges and corners take the first face's
+  kind and velocity as boundary particles do (boundary.wall_particles).
 * Static colliders: the collider's boundary particles (boundary.collider_particles, the same sampling) are
   deposited on a grid of spacing particle_size / 4 (2D) or / 3 (3D) by cloud-in-cell weights and
   convolved with the kernel's stencils (FFT), once at build; each liquid particle interpolates the grid
@@ -86,6 +88,12 @@ def _integrands(a: list[np.ndarray], t2: np.ndarray, h: float, dim: int, eps: fl
     m = np.where(r > 1e-12 * h, dw / safe, 0.0)  # the moment sum_b V_b grad W (x - x_b)^T
     out["mnn"] = m * a[0] * a[0]
     out["mtt"] = m * (t2 / ntan if ntan else 0.0 * t2)
+    # the moment's components in the normals' frame (edges, corners): m a_k a_l, and along the edge's axis
+    for k in range(len(a)):
+        for l in range(k, len(a)):
+            out[f"m{k}{l}"] = m * a[k] * a[l]
+            out[f"c{k}{l}"] = c * a[k] * a[l]  # the no-slip matrix's
+    out["ctt"] = c * (t2 / ntan if ntan else 0.0 * t2)
     return out
 
 
@@ -106,8 +114,10 @@ def wall_tables(ps: float, h: float, dim: int, V: float) -> WallTables:
     as 1 / ps, the no-slip matrix as 1 / ps^2)."""
     t = _unit_wall_tables(dim, round(h / ps, 12), round(V / ps**dim, 12))
     face = t.face * np.array([1.0, 1.0 / ps, 1.0, 1.0, ps**-2, ps**-2, 1.0, 1.0])
-    edge = t.edge * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0, 1.0])
-    corner = None if t.corner is None else t.corner * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0 / ps, 1.0, 1.0])
+    edge = t.edge * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0] + [ps**-2] * 4)
+    corner = None
+    if t.corner is not None:
+        corner = t.corner * np.array([1.0, 1.0 / ps, 1.0 / ps, 1.0 / ps] + [1.0] * 8 + [ps**-2] * 6)
     return WallTables(h, face, edge, corner)
 
 
@@ -141,7 +151,7 @@ def _unit_wall_tables(dim: int, h: float, V: float) -> WallTables:
     # edge: a lattice in both normals; 3D: the third axis integrated (row by row: bounded memory)
     d2 = np.linspace(0.0, h, N_EDGE + 1)
     fac = V / ps ** (dim - 2)
-    keys = ("psi", "g0", "g1", "cnt", "T")
+    keys = ("psi", "g0", "g1", "cnt", "T", "m00", "m11", "m01", "mtt", "c00", "c11", "c01", "ctt")
     edge = np.zeros((d2.size, d2.size, len(keys)))
     if dim == 3:
         tl = kt
@@ -168,7 +178,10 @@ def _unit_wall_tables(dim: int, h: float, V: float) -> WallTables:
         corner = np.stack(
             [
                 V * it[k].sum(axis=(3, 4, 5)) * (1.0 / V if k == "cnt" else 1.0)
-                for k in ("psi", "g0", "g1", "g2", "cnt", "T")
+                for k in (
+                    *("psi", "g0", "g1", "g2", "cnt", "T", "m00", "m11", "m22", "m01", "m02", "m12"),
+                    *("c00", "c11", "c22", "c01", "c02", "c12"),
+                )
             ],
             axis=-1,
         )
@@ -185,6 +198,7 @@ class ColliderMap:
     no_slip: bool
     nparticles: int = 0
     sym: list = field(default_factory=list)  # (i, j) of the moment's and the no-slip matrix's channels
+    moving: bool = False  # in the collider's body frame (its pose at t = 0), queried through ColliderPoses
 
 
 def collider_map(spec, lo, hi, ps: float, h: float, dim: int, V: float, layers: int) -> ColliderMap | None:
@@ -195,6 +209,10 @@ def collider_map(spec, lo, hi, ps: float, h: float, dim: int, V: float, layers: 
 
     from simcli.solvers.sph.boundary import collider_particles
 
+    if spec.moving:  # its whole shell, in its body frame, as boundary particles sample it (moving.py)
+        from simcli.solvers.sph.moving import moving_bounds
+
+        lo, hi = moving_bounds(spec, lo, hi)
     bp = collider_particles(spec, lo, hi, ps, dim, layers)
     if bp.n == 0:
         return None
@@ -237,7 +255,7 @@ def collider_map(spec, lo, hi, ps: float, h: float, dim: int, V: float, layers: 
         c = np.where(r > 1e-12 * h, dw / (safe * (r2 + eps)), 0.0)
         for i, j in sym:
             chans.append(fftconvolve(dep, c * U[..., i] * U[..., j], mode="same"))
-    return ColliderMap(origin, dx, np.stack(chans, axis=-1), no_slip, bp.n, sym)
+    return ColliderMap(origin, dx, np.stack(chans, axis=-1), no_slip, bp.n, sym, bool(spec.moving))
 
 
 class VolumeMap:
@@ -250,13 +268,6 @@ class VolumeMap:
         self.dim, self.ps, self.h = dim, ps, h
         lo, hi = scene.domain.bounds(dim)
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
-        moving = [c for c in specs if c.moving]
-        if moving:
-            raise ValueError(
-                "solvers.sph.boundary: volume_map supports static colliders only; collider(s) "
-                + ", ".join(repr(getattr(c, "name", None) or "?") for c in moving)
-                + " move: set solvers.sph.boundary: particles"
-            )
         self.walls = wall_specs(scene, dim)
         self.wall_tables = wall_tables(ps, h, dim, V)
         self.colliders = []
@@ -289,7 +300,7 @@ class VolumeMap:
 
     # ---------------------------------------------------------------- Taichi side
 
-    def build(self, f, npf, with_noslip: bool, with_hyd: bool = False):
+    def build(self, f, npf, with_noslip: bool, with_hyd: bool = False, poses=None):
         """Taichi fields and the func ``boundary(xi, g) -> (psi, B, cnt, T, M, m_w, S, H)``; ``with_noslip``:
         the no-slip sums are wanted (a viscous liquid); ``with_hyd``: H, the walls' hydrostatic pressure term
         for gravity g (the extrapolated wall pressure, see ``hydrostatic``), else zero."""
@@ -320,6 +331,8 @@ class VolumeMap:
         ]
         col_noslip = [m.no_slip and with_noslip for m in self.colliders]
         col_sym = [m.sym for m in self.colliders]
+        col_moving = [m.moving for m in self.colliders]  # queried in the body frame through ``poses``
+        col_k = list(self.spec_index)
         lo = tuple(float(v) for v in self.lo)
         hi = tuple(float(v) for v in self.hi)
         # faces: (axis, side, inward normal sign, no-slip, velocity)
@@ -416,6 +429,47 @@ class VolumeMap:
                     Hv -= hn * nh
             return Hv
 
+        def make_collider_at(c):
+            @ti.func
+            def collider_at(xi):
+                """Collider map c at world point xi: (psi, B, cnt, T, moment, no-slip matrix, surface
+                velocity), vectors and matrices in the world frame. A moving collider's (or rigid body's) map
+                is its body frame's: the point goes to the body frame at the substep's middle pose
+                (ColliderPoses slot 0, as moving boundary particles take it), x0 = R^T (x - c) + p, and the
+                map's gradient and matrices come back rotated (R B, R M R^T); the scalars do not change."""
+                org, inv = ti.static(col_meta[c][0], col_meta[c][1])
+                nsym = ti.static(len(col_sym[c]))
+                xq = xi
+                Rm = ti.Matrix.identity(f, dim)
+                vs = ti.Vector.zero(f, dim)
+                if ti.static(col_moving[c]):
+                    Rm, cen, vel, w = poses.get(0, col_k[c])
+                    xq = Rm.transpose() @ (xi - cen) + poses.pivot[col_k[c]]
+                    vs = vel + poses.cross(w, xi - cen)  # the surface's velocity at x_i
+                v = col_at[c]((xq - ti.Vector(org, dt=f)) * inv)
+                Bo = ti.Vector.zero(f, dim)
+                for a in ti.static(range(dim)):
+                    Bo[a] = v[1 + a]
+                Mo = ti.Matrix.zero(f, dim, dim)  # the moment's channels, then the no-slip matrix's
+                Mc = ti.Matrix.zero(f, dim, dim)
+                for m in ti.static(range(nsym)):
+                    i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
+                    if ti.static(with_hyd):
+                        Mo[i, j] = v[3 + dim + m]
+                        Mo[j, i] = v[3 + dim + m]
+                    if ti.static(col_noslip[c]):
+                        Mc[i, j] = v[3 + dim + nsym + m]
+                        Mc[j, i] = v[3 + dim + nsym + m]
+                if ti.static(col_moving[c]):
+                    Bo = Rm @ Bo
+                    Mo = Rm @ Mo @ Rm.transpose()
+                    Mc = Rm @ Mc @ Rm.transpose()
+                return v[0], Bo, v[1 + dim], v[2 + dim], Mo, Mc, vs
+
+            return collider_at
+
+        collider_at = [make_collider_at(c) for c in range(len(cols))]
+
         @ti.func
         def boundary(xi, g):
             Hy = ti.Vector.zero(f, dim)
@@ -472,6 +526,37 @@ class VolumeMap:
                                 B[k1 // 2] -= faces[k1][2] * q[2]
                                 cnt -= q[3]
                                 T -= q[4]
+                                if ti.static(with_hyd):
+                                    a0, a1 = ti.static(k0 // 2, k1 // 2)
+                                    s0, s1 = ti.static(faces[k0][2], faces[k1][2])
+                                    Mo = ti.Matrix.zero(f, dim, dim)
+                                    Mo[a0, a0] = q[5]
+                                    Mo[a1, a1] = q[6]
+                                    Mo[a0, a1] = s0 * s1 * q[7]
+                                    Mo[a1, a0] = s0 * s1 * q[7]
+                                    if ti.static(dim == 3):
+                                        a2 = ti.static(3 - a0 - a1)
+                                        Mo[a2, a2] = q[8]
+                                    Bo = ti.Vector.zero(f, dim)
+                                    Bo[a0] = s0 * q[1]
+                                    Bo[a1] = s1 * q[2]
+                                    Hy -= hydrostatic(Bo, Mo, g)
+                                if ti.static(faces[k1][3]):
+                                    # no-slip: boundary particles give the edge's lattice the first face's
+                                    # kind and velocity (boundary.wall_particles): the second face's copy goes
+                                    a0, a1 = ti.static(k0 // 2, k1 // 2)
+                                    s0, s1 = ti.static(faces[k0][2], faces[k1][2])
+                                    Mq = ti.Matrix.zero(f, dim, dim)
+                                    Mq[a0, a0] = q[9]
+                                    Mq[a1, a1] = q[10]
+                                    Mq[a0, a1] = s0 * s1 * q[11]
+                                    Mq[a1, a0] = s0 * s1 * q[11]
+                                    if ti.static(dim == 3):
+                                        a2 = ti.static(3 - a0 - a1)
+                                        Mq[a2, a2] = q[12]
+                                    M -= Mq
+                                    if ti.static(any_vel[k1]):
+                                        mw -= Mq @ ti.Vector(faces[k1][4], dt=f)
                 if ti.static(dim == 3):  # corners: counted three times, removed three times
                     for c in ti.static(range(8)):
                         k0, k1, k2 = ti.static(c & 1, 2 + ((c >> 1) & 1), 4 + ((c >> 2) & 1))
@@ -483,74 +568,111 @@ class VolumeMap:
                             B[2] += faces[k2][2] * o[3]
                             cnt += o[4]
                             T += o[5]
+                            if ti.static(with_hyd):
+                                sg = ti.static((faces[k0][2], faces[k1][2], faces[k2][2]))
+                                comps = ti.static(
+                                    ((0, 0, 6), (1, 1, 7), (2, 2, 8), (0, 1, 9), (0, 2, 10), (1, 2, 11))
+                                )
+                                Mo = ti.Matrix.zero(f, dim, dim)
+                                for m in ti.static(range(6)):
+                                    i0, i1, ch = ti.static(comps[m])
+                                    Mo[i0, i1] = sg[i0] * sg[i1] * o[ch]
+                                    Mo[i1, i0] = sg[i0] * sg[i1] * o[ch]
+                                Bo = ti.Vector([sg[0] * o[1], sg[1] * o[2], sg[2] * o[3]])
+                                Hy += hydrostatic(Bo, Mo, g)
+                            if ti.static(faces[k2][3]):  # no-slip: the third face's copy, removed twice
+                                sg = ti.static((faces[k0][2], faces[k1][2], faces[k2][2]))
+                                comps = ti.static(
+                                    ((0, 0, 12), (1, 1, 13), (2, 2, 14), (0, 1, 15), (0, 2, 16), (1, 2, 17))
+                                )
+                                Mq = ti.Matrix.zero(f, dim, dim)
+                                for m in ti.static(range(6)):
+                                    i0, i1, ch = ti.static(comps[m])
+                                    Mq[i0, i1] = sg[i0] * sg[i1] * o[ch]
+                                    Mq[i1, i0] = sg[i0] * sg[i1] * o[ch]
+                                M += Mq
+                                if ti.static(any_vel[k2]):
+                                    mw += Mq @ ti.Vector(faces[k2][4], dt=f)
             for c in ti.static(range(len(cols))):
-                org, inv = ti.static(col_meta[c][0], col_meta[c][1])
-                s = (xi - ti.Vector(org, dt=f)) * inv
-                v = col_at[c](s)
-                psi += v[0]
-                for a in ti.static(range(dim)):
-                    B[a] += v[1 + a]
-                cnt += v[1 + dim]
-                T += v[2 + dim]
-                nsym = ti.static(len(col_sym[c]))
+                cpsi, cB, ccnt, cT, Mo, Mc, vs = collider_at[c](xi)
+                psi += cpsi
+                B += cB
+                cnt += ccnt
+                T += cT
+                if ti.static(col_moving[c]):  # the wall's velocity: the surface's at x_i (module docstring)
+                    S += vs.dot(cB)
                 if ti.static(with_hyd):
-                    Mo = ti.Matrix.zero(f, dim, dim)
-                    Bo = ti.Vector.zero(f, dim)
-                    for a in ti.static(range(dim)):
-                        Bo[a] = v[1 + a]
-                    for m in ti.static(range(len(col_sym[c]))):
-                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
-                        Mo[i, j] = v[3 + dim + m]
-                        Mo[j, i] = v[3 + dim + m]
-                    Hy += hydrostatic(Bo, Mo, g)
+                    Hy += hydrostatic(cB, Mo, g)
                 if ti.static(col_noslip[c]):
-                    for m in ti.static(range(len(col_sym[c]))):
-                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
-                        M[i, j] += v[3 + dim + nsym + m]
-                        if ti.static(i != j):
-                            M[j, i] += v[3 + dim + nsym + m]
+                    M += Mc
+                    if ti.static(col_moving[c]):
+                        mw += Mc @ vs
             return psi, B, cnt, T, M, mw, S, Hy
 
         def make_collider_terms(c):
             @ti.func
             def collider_terms(xi, g):
-                """Collider map c's own B, hydrostatic term (zero unless with_hyd) and no-slip matrix at xi
-                (the loads on a named collider)."""
-                s = (xi - ti.Vector(col_meta[c][0], dt=f)) * col_meta[c][1]
-                v = col_at[c](s)
-                Bo = ti.Vector.zero(f, dim)
-                for a in ti.static(range(dim)):
-                    Bo[a] = v[1 + a]
+                """Collider map c's own B, hydrostatic term (zero unless with_hyd), no-slip matrix and surface
+                velocity at xi (the loads on a named collider), in the world frame."""
+                _psi, Bo, _cnt, _T, Mo, Mc, vs = collider_at[c](xi)
                 Hc = ti.Vector.zero(f, dim)
-                nsym = ti.static(len(col_sym[c]))
                 if ti.static(with_hyd):
-                    Mo = ti.Matrix.zero(f, dim, dim)
-                    for m in ti.static(range(len(col_sym[c]))):
-                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
-                        Mo[i, j] = v[3 + dim + m]
-                        Mo[j, i] = v[3 + dim + m]
                     Hc = hydrostatic(Bo, Mo, g)
-                Mc = ti.Matrix.zero(f, dim, dim)
-                if ti.static(col_noslip[c]):
-                    for m in ti.static(range(len(col_sym[c]))):
-                        i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
-                        Mc[i, j] = v[3 + dim + nsym + m]
-                        Mc[j, i] = v[3 + dim + nsym + m]
-                return Bo, Hc, Mc
+                return Bo, Hc, Mc, vs
 
             return collider_terms
 
         self.collider_terms = [make_collider_terms(c) for c in range(len(cols))]
         return boundary
 
+    @staticmethod
+    def make_wall_k(F, fn):
+        """Taichi func ``wall_k(i, k_) -> k_b``: the stiffness DFSPH's maps give the boundary next to liquid
+        particle i, the Shepard average of the stiffness field ``k_`` over i's liquid neighbours and itself,
+        sum_j V_j W_ij k_j / sum_j V_j W_ij (as boundary particles' extrapolated k, wall_pressure.py, is
+        the Shepard average of the liquid's next to each boundary particle). Zero work for a particle with no
+        boundary in reach (B_i = 0). Why not k_i itself (the mirror, session 9): with the mirror a particle
+        next to a wall is pushed off it by 2 k_i, its own stiffness, which the solve raises wherever the
+        particle is compressed; a DFSPH tank at rest then kept 3.5-4 cm/s of noise with wall particles
+        kicked to 25-37 cm/s (docs/SPH.md, Gaps). Linear in ``k_``, so the iterations' increments add up to
+        the average of the total."""
+        from simcli.backend import stdout_to_stderr
+
+        with stdout_to_stderr():
+            import taichi as ti
+
+        x, B, nb_cnt, nb_j = F.x, F.B, F.nb_cnt, F.nb_j
+        W, volume_of = fn.Wk, fn.volume_of
+
+        @ti.func
+        def wall_k(i, k_):
+            kb = k_[i] * 0.0
+            if B[i].norm_sqr() > 0:
+                xi = x[i]
+                w0 = volume_of(i) * W(0.0)
+                num = w0 * k_[i]
+                den = w0
+                for k in range(nb_cnt[i]):
+                    j = nb_j[i, k]
+                    w = volume_of(j) * W((xi - x[j]).norm())
+                    num += w * k_[j]
+                    den += w
+                kb = num / den
+            return kb
+
+        return wall_k
+
     def make_loads(self, P, F, fn, poses):
-        """Taichi funcs ``(pressure(i, dt), viscous(i, dt))`` that add the liquid's loads on the named static
-        colliders to ``poses`` (as moving.make_loads does with boundary particles): the impulse the collider's
-        map gave liquid particle i this substep, reversed, applied at x_i. DFSPH: dt m_i (k_i L_i B_c +
-        k_i B_c + H_c) with the substep's total stiffness in F.kk (the mirrored wall stiffness and the
-        hydrostatic term with the extrapolated wall pressure, else Akinci's term alone); WCSPH: dt m_i rho0
-        p_i / rho_i^2 B_c (plus rho0 / rho_w^2 (p_w B_c + rho0 H_c) with the extrapolated wall pressure);
-        no-slip: -dt m_i 2 (dim + 2) nu M_c v_i."""
+        """Taichi funcs ``(pressure(i, dt), viscous(i, dt))`` that add the liquid's loads on the named
+        colliders (static or moving, rigid bodies included) to ``poses`` (as moving.make_loads does with
+        boundary particles): the impulse the collider's map gave liquid particle i this substep, reversed,
+        applied at x_i. DFSPH: dt m_i (k_i L_i B_c + kb_i B_c + H_c) with the substep's total stiffness in
+        F.kk (kb_i its Shepard average, make_wall_k, and the hydrostatic term with the extrapolated wall
+        pressure, else Akinci's term alone); WCSPH: dt m_i rho0 p_i / rho_i^2 B_c (plus rho0 / rho_w^2 (p_w
+        B_c + rho0 H_c) with the extrapolated wall pressure); no-slip: -dt m_i 2 (dim + 2) nu M_c (v_i -
+        v_s), v_s the surface's velocity at x_i. Applied at x_i, not at the boundary points (the map has
+        none), the moment is still the boundary particles' own: every pair force lies along x_i - x_b (grad
+        W_ib is radial, also with the scalar gradient correction), so (x_b - c) x J_b = (x_i - c) x J_b."""
         from simcli.backend import stdout_to_stderr
         from simcli.solvers.sph.dfsph import BFAC
 
@@ -574,7 +696,7 @@ class VolumeMap:
             xi = x[i]
             mi = fn.mass_of(i)
             for c in ti.static(named):
-                Bo, Hc, _ = terms[c](xi, gravity[None])
+                Bo, Hc, _Mc, _vs = terms[c](xi, gravity[None])
                 J = ti.Vector.zero(f, dim)
                 if ti.static(dfsph):
                     gi = Bo
@@ -584,7 +706,7 @@ class VolumeMap:
                         gi = Lm[i] @ Bo
                     J = BFAC * kk[i] * gi  # as the velocity update (dfsph.py) and moving.py's loads
                     if ti.static(ext_map):
-                        J += kk[i] * Bo + Hc
+                        J += fn.map_wall_k(i, kk) * Bo + Hc
                     J *= dt * mi
                 else:
                     ri = rho[i]
@@ -603,8 +725,9 @@ class VolumeMap:
             if ti.static(len(named_noslip) > 0):
                 xi = x[i]
                 for c in ti.static(named_noslip):
-                    _, _, Mc = terms[c](xi, gravity[None])
-                    J = -dt * fn.mass_of(i) * visc_c * mat_nu[mid[i]] * (Mc @ v[i])
+                    _Bo, _Hc, Mc, vs = terms[c](xi, gravity[None])
+                    # relative to the surface's velocity at x_i (zero for a static collider)
+                    J = -dt * fn.mass_of(i) * visc_c * mat_nu[mid[i]] * (Mc @ (v[i] - vs))
                     if J.norm_sqr() > 0:
                         poses.add_load(kidx[c], xi, J, 0)
 
