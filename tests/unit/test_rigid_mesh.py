@@ -108,7 +108,7 @@ def test_mesh_bodies_are_checked_with_the_location(tmp_path):
         "upper: [0.12, 0.12, 0.05]", "upper: [0.12, 0.12, 0.03]"
     )
     rc, out = _validate(tmp_path, SCENE3.format(cube=cube, ball=ball, entities=pbf))
-    assert rc == 0, out  # PBF counts a Mesh body's faces in its density (its grid's tangent half-space)
+    assert rc == 0, out  # PBF counts a Mesh body's solid in its density (its density map)
     sph = pbf.replace("PBD.Liquid", "SPH.Liquid")  # SPH meets Mesh bodies (boundary particles from the grid)
     rc, out = _validate(tmp_path, SCENE3.format(cube=cube, ball=ball, entities=sph))
     assert rc == 0, out

@@ -251,7 +251,17 @@ class PBFLiquid:
         rigid = [k for k, c in enumerate(cols) if getattr(c, "rigid", False)] if use_walls else []
         poses = solver.poses
         col_a, col_b, col_r, col_hh = solver.col_a, solver.col_b, solver.col_r, solver.col_hh
-        mesh_f = getattr(solver, "mesh_fields", None) or [None] * len(cols)  # Mesh bodies' grids
+        # Mesh bodies: a density map (simcli.solvers.pbd.density_map) in place of the tangent half-space
+        dmaps = [None] * len(cols)
+        if rigid:
+            from simcli.solvers.pbd.density_map import DensityMapField, build_density_map
+
+            d_tab = np.linspace(0.0, h, WALL_SAMPLES)
+            for k in rigid:
+                if cols[k].kind == "Mesh":
+                    dmaps[k] = DensityMapField(
+                        *build_density_map(cols[k].mesh, spacing, h, 1.0 if act else mass, d_tab, half), f
+                    )
         from simcli.colliders import sdf_cylinder, sdf_sphere
 
         @ti.func
@@ -272,8 +282,8 @@ class PBFLiquid:
             solid as the intersection of its faces' half-spaces, in the body frame: outside one face, that
             face's half-space less the quarter-spaces beyond each neighbouring face within reach; outside
             two (an edge), the quarter-space behind both (the corners' octants are left out, as walls()
-            leaves them). Sphere, Cylinder and Mesh: the half-space behind the tangent plane at its distance
-            (a Mesh: its signed-distance grid's phi and normal)."""
+            leaves them). Sphere and Cylinder: the half-space behind the tangent plane at its distance. Mesh:
+            its density map (density_map.py: the kernel's share of the solid, as a wall's table)."""
             xq = poses.to_body(k, xi, 1)
             rw = 0.0
             gb = ti.Vector.zero(float, 3)  # in the body frame
@@ -326,9 +336,9 @@ class PBFLiquid:
                     phi, nrm = sdf_sphere(xq, col_a[k], col_r[k])
                 elif ti.static(cols[k].kind == "Cylinder"):
                     phi, nrm = sdf_cylinder(xq, col_a[k], col_r[k], col_hh[k], cols[k].axis)
-                elif ti.static(cols[k].kind == "Mesh"):
-                    phi, nrm = mesh_f[k].sample(xq)
-                if phi < h:
+                if ti.static(cols[k].kind == "Mesh"):
+                    rw, gb = dmaps[k].sample(xq)
+                elif phi < h:
                     i0, t = coord(phi)
                     rw = (1 - t) * w_half[i0] + t * w_half[i0 + 1]
                     gb = nrm * ((1 - t) * w_dhalf[i0] + t * w_dhalf[i0 + 1])

@@ -53,6 +53,9 @@ SERIAL_CONSTRAINTS = 4000
 LIQUID_BODY = 1 << 20  # contact body ids of liquid particles (liquid-liquid pairs are the fluid's business)
 
 
+LIQUID_BODY_GAP = 0.5  # PBD.Liquid vs a rigid body: contact distance / particle radius (see contact())
+
+
 class _ConstraintSet:
     """Constraints of one kind (k vertices each), ordered by colour: indices, rest values,
     compliances and multipliers as fields, colour offsets as a compile-time tuple."""
@@ -670,6 +673,27 @@ class PBDSolver(Solver):
                         xo -= dt_ * (mu * pen / lt)
             return xo
 
+        # PBD.Liquid against a free rigid body whose solid it counts in its density (liquid.py,
+        # liquid_walls): the contact is only a guard at half the particle's radius, a quarter particle from
+        # the surface; the wall density holds the liquid at its lattice distance. At the full radius (half a
+        # particle) the clamp held PBF's compressed liquid off the body, which floated ~5% high
+        # (docs/RIGID.md). Per-entity liquids only (with emitters, lid-indexed liquids keep the full radius).
+        liq_ranges = (
+            [(liq.lo, liq.hi) for liq in self.liquids]
+            if self.sources is None
+            and self.opts.liquid_walls
+            and any(getattr(c, "rigid", False) for c in cols)
+            else []
+        )
+
+        @ti.func
+        def body_gap(i, r):
+            out = r
+            for q in ti.static(liq_ranges):
+                if q[0] <= i and i < q[1]:
+                    out = LIQUID_BODY_GAP * r
+            return out
+
         @ti.kernel
         def contact(friction: ti.template()):
             for i in range(N()):
@@ -712,7 +736,12 @@ class PBDSolver(Solver):
                         if ti.static(cols[k].moving):
                             # friction on the displacement relative to the surface's own over the substep
                             xref = xpi + poses.velocity(k, xi, 1) * poses.dt[None]
-                            xo = push(xi, xref, phi, nrm, r, col_mu[k], cols[k].contact == "sticky", friction)
+                            rr = r
+                            if ti.static(cols[k].rigid):
+                                rr = body_gap(i, r)
+                            xo = push(
+                                xi, xref, phi, nrm, rr, col_mu[k], cols[k].contact == "sticky", friction
+                            )
                             if ti.static(poses.named[k] and (friction or cols[k].rigid)):
                                 # the momentum the contact gives the particle, -m (xo - xi) / dt,
                                 # goes to the collider (a rigid body's: also the liquids' clamping passes,

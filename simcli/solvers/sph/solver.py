@@ -563,7 +563,8 @@ class SPHSolver(Solver):
         fn.non_pressure = make_non_pressure(P, F, fn)
         fn.advect = make_advect(P, F, fn)
         # extrapolated wall pressure (wall_pressure.py): only where there are walls and the option asks for it
-        fn.wall_pressure = make_wall_pressure(P, F, fn) if P.ext_walls and P.nbp > 0 else None
+        bodies = tuple(k for k, c in enumerate(self.poses.specs) if getattr(c, "rigid", False))
+        fn.wall_pressure = make_wall_pressure(P, F, fn, bodies) if P.ext_walls and P.nbp > 0 else None
         self.wall_pressure = fn.wall_pressure
         if P.moving_boundary:
             fn.move_boundary = make_moving_boundary(P, F, fn, self.poses, self.grid)
