@@ -117,23 +117,12 @@ def make_kernels(h: float, dim: int, f):
             g = x * (dw * inv_h / r)
         return g
 
+    W_gradW_s = make_kernel_factor(h, dim, f)
+
     @ti.func
     def W_gradW(x, r):
         """W(r) and grad W(x) together (one q, one branch: the neighbour pass needs both)."""
-        q = r * inv_h
-        w = ti.cast(0.0, f)
-        g = ti.Vector.zero(f, dim)
-        if q <= 1.0:
-            dw = 0.0
-            if q <= 0.5:
-                w = k * (6.0 * q * q * (q - 1.0) + 1.0)
-                dw = 6.0 * k * q * (3.0 * q - 2.0)
-            else:
-                t = 1.0 - q
-                w = 2.0 * k * t * t * t
-                dw = -6.0 * k * t * t
-            if r > 1e-9 * h:
-                g = x * (dw * inv_h / r)
+        w, g, _s = W_gradW_s(x, r)
         return w, g
 
     @ti.func
@@ -154,7 +143,7 @@ def make_kernels(h: float, dim: int, f):
 def make_kernel_factor(h: float, dim: int, f):
     """Taichi func ``W_gradW_s(x, r) -> (W, grad W, s)`` with ``grad W = x s`` (s = W'(r) / r, 0 at r = 0 or
     beyond h): the neighbour lists store s instead of the vector (grad W_ij = (x_i - x_j) s_ij, rebuilt from
-    the positions, which do not change within a substep's solves); grad W is W_gradW's to the bit."""
+    the positions, which do not change within a substep's solves); make_kernels' W_gradW is this, less s."""
     from simcli.backend import stdout_to_stderr
 
     with stdout_to_stderr():
