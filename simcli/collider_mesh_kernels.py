@@ -14,6 +14,24 @@ with stdout_to_stderr():
 _CORNERS = tuple((a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1))
 
 
+@ti.func
+def grid_cell(x, origin, inv_h, shape: ti.template()):
+    """Where world point x falls on a 3D node grid (node 0 at ``origin``, spacing 1 / inv_h, ``shape``
+    nodes): (inside the grid, the cell's lower node, the fractions in the cell) for trilinear lookups."""
+    g = (x - origin) * inv_h
+    inside = True
+    for d in ti.static(range(3)):
+        if g[d] < 0 or g[d] > shape[d] - 1:
+            inside = False
+    base = ti.Vector([0, 0, 0])
+    f = g * 0.0
+    if inside:
+        for d in ti.static(range(3)):
+            base[d] = ti.min(ti.cast(ti.floor(g[d]), ti.i32), shape[d] - 2)
+            f[d] = g[d] - base[d]
+    return inside, base, f
+
+
 def mesh_fields(specs: list, dtype: Any, normal_below: float | None = None) -> list:
     """A MeshSDFField for every Mesh spec (None for the others), allocated now (after ti.init)."""
     return [
@@ -41,20 +59,10 @@ class MeshSDFField:
 
     @ti.func
     def sample(self, x):
-        o = ti.Vector(self.origin, dt=self.dtype)
-        g = (x - o) * self.inv_h
         phi = ti.cast(FAR, self.dtype)
         n = ti.Vector([0.0, 0.0, 1.0], dt=self.dtype)
-        inside = True
-        for d in ti.static(range(3)):
-            if g[d] < 0 or g[d] > self.shape[d] - 1:
-                inside = False
+        inside, base, f = grid_cell(x, ti.Vector(self.origin, dt=self.dtype), self.inv_h, self.shape)
         if inside:
-            base = ti.Vector([0, 0, 0])
-            f = g * 0.0
-            for d in ti.static(range(3)):
-                base[d] = ti.min(ti.cast(ti.floor(g[d]), ti.i32), self.shape[d] - 2)
-                f[d] = g[d] - base[d]
             vals = ti.Vector.zero(self.dtype, 8)
             for j in ti.static(range(8)):
                 a, b, c = ti.static(_CORNERS[j])

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
+from simcli.collider_mesh_kernels import grid_cell
 
 with stdout_to_stderr():
     import taichi as ti
@@ -116,20 +117,10 @@ class DensityMapField:
 
     @ti.func
     def sample(self, x):
-        o = ti.Vector(self.origin, dt=self.dtype)
-        g = (x - o) * self.inv_h
         val = ti.cast(0.0, self.dtype)
         gr = ti.Vector.zero(self.dtype, 3)
-        inside = True
-        for d in ti.static(range(3)):
-            if g[d] < 0 or g[d] > self.shape[d] - 1:
-                inside = False
+        inside, base, f = grid_cell(x, ti.Vector(self.origin, dt=self.dtype), self.inv_h, self.shape)
         if inside:
-            base = ti.Vector([0, 0, 0])
-            f = g * 0.0
-            for d in ti.static(range(3)):
-                base[d] = ti.min(ti.cast(ti.floor(g[d]), ti.i32), self.shape[d] - 2)
-                f[d] = g[d] - base[d]
             for a, b, c in ti.static([(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)]):
                 wt = (f[0] if a else 1 - f[0]) * (f[1] if b else 1 - f[1]) * (f[2] if c else 1 - f[2])
                 val += wt * self.rho[base[0] + a, base[1] + b, base[2] + c]
