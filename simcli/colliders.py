@@ -450,7 +450,12 @@ class ColliderPoses:
                 continue  # a still (named) collider's pose never changes: written once
             for slot, ts in enumerate((t + 0.5 * dt, t + dt)):
                 if m is None:
-                    R, cen, v, w = np.eye(d), np.asarray(c.centre or (0.0,) * d), np.zeros(d), np.zeros(3)
+                    R, cen, v, w = (
+                        np.eye(d).reshape(-1),
+                        np.asarray(c.centre or (0.0,) * d),
+                        np.zeros(d),
+                        np.zeros(3),
+                    )
                 elif m.constant:  # plain floats, the same arithmetic as pose() (tests/unit/test_motion.py)
                     R9, cen3, v3, w = m.constant_pose_flat(ts)
                     R = [R9[3 * i + j] for i in range(d) for j in range(d)]
@@ -459,7 +464,7 @@ class ColliderPoses:
                     ps = m.pose(ts)
                     R, cen, v, w = ps.R.reshape(-1), ps.c, ps.v, ps.w
                 row = buf[slot, k]
-                row[: d * d] = R if not isinstance(R, np.ndarray) else R.reshape(-1)
+                row[: d * d] = R
                 row[9 : 9 + d] = cen
                 row[12 : 12 + d] = v
                 row[15:18] = w

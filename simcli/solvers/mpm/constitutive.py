@@ -49,6 +49,13 @@ def quat_to_mat(q):
     )
 
 
+def identity_quaternions(n: int, dtype) -> np.ndarray:
+    """(n, 4) unit quaternions (w, x, y, z) = (1, 0, 0, 0): the warm-start rotations' initial state."""
+    q = np.zeros((n, 4), dtype)
+    q[:, 0] = 1.0
+    return q
+
+
 @ti.func
 def mat_to_quat(R):
     """Unit quaternion (w, x, y, z) of the rotation matrix R (Shepperd 1978: divide by the largest of
@@ -294,9 +301,7 @@ class CorotatedLaw(ConstitutiveLaw):
 
     def init_state(self) -> None:
         if self.q is not None:
-            q = np.zeros((self.n, 4), dtype=np.float64)
-            q[:, 0] = 1.0
-            self.q.from_numpy(q.astype(_np_dtype(self.dtype)))
+            self.q.from_numpy(identity_quaternions(self.n, _np_dtype(self.dtype)))
 
     def get_state(self) -> dict[str, np.ndarray]:
         return {"corotation_q": self.q.to_numpy()} if self.q is not None else {}

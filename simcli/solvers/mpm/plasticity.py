@@ -44,7 +44,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.solvers.mpm.constitutive import ConstitutiveLaw, _np_dtype, mat_to_quat, quat_to_mat
+from simcli.solvers.mpm.constitutive import (
+    ConstitutiveLaw,
+    _np_dtype,
+    identity_quaternions,
+    mat_to_quat,
+    quat_to_mat,
+)
 from simcli.solvers.taichi_funcs import jacobi_rotation
 
 with stdout_to_stderr():
@@ -194,12 +200,7 @@ class _SVDPlasticLaw(ConstitutiveLaw):
         if self.ezz is not None:
             self.ezz.from_numpy(np.zeros(self.n, self._np()))
         if self.Uq is not None:
-            self.Uq.from_numpy(self._identity_quaternions())
-
-    def _identity_quaternions(self) -> np.ndarray:
-        q = np.zeros((self.n, 4), self._np())
-        q[:, 0] = 1.0
-        return q
+            self.Uq.from_numpy(identity_quaternions(self.n, self._np()))
 
     def get_state(self) -> dict[str, np.ndarray]:
         return {k: f.to_numpy() for k, f in self._state_fields().items()}
@@ -208,7 +209,7 @@ class _SVDPlasticLaw(ConstitutiveLaw):
         for k, f in self._state_fields().items():
             if f is self.Uq and k not in state:
                 # a checkpoint from before the warm start: start cold (the same decomposition to round-off)
-                f.from_numpy(self._identity_quaternions())
+                f.from_numpy(identity_quaternions(self.n, self._np()))
                 continue
             f.from_numpy(np.ascontiguousarray(state[k], dtype=self._np()))
 
@@ -259,8 +260,7 @@ class _SVDPlasticLaw(ConstitutiveLaw):
             U, s, V = svd3_via_b_warm(F, quat_to_mat(self.Uq[p]))
             self.Uq[p] = mat_to_quat(U)
         else:
-            U, S, V = ti.svd(F, self.dtype)
-            s = singular_values(S)
+            U, s, V = self.decompose(F)
         return U, s, V
 
     @ti.func
