@@ -450,6 +450,21 @@ def test_liquid_keeps_only_the_volume(ti_f32, dim):
     assert np.allclose(tau, (lam * J * (J - 1))[:, None, None] * np.eye(dim), rtol=1e-4, atol=1e-2)
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_liquid_without_tension_cuts_the_pressure_off_at_zero(ti_f32, dim):
+    """tension: false: p = lambda max(1 - J, 0); compressed particles keep the pressure they had, expanded
+    ones carry none (stress, tau_zz in 2D and the energy density alike)."""
+    h = Harness(mat(type="MPM.Liquid", tension=False), dim=dim, n=16)
+    J = np.linspace(0.9, 1.1, h.n)
+    F = np.stack([np.eye(dim) * j ** (1 / dim) for j in J])
+    _, tau = h.run(F)
+    lam = mat(type="MPM.Liquid").lam
+    expect = lam * J * np.minimum(J - 1, 0)
+    assert np.allclose(tau, expect[:, None, None] * np.eye(dim), rtol=1e-4, atol=1e-2)
+    assert np.allclose(h.tzz.to_numpy(), expect, rtol=1e-4, atol=1e-2)
+    assert (tau[J > 1.0001] == 0).all() and (np.diagonal(tau, axis1=1, axis2=2)[J < 0.9999] < 0).all()
+
+
 def test_viscous_liquid_stress_is_2_mu_dev_D(ti_f32):
     eta = 2.5
     h = Harness(mat(type="MPM.Liquid", viscous=True, mu=eta), dim=3, n=8)

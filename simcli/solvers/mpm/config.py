@@ -287,6 +287,13 @@ class MPMLiquid(_Material):
         "(Genesis's 'viscous' adds an elastic shear term whose viscosity depends on the time step instead).",
     )
     mu: float = Field(1.0e-3, ge=0, description="Dynamic viscosity [Pa s] (water 1e-3), used when viscous.")
+    tension: bool = Field(
+        True,
+        description="Whether the liquid carries tension (J > 1: p = lambda (1 - J) < 0, Genesis's equation "
+        "of state). false: p = lambda max(1 - J, 0), a tensile cutoff: where the liquid spreads (a dam-break "
+        "front, a splash) its particles part instead of pulling each other back; J is still tracked, so a "
+        "parted liquid that closes up again returns to zero pressure, not above it.",
+    )
 
     @property
     def lam(self) -> float:

@@ -3,7 +3,9 @@
 * ``liquid`` / ``liquid_viscous`` (``MPM.Liquid``): weakly compressible. The return mapping
   keeps only the volume of F (F <- J^(1/d) I: a liquid has no memory of shape), the pressure is
   p = lambda (1 - J) (Kirchhoff tau = lambda J (J - 1) I, Genesis's and Stomakhin et al. 2014's
-  equation of state, energy lambda / 2 (J - 1)^2). ``viscous: true`` adds the Newtonian
+  equation of state, energy lambda / 2 (J - 1)^2); ``tension: false`` cuts the pressure off at 0 (J - 1
+  taken as min(J - 1, 0) in the stress and the energy: a spreading liquid parts instead of pulling back).
+  ``viscous: true`` adds the Newtonian
   viscous stress sigma_v = 2 mu dev(D), D = sym(grad v), grad v being the particle's APIC
   affine matrix C (exact for linear velocity fields, Jiang et al. 2015), so mu is a viscosity in
   Pa s, independent of the time step. In 2D, dev takes tr(D) / 3 (plane flow, D_zz = 0).
@@ -38,11 +40,18 @@ class LiquidLaw(ConstitutiveLaw):
     def allocate_materials(self, materials: list) -> None:
         self.n_materials = len(materials)
         arr = np.zeros(max(1, len(materials)), _np_dtype(self.dtype))
+        cut = np.zeros(max(1, len(materials)), np.int32)
         for k, m in enumerate(materials):
             if law_key(m) == self.key:
                 arr[k] = m.mu if self.viscous else 0.0
+                cut[k] = 0 if getattr(m, "tension", True) else 1
         self.viscosity = ti.field(self.dtype, shape=max(1, len(materials)))
         self.viscosity.from_numpy(arr)
+        # the tensile cutoff (``tension: false``) is compiled in only where a material asks for it, so a
+        # scene without it runs the same kernels as before
+        self.any_cutoff = bool(cut.any())
+        self.cutoff = ti.field(ti.i32, shape=max(1, len(materials)))
+        self.cutoff.from_numpy(cut)
 
     def bind(self, solver: Any) -> None:
         self.C = solver.C
@@ -63,8 +72,17 @@ class LiquidLaw(ConstitutiveLaw):
         return tau, -2.0 * eta * J * mean
 
     @ti.func
+    def dilation(self, p, J):
+        """J - 1, or min(J - 1, 0) for a material without tension (p = lambda max(1 - J, 0))."""
+        d = J - 1.0
+        if ti.static(self.any_cutoff):
+            if self.cutoff[self.mid[p]] != 0:
+                d = ti.min(d, 0.0)
+        return d
+
+    @ti.func
     def kirchhoff(self, p, F, J, mu, lam, update: ti.template()):
-        tau = ti.Matrix.identity(self.dtype, self.dim) * (lam * J * (J - 1.0))
+        tau = ti.Matrix.identity(self.dtype, self.dim) * (lam * J * self.dilation(p, J))
         if ti.static(self.viscous):
             tv, _ = self.viscous_tau(p, J)
             tau += tv
@@ -72,7 +90,7 @@ class LiquidLaw(ConstitutiveLaw):
 
     @ti.func
     def tau_zz(self, p, F, J, mu, lam):
-        tzz = lam * J * (J - 1.0)
+        tzz = lam * J * self.dilation(p, J)
         if ti.static(self.viscous):
             _, tv = self.viscous_tau(p, J)
             tzz += tv
@@ -80,7 +98,7 @@ class LiquidLaw(ConstitutiveLaw):
 
     @ti.func
     def energy_density(self, p, F, J, mu, lam):
-        return 0.5 * lam * (J - 1.0) ** 2
+        return 0.5 * lam * self.dilation(p, J) ** 2
 
 
 @ti.data_oriented
