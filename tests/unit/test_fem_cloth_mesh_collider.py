@@ -68,12 +68,23 @@ def _crossings(s):
     return edge_triangle_intersections(X, T)
 
 
-def test_cloth_rests_on_a_static_mesh_box_and_its_weight_is_read_on_it(tmp_path):
-    """A 16 cm sheet dropped 1 cm onto the top of a triangulated 20 cm box (two triangles across its top):
-    never a crossing, it comes to rest on the top within contact_distance, and the load on the collider
-    is the sheet's weight (the barrier's reaction)."""
-    s = _solver(_scene(tmp_path))
-    assert s.nm == 8 and len(s.mobst.T) == 12
+BOX = """\
+colliders:
+  - {name: body, type: Box, lower: [-0.1, -0.1, 0.1], upper: [0.1, 0.1, 0.3], friction: 0.3}
+"""
+
+
+@pytest.mark.parametrize("kind", ["Mesh", "Box"])
+def test_cloth_rests_on_a_static_box_and_its_weight_is_read_on_it(tmp_path, kind):
+    """A 16 cm sheet dropped 1 cm onto the top of a 20 cm box, a triangulated Mesh (two triangles across its
+    top) or the Box primitive: never a crossing, it comes to rest on the top within contact_distance, and
+    the load on the collider is the sheet's weight (the barrier's reaction)."""
+    p = _scene(tmp_path)
+    if kind == "Box":
+        txt = p.read_text()
+        p.write_text(txt[: txt.index("colliders:")] + BOX + txt[txt.index("solvers:") :])
+    s = _solver(p)
+    assert (s.nm, len(s.mobst.T)) == ((8, 12) if kind == "Mesh" else (0, 0))
     loads = []
     for _ in range(30):
         s.substep(0.01)
@@ -86,6 +97,10 @@ def test_cloth_rests_on_a_static_mesh_box_and_its_weight_is_read_on_it(tmp_path)
     F = np.mean(loads[-5:], axis=0) / 0.01  # impulse per substep -> force [N]
     assert F[2] == pytest.approx(-weight, rel=0.02)
     assert np.abs(F[:2]).max() < 0.02 * weight
+    # its moment about the box's centre (0, 0, 0.2): the weight acts at the sheet's centre of mass
+    c = np.average(s.x, axis=0, weights=s.mass) - [0, 0, 0.2]
+    M = np.mean(loads[-5:], axis=0)[3:] / 0.01
+    np.testing.assert_allclose(M, np.cross(c, [0, 0, -weight]), atol=0.03 * weight * 0.02)
 
 
 def test_a_turning_mesh_plate_sweeps_a_falling_cloth_without_crossing_it(tmp_path):

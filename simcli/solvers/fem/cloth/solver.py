@@ -182,6 +182,7 @@ class ClothSolver(Solver):
         else:
             self.cm = ipctk.CollisionMesh(X, ipctk.edges(T), T)
         self.mesh_mu = float(max(self.mobst.friction, default=0.0))
+        self._named_convex = any(self.scene.colliders[ci].name is not None for ci in self.obst.index)
         self.B = ipctk.BarrierPotential(self.dhat, 1.0)  # unit stiffness: kappa multiplies it
         self.bbox = float(np.linalg.norm(np.ptp(X, axis=0))) or 1.0
         self.kappa = None
@@ -496,6 +497,7 @@ class ClothSolver(Solver):
         uo = np.zeros((len(i), 3))
         if self.obst.moving and tau_end is not None:  # the surface's own motion over the step
             uo = self.obst.surface_displacement(x, tau, tau_end)[k, i]
+        self._fric_k = k  # which obstacle each lagged pair is against (collider loads)
         return i, lam, nrm[k, i], mu[k], uo
 
     def _linear_solve(self, H, rhs):
@@ -717,6 +719,8 @@ class ClothSolver(Solver):
         self._lu = None
         if self.nm and any(nm is not None for nm in self.mobst.names):
             self._add_mesh_loads(x, tau, dt)
+        if self._named_convex:
+            self._add_obstacle_loads(x, tau, dt)
         self.v = (x - self.xn) / dt
         self.x = x
         self.time += dt
@@ -761,9 +765,46 @@ class ClothSolver(Solver):
         for name, a in self.mobst.loads(f, self.vobs, tau, dt).items():
             self._loads[name] = self._loads.get(name, 0.0) + a
 
+    def _add_obstacle_loads(self, x, tau, dt):
+        """The reaction on the named convex colliders over this substep: minus the barrier's and lagged
+        friction's forces on the cloth's vertices at the step's end state, summed per collider as impulse and
+        moment (at the surface point x - d n) about its pivot (moving: its pivot at tau)."""
+        from simcli.motion import collider_centre
+
+        d, nrm, _ = self.obst.distances(x, tau)
+        n_conv = len(self.obst.specs)
+        force = np.zeros((n_conv, self.n, 3))  # on the collider, per vertex
+        act = d[6:] < self.dhat
+        if act.any():
+            k, i = np.nonzero(act)
+            dd = np.maximum(d[6 + k, i], 1e-300)
+            _, b1, _ = _barrier(dd**2, self.dhat**2)
+            np.add.at(force, (k, i), (self.kappa * b1 * 2 * dd)[:, None] * nrm[6 + k, i])  # -(force on cloth)
+        fr = self._fric
+        if fr is not None:
+            i, lam, nn, mu, uo = fr
+            kk = self._fric_k - 6
+            sel = kk >= 0
+            u = x[i] - self.xn[i] - uo
+            uT = u - np.einsum("ij,ij->i", u, nn)[:, None] * nn
+            y = np.linalg.norm(uT, axis=1)
+            eps = EPS_V * dt
+            f1y = np.where(y < eps, 2 / eps - y / eps**2, 1 / np.maximum(y, 1e-300))
+            np.add.at(force, (kk[sel], i[sel]), ((mu * lam * f1y)[:, None] * uT)[sel])
+        for j, ci in enumerate(self.obst.index):
+            name = self.scene.colliders[ci].name
+            if name is None:
+                continue
+            P = self.obst._pose(6 + j, tau)
+            piv = collider_centre(self.scene.colliders[ci], 3) if P is None else np.asarray(P.c, float)
+            f = force[j]
+            surf = x - d[6 + j][:, None] * nrm[6 + j]
+            a = np.concatenate([dt * f.sum(axis=0), dt * np.cross(surf - piv, f).sum(axis=0)])
+            self._loads[name] = self._loads.get(name, 0.0) + a
+
     def collider_loads(self) -> dict[str, np.ndarray]:
-        """Named Mesh collider -> impulse [N s] and moment about its pivot [N m s] the cloth gave it since the
-        last call (the IPC barrier's and friction's reaction)."""
+        """Named collider -> impulse [N s] and moment about its pivot [N m s] the cloth gave it since the last
+        call (the IPC barrier's and friction's reaction; Mesh colliders and the convex ones alike)."""
         out, self._loads = getattr(self, "_loads", {}), {}
         return out
 
