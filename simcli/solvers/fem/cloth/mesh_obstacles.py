@@ -136,10 +136,15 @@ def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float
                 f"{np.round(x[np.argmax(ins)], 6).tolist()}); the cloth must start outside it: move it"
             )
             continue
-        d1 = mesh_distance(Vk, Tk, x)  # cloth vertices to the collider's triangles
-        d2 = mesh_distance(x, t, Vk)  # collider vertices to the cloth's triangles
+        # cloth vertices to the collider's triangles and collider vertices to the cloth's, each only where
+        # the other's bounding box (grown by dhat) reaches (brute force within)
+        near_x = np.all((x >= Vk.min(axis=0) - dhat) & (x <= Vk.max(axis=0) + dhat), axis=1)
+        near_v = np.all((Vk >= x.min(axis=0) - dhat) & (Vk <= x.max(axis=0) + dhat), axis=1)
+        xs, vs = x[near_x], Vk[near_v]
+        d1 = mesh_distance(Vk, Tk, xs) if len(xs) else np.full(1, np.inf)
+        d2 = mesh_distance(x, t, vs) if len(vs) else np.full(1, np.inf)
         if min(d1.min(), d2.min()) < dhat:
-            p = x[np.argmin(d1)] if d1.min() <= d2.min() else Vk[np.argmin(d2)]
+            p = xs[np.argmin(d1)] if d1.min() <= d2.min() else vs[np.argmin(d2)]
             out.append(
                 f"the cloth starts closer than solvers.fem.contact_distance ({dhat:g} m) to colliders.{ci} "
                 f"(Mesh) (distance {min(d1.min(), d2.min()):.3g} m near {np.round(p, 6).tolist()}): move "
