@@ -387,7 +387,7 @@ def check_collider(c: Any, scene: Any, scene_dir: Any) -> list[tuple[tuple, str]
         return out
     try:
         sdf = build_sdf(c, scene, scene_dir)
-    except (ValueError, OSError) as ex:
+    except (ValueError, OSError, ArithmeticError) as ex:  # ArithmeticError: e.g. a scale of 1e300
         msg = str(ex)
         if "not a closed surface" in msg:
             msg = msg.replace(

@@ -92,6 +92,9 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
                 "thin the shell",
             )
         )
+    lo, hi = scene.domain.bounds(3)
+    if len(lo) != 3 or len(hi) != 3:  # reported by the domain checks
+        return out
     try:  # the colliders at their pose at t = 0 (a bad motion is reported by the collider checks)
         obst = Obstacles(scene, scene_dir)
         d, _, _ = obst.distances(x, 0.0)
@@ -128,7 +131,7 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
 
         try:  # a Mesh collider's own problems (file, closed surface) are reported by the collider checks
             out += [(("morph",), msg) for msg in initial_problems(x, t, scene, scene_dir, dhat)]
-        except (ValueError, OSError, MotionError):
+        except (ValueError, OSError, ArithmeticError, MotionError):
             pass
     if not out:
         import ipctk
