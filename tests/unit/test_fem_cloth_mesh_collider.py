@@ -165,7 +165,7 @@ def test_a_keyframed_mesh_presses_a_cloth_onto_the_floor_without_crossing(tmp_pa
 
 def test_state_round_trip_keeps_the_moving_mesh_where_it_was(tmp_path):
     """Checkpoints carry the moving Mesh colliders' vertices (on the CCD's chord while a contact holds them
-    back): a solver restored mid-run continues as the uninterrupted one."""
+    back): a solver restored mid-run continues as the uninterrupted one (to round-off)."""
     motion = "    motion: {angular_velocity: [0, 0, 12.566370614359172]}"
     kw = dict(scale="[0.3, 0.006, 0.04]", motion=motion, center="[0, 0.02, 0.228]", size="[0.2, 0.2]", res=5)
     p = _scene(tmp_path, **kw)
@@ -180,7 +180,9 @@ def test_state_round_trip_keeps_the_moving_mesh_where_it_was(tmp_path):
         a.substep(0.01)
         b.substep(0.01)
     np.testing.assert_array_equal(a.vobs, b.vobs)
-    np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-12)
+    # to round-off: ipctk builds its collision sets in parallel, so contact sums come in a run-dependent
+    # order (two runs of main's fem_cloth_stack differ by 1.5e-8 m); a missing state would differ by mm
+    np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-9)
 
 
 def _validate(path):
