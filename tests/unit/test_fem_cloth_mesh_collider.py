@@ -209,3 +209,23 @@ def test_a_cloth_starting_through_a_mesh_collider_exits_65_with_the_location(tmp
         with pytest.raises(SceneError) as ei:
             load_scene(_scene(tmp_path, **kw))
         assert what in str(ei.value) and "cloth.yaml:" in str(ei.value), str(ei.value)
+
+
+@pytest.mark.parametrize(
+    "what, motion, domain",
+    [
+        ("finite", "    motion: {angular_velocity: [.inf, 0, 0]}", None),  # was a math domain error
+        ("lower", "", "domain: {lower: [-0.5, -0.5], upper: [0.5, 0.5, 0.6]}"),  # was an IndexError
+    ],
+)
+def test_bad_scenes_with_a_mesh_collider_are_located_errors(tmp_path, what, motion, domain):
+    from simcli.errors import SceneError
+    from simcli.scene.loader import load_scene
+
+    p = _scene(tmp_path, motion=motion)
+    if domain:
+        txt = p.read_text()
+        p.write_text(txt.replace("domain: {lower: [-0.5, -0.5, 0], upper: [0.5, 0.5, 0.6]}", domain))
+    with pytest.raises(SceneError) as ei:
+        load_scene(p)
+    assert what in str(ei.value) and "cloth.yaml:" in str(ei.value), str(ei.value)
