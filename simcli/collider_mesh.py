@@ -387,7 +387,7 @@ def check_collider(c: Any, scene: Any, scene_dir: Any) -> list[tuple[tuple, str]
         return out
     try:
         sdf = build_sdf(c, scene, scene_dir)
-    except (ValueError, OSError) as ex:
+    except (ValueError, OSError, ArithmeticError) as ex:  # ArithmeticError: e.g. a scale of 1e300
         msg = str(ex)
         if "not a closed surface" in msg:
             msg = msg.replace(
@@ -397,7 +397,9 @@ def check_collider(c: Any, scene: Any, scene_dir: Any) -> list[tuple[tuple, str]
             msg += ": it is flat or degenerate; give a closed surface around a volume"
         return [(("file",), msg)]
     lo, hi = sdf.bounds
-    if np.min(hi - lo) < 2 * sdf.h:
+    # FEM.Cloth meets a Mesh collider's triangles themselves (no grid): a thin plate is fine there
+    sdf_users = set(scene.families) - {"FEMCloth"}
+    if sdf_users and np.min(hi - lo) < 2 * sdf.h:
         out.append(
             (
                 ("file",),

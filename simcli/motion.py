@@ -240,6 +240,8 @@ class MotionError(ValueError):
 
 def _vec3(v, dim: int, what: str, path: tuple, angle: bool = False) -> np.ndarray:
     v = [float(x) for x in v]
+    if not all(math.isfinite(x) for x in v):  # (an infinite rate was a traceback in the pose's sin)
+        raise MotionError(f"{what}: every component must be a finite number (got {v})", path)
     if dim == 2:
         if angle:
             if len(v) == 1:

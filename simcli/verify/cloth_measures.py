@@ -8,11 +8,14 @@ from simcli.verify.registry import entity_group, measurement
 
 
 @measurement("cloth_intersections")
-def cloth_intersections(f, entity, others=(), spheres=(), boxes=(), floor=None, **_):
+def cloth_intersections(f, entity, others=(), spheres=(), boxes=(), floor=None, mesh_colliders=False, **_):
     """Per frame: the number of the sheet's edges crossing one of its non-adjacent triangles (an independent
     segment-triangle test, simcli.solvers.fem.cloth.geometry; with ``others``, the sheets of those entities
     too, as one mesh) plus the vertices inside any of ``spheres`` ([[cx, cy, cz, r], ...]) or ``boxes``
-    ([[lower, upper], ...]) or below ``floor`` (z) [-]."""
+    ([[lower, upper], ...]) or below ``floor`` (z) [-]. With ``mesh_colliders``, the scene's `type: Mesh`
+    colliders' triangles at their prescribed pose at the frame's time join the mesh tested (a cloth edge
+    through a collider triangle or a collider edge through a cloth triangle counts), plus the cloth
+    vertices inside them (ray parity)."""
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
 
     xs, ts, n0 = [], [], 0
@@ -23,9 +26,21 @@ def cloth_intersections(f, entity, others=(), spheres=(), boxes=(), floor=None, 
         n0 += xs[-1].shape[1]
     x = np.concatenate(xs, axis=1)
     tris = np.concatenate(ts)
+    mo = _mesh_colliders(f) if mesh_colliders else None
+    times = np.asarray(f["time"][: len(x)], dtype=np.float64)
     out = []
     for k in range(len(x)):
-        n = len(edge_triangle_intersections(x[k], tris))
+        if mo is not None and mo.m:
+            from simcli.geometry.mesh import TriMesh, points_inside_mesh
+
+            V = mo.positions(float(times[k]))
+            n = len(edge_triangle_intersections(np.concatenate([x[k], V]), np.concatenate([tris, mo.T + n0])))
+            for j in range(len(mo.index)):
+                lo, hi = mo.offsets[j], mo.offsets[j + 1]
+                Tj = mo.T[(mo.T >= lo).all(axis=1) & (mo.T < hi).all(axis=1)] - lo
+                n += int(points_inside_mesh(TriMesh(V[lo:hi], Tj, 1.0, "collider"), x[k]).sum())
+        else:
+            n = len(edge_triangle_intersections(x[k], tris))
         for s in spheres:
             n += int((np.linalg.norm(x[k] - np.asarray(s[:3]), axis=1) < s[3]).sum())
         for lo, hi in boxes:
@@ -34,6 +49,24 @@ def cloth_intersections(f, entity, others=(), spheres=(), boxes=(), floor=None, 
             n += int((x[k][:, 2] < floor).sum())
         out.append(n)
     return f["time"][: len(out)], np.asarray(out, dtype=np.float64)
+
+
+def _mesh_colliders(f):
+    """The run's Mesh colliders (simcli.solvers.fem.cloth.mesh_obstacles.MeshObstacles), their files relative
+    to the scene's folder (run.json next to sim.h5 names the scene)."""
+    import json
+    from pathlib import Path
+
+    from simcli.solvers.fem.cloth.mesh_obstacles import MeshObstacles
+    from simcli.verify.registry import scene_of
+
+    scene_dir = None
+    try:
+        run = Path(f.filename).parent / "run.json"
+        scene_dir = Path(json.loads(run.read_text())["scene"]).resolve().parent
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return MeshObstacles(scene_of(f), scene_dir)
 
 
 @measurement("max_speed")

@@ -156,19 +156,19 @@ def test_bad_pin_motion_exits_65(tmp_path):
     assert r.returncode == 65 and "3 motions for 2 fixed" in r.stderr and "cloth.yaml:" in r.stderr, r.stderr
 
 
-def test_a_mesh_collider_is_refused_with_location(tmp_path):
-    """FEM.Cloth meets the colliders it has exact distances for; a Mesh one was a traceback before."""
-    from simcli.errors import SceneError
+def test_a_mesh_collider_next_to_the_scene_joins_the_contact(tmp_path):
+    """A Mesh collider was refused (then a traceback) before FEM.Cloth met Mesh colliders; now its file,
+    relative to the scene's folder, is read and its triangles join the cloth's ipctk collision mesh
+    (test_fem_cloth_mesh_collider.py checks the contact itself)."""
     from simcli.scene.loader import load_scene
 
     col = "colliders:\n  - {type: Mesh, file: cube.obj, scale: 0.05, translate: [0, 0, -0.3]}"
     (tmp_path / "cube.obj").write_text(
         (Path(__file__).parents[2] / "configs" / "meshes" / "cube.obj").read_text()
     )
-    with pytest.raises(SceneError) as ei:
-        load_scene(_scene(tmp_path, col=col))
-    msg = str(ei.value)
-    assert "colliders.0 is a Mesh" in msg and "cloth.yaml:" in msg, msg
+    load_scene(_scene(tmp_path, col=col))  # validates
+    s = _solver(_scene(tmp_path, col=col))
+    assert s.nm == 8 and s.cm.num_vertices == s.n + 8 and s.cm.num_faces == len(s.tris) + 12
 
 
 def test_state_round_trip_keeps_the_colliders_time(tmp_path):

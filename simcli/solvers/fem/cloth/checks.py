@@ -22,13 +22,13 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
     bad = [
         (i, c.type)
         for i, c in enumerate(scene.colliders)
-        if c.type not in ("Plane", "Box", "Sphere", "Cylinder")
+        if c.type not in ("Plane", "Box", "Sphere", "Cylinder", "Mesh")
     ]
     if bad:
         return [
             (
                 ("material", "type"),
-                f"FEM.Cloth meets Plane, Box, Sphere and Cylinder colliders (exact signed distances); "
+                f"FEM.Cloth meets Plane, Box, Sphere, Cylinder and Mesh colliders; "
                 f"colliders.{bad[0][0]} is a {bad[0][1]}: replace it by those shapes or use PBD.Cloth",
             )
         ]
@@ -92,14 +92,22 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
                 "thin the shell",
             )
         )
+    lo, hi = scene.domain.bounds(3)
+    if len(lo) != 3 or len(hi) != 3:  # reported by the domain checks
+        return out
     try:  # the colliders at their pose at t = 0 (a bad motion is reported by the collider checks)
-        d, _, _ = Obstacles(scene, scene_dir).distances(x, 0.0)
+        obst = Obstacles(scene, scene_dir)
+        d, _, _ = obst.distances(x, 0.0)
     except MotionError:
         return out
     bad = d <= 0
     if bad.any():
         k, i = np.argwhere(bad)[0]
-        what = ("domain wall " + ["x-", "x+", "y-", "y+", "z-", "z+"][k]) if k < 6 else f"colliders.{k - 6}"
+        what = (
+            ("domain wall " + ["x-", "x+", "y-", "y+", "z-", "z+"][k])
+            if k < 6
+            else f"colliders.{obst.index[k - 6]}"
+        )
         out.append(
             (
                 ("morph",),
@@ -118,6 +126,13 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
                     f"({dhat:g} m) to an obstacle (distance {float(d[k, i]):.3g} m): move the cloth away",
                 )
             )
+    if not out and any(c.type == "Mesh" for c in scene.colliders):
+        from simcli.solvers.fem.cloth.mesh_obstacles import initial_problems
+
+        try:  # a Mesh collider's own problems (file, closed surface) are reported by the collider checks
+            out += [(("morph",), msg) for msg in initial_problems(x, t, scene, scene_dir, dhat)]
+        except (ValueError, OSError, ArithmeticError, MotionError):
+            pass
     if not out:
         import ipctk
 

@@ -1,6 +1,7 @@
 """Colliders (Plane, Box, Sphere, Cylinder; static or moving) and the domain walls as exact signed
-distances, in numpy (no Taichi: the scene checks use it too). Each obstacle is convex, so its signed
-distance is a convex function of position: ``first_contact`` relies on it."""
+distances (Mesh colliders: mesh_obstacles.py), in numpy (no Taichi: the scene checks use it too). Each
+obstacle is convex, so its signed distance is a convex function of position: ``first_contact``
+relies on it."""
 
 from __future__ import annotations
 
@@ -50,9 +51,14 @@ class Obstacles:
     def __init__(self, scene, scene_dir=None):
         from simcli.motion import collider_motion
 
-        self.specs = [_spec(c) for c in scene.colliders]
-        self.motions = [collider_motion(c, 3, scene_dir) for c in scene.colliders]
-        self.moving = any(m is not None for m in self.motions)
+        convex = [(i, c) for i, c in enumerate(scene.colliders) if c.type != "Mesh"]
+        self.index = [i for i, _ in convex]  # scene.colliders index of each spec
+        self.specs = [_spec(c) for _, c in convex]
+        self.motions = [collider_motion(c, 3, scene_dir) for _, c in convex]
+        # Mesh colliders are not signed distances here: their triangles join the cloth's ipctk collision
+        # mesh (mesh_obstacles.py); their motions count for `moving` and the keyframes of next_key
+        self.mesh_motions = [collider_motion(c, 3, scene_dir) for c in scene.colliders if c.type == "Mesh"]
+        self.moving = any(m is not None for m in self.motions + self.mesh_motions)
         lo, hi = scene.domain.bounds(3)
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
         self.wall_mu = []
@@ -106,7 +112,7 @@ class Obstacles:
     def next_key(self, t0: float, t1: float) -> float:
         """t1, or the first keyframe time of a moving collider inside (t0, t1) (a kink of its path)."""
         out = t1
-        for m in self.motions:
+        for m in self.motions + self.mesh_motions:
             if m is not None and m.times is not None:
                 k = m.times[(m.times > t0 * (1 + 1e-12) + 1e-15) & (m.times < t1)]
                 if len(k):
