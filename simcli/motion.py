@@ -238,10 +238,21 @@ class MotionError(ValueError):
         self.path = path
 
 
-def _vec3(v, dim: int, what: str, path: tuple, angle: bool = False) -> np.ndarray:
+RATE_LIMIT = (
+    1.0e9  # [m/s] or [rad/s]: beyond it no step resolves the motion, and w t overflows the pose's angle
+)
+
+
+def _vec3(v, dim: int, what: str, path: tuple, angle: bool = False, rate: bool = False) -> np.ndarray:
     v = [float(x) for x in v]
     if not all(math.isfinite(x) for x in v):  # (an infinite rate was a traceback in the pose's sin)
         raise MotionError(f"{what}: every component must be a finite number (got {v})", path)
+    if rate and any(abs(x) > RATE_LIMIT for x in v):  # (a rate of 1e300 overflowed w t in the pose's sin)
+        raise MotionError(
+            f"{what}: components of at most {RATE_LIMIT:g} in magnitude (got {v}): no time step resolves a "
+            "faster motion",
+            path,
+        )
     if dim == 2:
         if angle:
             if len(v) == 1:
@@ -356,8 +367,8 @@ def make_motion(motion: Any, dim: int, centre: np.ndarray, scene_dir: Path | Non
         None,
         None,
         None,
-        v=_vec3(lv, dim, "linear_velocity", ("linear_velocity",)),
-        w=_vec3(av, dim, "angular_velocity", ("angular_velocity",), angle=True),
+        v=_vec3(lv, dim, "linear_velocity", ("linear_velocity",), rate=True),
+        w=_vec3(av, dim, "angular_velocity", ("angular_velocity",), angle=True, rate=True),
     )
 
 

@@ -176,6 +176,19 @@ def test_nan_and_inf_are_refused_where_they_are(tmp_path, old, new, where):
     _expect(tmp_path, GOOD.replace(old, new), where, "must be a finite number")
 
 
+def test_a_collider_rate_no_step_resolves_is_refused_where_it_is(tmp_path):
+    """angular_velocity 1e300 rad/s was a traceback (w t overflowed in the pose's sin) in validate."""
+    text = GOOD + (
+        "colliders:\n"
+        "  - name: c\n"
+        "    type: Box\n"
+        "    lower: [0.2, 0.2, 0.0]\n"
+        "    upper: [0.3, 0.3, 0.1]\n"
+        "    motion: {angular_velocity: [0, 0, 1.0e300], pivot: [0.25, 0.25, 0.05]}\n"
+    )
+    _expect(tmp_path, text, ":13:32:", "colliders.0.motion.angular_velocity", "at most 1e+09")
+
+
 def test_booleans_and_fractions_are_not_numbers(tmp_path):
     """`E: true` was read as 1 Pa; strict types refuse it (and 2.5 for a count)."""
     _expect(
