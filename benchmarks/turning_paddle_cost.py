@@ -1,6 +1,7 @@
 """Where a turning paddle's extra cost per substep comes from (issue 19's performance line), per kernel task.
 
     PYTHONPATH=. python benchmarks/turning_paddle_cost.py sort   [--stir 1000] [--substeps 100] [--repeats 2]
+                                                          [--grid 64]
     PYTHONPATH=. python benchmarks/turning_paddle_cost.py swap   [--substeps 60] [--repeats 3]
     PYTHONPATH=. python benchmarks/turning_paddle_cost.py census [--substeps 20]
 
@@ -111,10 +112,10 @@ def report(res: dict) -> None:
         print(f"| {tag} | {' '.join(f'{c:.3f}' for c in r['cpu'])} | {tasks} |")
 
 
-def stirred(names: list[str], stir: int) -> dict:
+def stirred(names: list[str], stir: int, grid: int = 64) -> dict:
     sol = {}
     for name in names:
-        s, _ = mcc.build(mcc.VARIANTS[name], 64)
+        s, _ = mcc.build(mcc.VARIANTS[name], grid)
         for _ in range(stir):
             s.substep(DT)
         sol[name] = s
@@ -123,7 +124,7 @@ def stirred(names: list[str], stir: int) -> dict:
 
 def exp_sort(a) -> None:
     names = ["still Cylinder (primitive)", "rotating Box (2 rev/s)", TURNING_STAR]
-    sol = stirred(names, a.stir)
+    sol = stirred(names, a.stir, a.grid)
     res: dict = {}
     for phase in ("as stirred", "block order"):
         if phase == "block order":
@@ -204,6 +205,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("experiment", choices=["sort", "swap", "census"])
     ap.add_argument("--stir", type=int, default=1000, help="substeps of stirring before timing (sort)")
+    ap.add_argument("--grid", type=int, default=64, help="grid density (sort; 128: 128,000 particles)")
     ap.add_argument("--substeps", type=int, default=None)
     ap.add_argument("--repeats", type=int, default=None)
     a = ap.parse_args()
