@@ -124,14 +124,7 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             for i in range(N()):
                 density_rate(i)
             for i in range(N()):
-                r = rho[i] + dt * drho[i]
-                if ti.static(clamp):
-                    # a free surface (clamp_pressure): no state below rho0, whose pressure is clamped to 0
-                    # anyway; a particle stretched in a splash re-enters the bulk at rho0 instead of with a
-                    # deficit the diffusion must fill (H / 80 Buchner: the density of a thinning jet ran
-                    # down until a neighbour's volume m / rho blew up, NaN at 0.7 s)
-                    r = ti.max(r, mat_rho0[mid[i]])
-                rho[i] = r
+                rho[i] += dt * drho[i]
         for i in range(N()):
             fn.advect(i, vnew[i], dt)
 
