@@ -8,7 +8,7 @@
   v^{n+1} (the density follows the displacement the positions take).
 * Density diffusion, added to d rho_i / dt: delta h c0 sum_j psi_ij . grad W_ij V_j (h = half the support
   radius, the smoothing length of a kernel of support 2 h; c0 = sqrt(k n / rho0)), liquid pairs only, with
-  x_ij = x_i - x_j:
+  x_ij = x_i - x_j (with several liquids, pairs of one material only):
 
   - molteni_colagrossi (Molteni & Colagrossi 2009): psi_ij = 2 (rho_i - rho_j) x_ij / |x_ij|^2;
   - antuono (Antuono et al. 2010; Marrone et al. 2011): psi_ij minus (<grad rho>_i + <grad rho>_j), the
@@ -51,6 +51,7 @@ def make_delta_sph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     B, Sb = F.B, F.Sb
     drho, grho = F.drho, F.grad_rho
     mat_rho0, mat_k, mat_n, gravity = F.mat_rho0, F.mat_k, F.mat_n, F.gravity
+    uniform = P.uniform
     model = P.diffusion_model
     diffuse = model != ""
     antuono = model == "antuono"
@@ -74,7 +75,11 @@ def make_delta_sph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                 d = xi - x[j]
                 g = gradW(d, d.norm())
                 Vj = mass_of(j) / rho[j]
-                G += (rho[j] - ri) * Vj * g
+                same = 1
+                if ti.static(not uniform):
+                    same = ti.cast(mid[j] == mid[i], ti.i32)
+                if same != 0:
+                    G += (rho[j] - ri) * Vj * g
                 M -= (Vj * g).outer_product(d)
             if M.determinant() >= MIN_DET:
                 G = M.inverse() @ G
@@ -104,7 +109,12 @@ def make_delta_sph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             Vj = mass_of(j) / rj
             cont += Vj * (vi - vnew[j]).dot(g)
             if ti.static(diffuse):  # noqa: SIM102 - compile-time, then run-time test
-                if r2 > 0:
+                # several liquids: only pairs of one material (the density jump at an interface of two rest
+                # densities is not noise)
+                same = 1
+                if ti.static(not uniform):
+                    same = ti.cast(mid[j] == m, ti.i32)
+                if r2 > 0 and same != 0:
                     dr = ri - rj
                     if ti.static(fourtakis):
                         # Tait's hydrostatic density difference of the pair (gravity along x_ij)
