@@ -25,6 +25,10 @@ with stdout_to_stderr():
     import taichi as ti
 
 
+# density: continuity with clamp_pressure: the continuity density's floor [rho0]
+CONTINUITY_FLOOR = 0.5
+
+
 def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     """WCSPH's kernels: ``(substep, pressure_from_density, couple_phases)``. ``substep(dt)`` is the whole
     substep; ``pressure_from_density()`` sets the pressure from the current density (the output before the
@@ -124,7 +128,14 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             for i in range(N()):
                 density_rate(i)
             for i in range(N()):
-                rho[i] += dt * drho[i]
+                r = rho[i] + dt * drho[i]
+                if ti.static(clamp):
+                    # with the pressure clamp nothing restores the density of a stretching jet: it ran down
+                    # until the run went NaN (Buchner's dam break, H / 80, 0.7-0.87 s). A guard far below the
+                    # acoustic swings: a floor at rho0 instead ratcheted the impact's rarefactions into
+                    # pressure (docs/VALIDATION.md, delta-SPH)
+                    r = ti.max(r, CONTINUITY_FLOOR * mat_rho0[mid[i]])
+                rho[i] = r
         for i in range(N()):
             fn.advect(i, vnew[i], dt)
 
