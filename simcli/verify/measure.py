@@ -122,6 +122,18 @@ def probe(f, entity=None, name=None, axis=None, nan_as=None, **_):
     return t, v
 
 
+@measurement("probe_mean")
+def probe_mean(f, entity=None, names=None, **_):
+    """The mean of several scalar probes' time series sampled at the same times (a sensor of finite size as
+    probes along it, e.g. TrixiParticles' Buchner P1: the pressure averaged over a 0.09 m line); a dry
+    sample (NaN) counts as 0, as TrixiParticles' line sensor counts it. ``entity`` is not used."""
+    if not names:
+        raise KeyError("probe_mean needs params: {names: [<probe name>, ...]}")
+    series = [probe(f, name=n, nan_as=0.0) for n in names]
+    n = min(len(t) for t, _ in series)
+    return series[0][0][:n], np.mean([v[:n] for _, v in series], axis=0)
+
+
 def run_measurement(h5_path, quantity: str, entity: str | None, axis: int | None, params: dict):
     if quantity not in MEASUREMENTS:
         raise KeyError(f"unknown measurement '{quantity}' (known: {', '.join(sorted(MEASUREMENTS))})")

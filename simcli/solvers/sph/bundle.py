@@ -60,6 +60,12 @@ class SPHParams:
     max_density_iterations: int
     cpu: bool  # a CPU backend (the counting sort's serial count)
     volume_map: bool = False  # walls and static colliders as precomputed maps (volume_map.py), nbp = 0
+    # WCSPH, delta-SPH (delta_sph.py): the density from the continuity equation, its diffusion, Monaghan's
+    # artificial viscosity
+    continuity: bool = False
+    diffusion_model: str = ""  # "" (off), "molteni_colagrossi", "antuono" or "fourtakis"
+    diffusion_delta: float = 0.0
+    artificial_viscosity: float = 0.0
 
     @property
     def h2(self) -> float:
@@ -135,6 +141,8 @@ class SPHFields:
     stat_dt: Any
     Hb: Any = None  # volume maps, extrapolated wall pressure: the walls' hydrostatic term per particle
     pw: Any = None  # volume maps, WCSPH's extrapolated wall pressure: each particle's relaxing wall pressure
+    drho: Any = None  # WCSPH, density: continuity: d rho / dt of the substep (delta_sph.py)
+    grad_rho: Any = None  # ... density_diffusion antuono: the renormalised density gradient
 
 
 @dataclass

@@ -18,6 +18,25 @@ class _Options(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
 
 
+class DensityDiffusion(_Options):
+    """solvers.sph.density_diffusion: delta-SPH's density diffusion (WCSPH, density: continuity)."""
+
+    model: Literal["molteni_colagrossi", "antuono", "fourtakis"] = Field(
+        "antuono",
+        description="psi_ij, with x_ij = x_i - x_j. molteni_colagrossi (Molteni & Colagrossi 2009): 2 "
+        "(rho_i - rho_j) x_ij / |x_ij|^2, cheapest, but a liquid at rest under gravity diffuses its "
+        "hydrostatic density gradient (the surface layer's density drifts). antuono (Antuono et al. 2010; "
+        "Marrone et al. 2011): the same minus (<grad rho>_i + <grad rho>_j), the renormalised density "
+        "gradients (one more pass over the neighbours), zero for a linear density field. fourtakis "
+        "(Fourtakis et al. 2019, DualSPHysics' DDT 2): 2 ((rho_i - rho_j) - rho_ij^H) x_ij / |x_ij|^2 "
+        "with rho_ij^H the hydrostatic density difference of the Tait equation, rho0 ((1 + rho0 g . x_ij / "
+        "k)^(1 / n) - 1).",
+    )
+    delta: float = Field(
+        0.1, gt=0, le=1, description="Diffusion coefficient delta [-] (0.1 in the delta-SPH literature)."
+    )
+
+
 class SPHOptions(_Options):
     particle_size: float = Field(
         0.02,
@@ -173,6 +192,33 @@ class SPHOptions(_Options):
         "surface (rho < 0.95 rho0). For confined flows (Taylor-Green: 0.2 with no background pressure); 0 "
         "(off) for liquids at rest under gravity, where it works against the hydrostatic compression.",
     )
+    density: Literal["summation", "continuity"] = Field(
+        "summation",
+        description="WCSPH: how the density is computed. summation: rho_i = sum_j m_j W_ij (walls "
+        "included, Akinci et al. 2012), every substep from the positions. continuity: each particle's "
+        "density is a state integrated from the continuity equation, d rho_i / dt = rho_i sum_j V_j (v_i - "
+        "v_j) . grad W_ij (walls included, with their velocity), as delta-SPH does (Antuono et al. 2010; "
+        "Marrone et al. 2011); it starts at the hydrostatic density of a liquid at rest and emitted "
+        "particles at rho0. A splash keeps rho0 instead of the deficient sum of a free surface. With "
+        "clamp_pressure: true the density is floored at 0.5 rho0 (nothing else restores a stretching jet's). "
+        "Use it with density_diffusion. docs/SPH.md, delta-SPH.",
+    )
+    density_diffusion: DensityDiffusion | None = Field(
+        None,
+        description="WCSPH with density: continuity: a density diffusion term added to the continuity "
+        "equation, delta h c0 sum_j psi_ij . grad W_ij V_j (h = half the support radius, c0 the material's "
+        "sound speed), that removes the high-frequency pressure noise of the continuity density. None: "
+        "off.",
+    )
+    artificial_viscosity: float = Field(
+        0.0,
+        ge=0,
+        le=1,
+        description="WCSPH: Monaghan's (1992) artificial viscosity alpha [-] between approaching liquid "
+        "particles (beta = 0), a_i = sum_j m_j alpha c0 h (v_ij . x_ij) / ((r^2 + 0.01 h^2) rho_ij) grad "
+        "W_ij where v_ij . x_ij < 0 (h = half the support radius), in addition to the physical mu. "
+        "delta-SPH's dam breaks use 0.01-0.02 (TrixiParticles' 0.02). 0: off.",
+    )
     cfl: float = Field(
         0.4,
         gt=0,
@@ -210,6 +256,18 @@ class SPHOptions(_Options):
             raise ValueError(
                 "gradient_correction: true (the full matrix) is not available with boundary: volume_map: set "
                 "gradient_correction: scalar (or auto), or boundary: particles"
+            )
+        if self.pressure_solver == "DFSPH" and (
+            self.density != "summation" or self.density_diffusion is not None or self.artificial_viscosity
+        ):
+            raise ValueError(
+                "density: continuity, density_diffusion and artificial_viscosity are WCSPH options (DFSPH "
+                "solves for the summed density): set pressure_solver: WCSPH or remove them"
+            )
+        if self.density_diffusion is not None and self.density != "continuity":
+            raise ValueError(
+                "density_diffusion diffuses the continuity equation's density: set density: continuity "
+                "(or remove density_diffusion)"
             )
         if self.background_pressure > 0 and self.clamp_pressure:
             raise ValueError(

@@ -53,6 +53,7 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         bfac = 2.0 * bfac
 
     uniform = P.uniform
+    continuity = P.continuity
     vmap = P.volume_map
     Hb, gravity = F.Hb, F.gravity
     has_hb = Hb is not None
@@ -154,7 +155,8 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             if ti.static(has_noslip):
                 M += Mm
                 m_w += mwm
-        rho[i] = r_i
+        if ti.static(not continuity):  # density: continuity keeps rho as a state (delta_sph.py)
+            rho[i] = r_i
         if ti.static(kgc_scalar):  # the isotropic part only: L_i = (dim / trace) I
             ci = ti.cast(1.0, f)
             if Mtr >= dim * FULL_MOMENT:  # a full neighbourhood (a lattice: 1.01-1.02)

@@ -300,6 +300,12 @@ class SPHSolver(Solver):
         self.Hb = vec() if self.vmap is not None and self.ext_walls else None
         # ... WCSPH: each particle's mirrored wall pressure, relaxing towards its own (wcsph.py)
         self.pw = scal() if self.Hb is not None and not dfsph else None
+        # delta-SPH (delta_sph.py; WCSPH): the continuity density's rate and the renormalised density gradient
+        self.continuity = not dfsph and self.opts.density == "continuity"
+        dd = self.opts.density_diffusion
+        self.diffusion_model = dd.model if (dd is not None and self.continuity) else ""
+        self.drho = scal() if self.continuity else None
+        self.grad_rho = vec() if self.diffusion_model == "antuono" else None
         self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
         self.bflag = ti.field(ti.i32, shape=max(1, self.nbp)) if self.ext_walls else None
         # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves
@@ -327,6 +333,9 @@ class SPHSolver(Solver):
         ] + ([scal(), scal()] if dfsph else [])
         if self.pw is not None:
             move.append(self.pw)
+            move_tmp.append(scal())
+        if self.continuity:  # the density is a state: it moves with its particle in the cell sort
+            move.append(self.rho)
             move_tmp.append(scal())
         self.cell_id = ti.field(ti.i32, shape=n)
         self.rank = ti.field(ti.i32, shape=n)
@@ -410,6 +419,8 @@ class SPHSolver(Solver):
         self._version = 0
         self._cache: dict = {}
         self._density_only()  # the density stable_dt reads before the first substep
+        if self.continuity:  # the continuity equation's initial density: a liquid at rest's
+            self._hydrostatic_density()
         if self._pressure_from_density is not None:
             # frame 0's pressure: Tait's of that density (DFSPH's exists after a solve)
             self._pressure_from_density()
@@ -447,6 +458,23 @@ class SPHSolver(Solver):
             self.kappa.from_numpy(k0.astype(npf))
             self.kappav.fill(0)
         self.set_gravity(self.scene.sim.gravity_vec)
+
+    def _hydrostatic_density(self) -> None:
+        """density: continuity (delta_sph.py): each particle starts at the density whose Tait pressure is
+        the hydrostatic pressure of its depth, rho0 (1 + rho0 g depth / k)^(1 / n), as delta-SPH's dam
+        breaks start (Marrone et al. 2011); the summed density would leave the free surface's deficient
+        sum in the state for good. Called after the density pass's sort: in the particles' cell order."""
+        n0 = self.n_live()
+        xs = self.x.to_numpy()[:n0].astype(np.float64)
+        mids = self.mid.to_numpy()[:n0]
+        rho = self.rho.to_numpy()
+        rho0 = np.array([m.rho for m in self.materials], dtype=np.float64)[mids]
+        k = np.array([m.stiffness for m in self.materials], dtype=np.float64)[mids]
+        ex = np.array([m.exponent for m in self.materials], dtype=np.float64)[mids]
+        p = rho0 * self._hydrostatic_stiffness(xs, mids) if n0 else np.zeros(0)
+        rho[:n0] = rho0 * (1.0 + p / k) ** (1.0 / ex)
+        rho[n0:] = 0.0
+        self.rho.from_numpy(rho.astype(self.npf))
 
     def _hydrostatic_stiffness(self, xs: np.ndarray, mids: np.ndarray) -> np.ndarray:
         """The DFSPH density solve's first warm start: the stiffness k = p / rho0 = |g| depth of a liquid at
@@ -516,7 +544,10 @@ class SPHSolver(Solver):
         # nozzle keep its prescribed motion, a piston that feeds the jet at its speed and rest spacing (a free
         # nozzle lets the newest layer's pressure push the jet back into it)
         buf = int(math.ceil(self.support / self.ps)) + 1
-        src.build(self, persistent, {self.mass: masses, self.mid: mids}, self.f, buffer_layers=buf)
+        consts = {self.mass: masses, self.mid: mids}
+        if self.continuity:  # the continuity density's state: an emitted particle enters at rho0
+            consts[self.rho] = [self.materials[m].rho for m in mids]
+        src.build(self, persistent, consts, self.f, buffer_layers=buf)
         return src.count_func()
 
     def n_live(self) -> int:
@@ -619,6 +650,10 @@ class SPHSolver(Solver):
             max_density_iterations=o.max_density_iterations,
             cpu=self.arch in ("x64", "arm64"),
             volume_map=self.vmap is not None,
+            continuity=self.continuity,
+            diffusion_model=self.diffusion_model,
+            diffusion_delta=float(o.density_diffusion.delta) if self.diffusion_model else 0.0,
+            artificial_viscosity=float(o.artificial_viscosity) if o.pressure_solver == "WCSPH" else 0.0,
         )
 
     def _fields(self) -> SPHFields:

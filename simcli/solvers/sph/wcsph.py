@@ -13,6 +13,9 @@ pressure exactly at a wall, but made a tank at rest with water's viscosity unsta
 the extrapolation taken at once: both are non-conservative forces that pump the acoustic noise. Akinci's
 single term alone is stable, and leaves the wall layer at 1.7x the hydrostatic pressure.)
 Time integration: symplectic Euler (v, then x with the new v).
+``density: continuity`` (delta_sph.py): rho is a state, integrated after the velocity (rho^{n+1} from
+v^{n+1}), with ``density_diffusion`` and ``artificial_viscosity`` the delta-SPH terms; the summation
+density is not written then (density.py).
 """
 
 from simcli.backend import stdout_to_stderr
@@ -20,6 +23,10 @@ from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
 
 with stdout_to_stderr():
     import taichi as ti
+
+
+# density: continuity with clamp_pressure: the continuity density's floor [rho0]
+CONTINUITY_FLOOR = 0.5
 
 
 def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
@@ -35,6 +42,17 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     clamp = P.clamp_pressure
     p_bg = float(P.background_pressure)
     N = fn.count  # the active count (emitters, sinks) or the constant n
+    # delta-SPH (delta_sph.py): the density as a state of the continuity equation, its diffusion and
+    # Monaghan's artificial viscosity; compiled only when a scene asks for them
+    continuity = P.continuity
+    antuono = P.diffusion_model == "antuono"
+    art_visc = P.artificial_viscosity > 0
+    density_gradient = density_rate = artificial_viscosity = None
+    if continuity or art_visc:
+        from simcli.solvers.sph.delta_sph import make_delta_sph
+
+        density_gradient, density_rate, artificial_viscosity = make_delta_sph(P, F, fn)
+    drho = F.drho
 
     @ti.func
     def equation_of_state(i):
@@ -88,9 +106,15 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         if ti.static(ext):
             wp.mark()  # the walls in reach of the liquid and their hydrostatic part
             wp.wcsph_pressure(dt)
+        if ti.static(antuono):  # the renormalised density gradients, before the pairs read them
+            for i in range(N()):
+                density_gradient(i)
         for i in range(N()):
             # non_pressure and the liquid's pressure force in one pass over the neighbour list
-            vnew[i] = v[i] + dt * (fn.non_pressure(i, True) + boundary_pressure_acceleration(i, dt))
+            a = fn.non_pressure(i, True) + boundary_pressure_acceleration(i, dt)
+            if ti.static(art_visc):
+                a += artificial_viscosity(i)
+            vnew[i] = v[i] + dt * a
         if ti.static(P.named_loads):  # the reaction on named colliders (moving.py), from the same state
             for i in range(N()):
                 fn.load_pressure(i, dt)
@@ -98,6 +122,20 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
 
     @ti.func
     def advect_all(dt):
+        if ti.static(continuity):
+            # d rho / dt from x^n and the end-of-substep velocity (after a coupling phase edited it), then
+            # rho^{n+1}: the density follows the displacement the positions take below
+            for i in range(N()):
+                density_rate(i)
+            for i in range(N()):
+                r = rho[i] + dt * drho[i]
+                if ti.static(clamp):
+                    # with the pressure clamp nothing restores the density of a stretching jet: it ran down
+                    # until the run went NaN (Buchner's dam break, H / 80, 0.7-0.87 s). A guard far below the
+                    # acoustic swings: a floor at rho0 instead ratcheted the impact's rarefactions into
+                    # pressure (docs/VALIDATION.md, delta-SPH)
+                    r = ti.max(r, CONTINUITY_FLOOR * mat_rho0[mid[i]])
+                rho[i] = r
         for i in range(N()):
             fn.advect(i, vnew[i], dt)
 
