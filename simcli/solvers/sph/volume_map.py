@@ -338,7 +338,7 @@ class VolumeMap:
         col_k = list(self.spec_index)
         col_rigid = list(self.rigid)
         any_rigid = any(col_rigid)
-        shepard, hoff, klim = self._make_shepard(f, F, fn, with_hyd, any_rigid)
+        body_limit, klim = self._make_body_limit(f, F, fn, with_hyd and any_rigid)
         lo = tuple(float(v) for v in self.lo)
         hi = tuple(float(v) for v in self.hi)
         # faces: (axis, side, inward normal sign, no-slip, velocity)
@@ -420,17 +420,18 @@ class VolumeMap:
         col_at = [make_grid_lerp(cols[c], col_meta[c][2]) for c in range(len(cols))]
 
         @ti.func
-        def hydrostatic(Bo, Mo, g, ho, lim):
-            """One boundary's hydrostatic term sum_b V_b kh_b grad W_ib with kh_b = g . (x_b - x_i) + ho, the
-            stiffness difference of a liquid at rest between the boundary point and the Shepard average the
-            boundary's k takes (``make_wall_k``: the liquid's k at the average's centre xbar_i, so ho = g .
-            (x_i - xbar_i), ``_make_shepard``): -Mo g + ho Bo with Mo = sum_b V_b grad W_ib (x_i - x_b)^T.
-            Its part along the boundary's normal (-Bo) may push the liquid off the boundary but pull it by at
-            most lim |Bo| (Adami et al. 2012 clamp the hydrostatic part at zero, lim = 0: a wall above the
-            liquid never pulls; a free rigid body's, as its boundary particles in wall_pressure.mark, keeps
-            the unclamped value as long as the boundary's total k stays >= 0, lim = the Shepard average of
-            the liquid's last total k)."""
-            Hv = -(Mo @ g) + ho * Bo
+        def hydrostatic(Bo, Mo, g, lim):
+            """One boundary's hydrostatic term sum_b V_b kh_b grad W_ib with kh_b = g . (x_b - x_i), the
+            stiffness difference of a liquid at rest between the boundary point and the particle: -Mo g
+            with Mo = sum_b V_b grad W_ib (x_i - x_b)^T. Its part along the boundary's normal (-Bo) may push
+            the liquid off the boundary but pull it by at most lim |Bo|: Adami et al. (2012) clamp the
+            hydrostatic part at zero, lim = 0 (a wall above the liquid never pulls); a free rigid body's
+            keeps the unclamped value as long as the boundary's total k stays >= 0, lim = the Shepard average
+            of the liquid's last total k (``_make_body_limit``), as its boundary particles do
+            (wall_pressure.mark). Clamped at zero, the face of a body above the liquid (its bottom) pushed
+            with the liquid's k at the particle's depth, not at its own height: the 3D cube (0.06 m, rho 500,
+            particle 0.01 m) floated at -6.7% draft on maps; unclamped -2.4%."""
+            Hv = -(Mo @ g)
             bn = Bo.norm()
             if bn > 0:
                 nh = -Bo / bn
@@ -498,22 +499,20 @@ class VolumeMap:
                 dist[2 * a + 1] = hi[a] - xi[a]
                 if dist[2 * a] < h or dist[2 * a + 1] < h:
                     near = True
-            # the colliders' lookups first: the Shepard pass (hydrostatic term) runs only with a boundary
-            # in reach
+            # the colliders' lookups first: a free rigid body's limit (``hydrostatic``) is a pass over the
+            # neighbour list, only for a particle that has a body in reach
             cres = [collider_at[c](xi) for c in ti.static(range(len(cols)))]
-            ho = ti.cast(0.0, f)
             lim = ti.cast(0.0, f)
             lim_body = ti.cast(0.0, f)
-            if ti.static(with_hyd):
-                reach = near
+            if ti.static(with_hyd and any_rigid):
+                reach = False
                 for c in ti.static(range(len(cols))):
-                    if cres[c][0] > 0:
-                        reach = True
+                    if ti.static(col_rigid[c]):
+                        if cres[c][0] > 0:
+                            reach = True
                 if reach:
-                    ho, lim_body = shepard(i, g)
-                hoff[i] = ho
-                if ti.static(any_rigid):
-                    klim[i] = lim_body
+                    lim_body = body_limit(i)
+                klim[i] = lim_body
             if near:
                 for k in ti.static(range(2 * dim)):
                     ax, sgn, ns, vel = ti.static(faces[k][0], faces[k][2], faces[k][3], faces[k][4])
@@ -531,7 +530,7 @@ class VolumeMap:
                             nv[ax] = sgn
                             nn = nv.outer_product(nv)
                             Mo = v[6] * nn + v[7] * (ti.Matrix.identity(f, dim) - nn)
-                            Hy += hydrostatic(v[1] * nv, Mo, g, ho, lim)
+                            Hy += hydrostatic(v[1] * nv, Mo, g, lim)
                         if ti.static(ns):
                             nv = ti.Vector.zero(f, dim)
                             nv[ax] = sgn
@@ -566,7 +565,7 @@ class VolumeMap:
                                     Bo = ti.Vector.zero(f, dim)
                                     Bo[a0] = s0 * q[1]
                                     Bo[a1] = s1 * q[2]
-                                    Hy -= hydrostatic(Bo, Mo, g, ho, lim)
+                                    Hy -= hydrostatic(Bo, Mo, g, lim)
                                 if ti.static(faces[k1][3]):
                                     # no-slip: boundary particles give the edge's lattice the first face's
                                     # kind and velocity (boundary.wall_particles): the second face's copy goes
@@ -605,7 +604,7 @@ class VolumeMap:
                                     Mo[i0, i1] = sg[i0] * sg[i1] * o[ch]
                                     Mo[i1, i0] = sg[i0] * sg[i1] * o[ch]
                                 Bo = ti.Vector([sg[0] * o[1], sg[1] * o[2], sg[2] * o[3]])
-                                Hy += hydrostatic(Bo, Mo, g, ho, lim)
+                                Hy += hydrostatic(Bo, Mo, g, lim)
                             if ti.static(faces[k2][3]):  # no-slip: the third face's copy, removed twice
                                 sg = ti.static((faces[k0][2], faces[k1][2], faces[k2][2]))
                                 comps = ti.static(
@@ -628,7 +627,7 @@ class VolumeMap:
                 if ti.static(col_moving[c]):  # the wall's velocity: the surface's at x_i (module docstring)
                     S += vs.dot(cB)
                 if ti.static(with_hyd):
-                    Hy += hydrostatic(cB, Mo, g, ho, lim_body if ti.static(col_rigid[c]) else lim)
+                    Hy += hydrostatic(cB, Mo, g, lim_body if ti.static(col_rigid[c]) else lim)
                 if ti.static(col_noslip[c]):
                     M += Mc
                     if ti.static(col_moving[c]):
@@ -639,15 +638,15 @@ class VolumeMap:
             @ti.func
             def collider_terms(xi, g, i):
                 """Collider map c's own B, hydrostatic term (zero unless with_hyd), no-slip matrix and surface
-                velocity at liquid particle i at xi (the loads on a named collider), in the world frame; the
-                Shepard offset and limit of i's density pass (``boundary``)."""
+                velocity at liquid particle i at xi (the loads on a named collider), in the world frame (a
+                rigid body's hydrostatic limit from i's density pass, ``boundary``)."""
                 _psi, Bo, _cnt, _T, Mo, Mc, vs = collider_at[c](xi)
                 Hc = ti.Vector.zero(f, dim)
                 if ti.static(with_hyd):
                     lm = ti.cast(0.0, f)
                     if ti.static(col_rigid[c]):
                         lm = klim[i]
-                    Hc = hydrostatic(Bo, Mo, g, hoff[i], lm)
+                    Hc = hydrostatic(Bo, Mo, g, lm)
                 return Bo, Hc, Mc, vs
 
             return collider_terms
@@ -655,36 +654,26 @@ class VolumeMap:
         self.collider_terms = [make_collider_terms(c) for c in range(len(cols))]
         return boundary
 
-    def _make_shepard(self, f, F, fn, with_hyd: bool, bodies: bool):
-        """``(shepard(i, g) -> (ho, klim), hoff, klim)``: the Taichi func of the hydrostatic term's Shepard
-        offset and the per-particle fields that keep them for the loads (None without ``with_hyd``).
-
-        The boundary's k next to liquid particle i is the Shepard average of the liquid's over i's
-        neighbours and i (``make_wall_k``); for a liquid at rest (k linear in depth) that is the liquid's k
-        at the average's centre xbar_i = sum_j V_j W_ij x_j / sum_j V_j W_ij, not at x_i. Boundary particles
-        take Adami's hydrostatic difference from each liquid neighbour's own position (wall_pressure.mark),
-        so the maps' must run from xbar_i too: kh_b = g . (x_b - x_i) + ho, ho = g . (x_i - xbar_i). Where
-        the neighbourhood is cut by a floor (xbar_i above x_i) the average alone reads the liquid's k too
-        low; under a body's bottom face (xbar_i below x_i) too high, and the 3D cube floated high (-6.7%
-        draft, docs/SPH.md). ``klim``: free rigid bodies' limit on the hydrostatic term's pull, the Shepard
-        average of the liquid's last total k (DFSPH: kappa, as wall_pressure.mark; WCSPH: the particle's
-        mirrored wall pressure / rho0)."""
+    def _make_body_limit(self, f, F, fn, wanted: bool):
+        """``(body_limit(i) -> lim, klim)``: free rigid bodies' limit on the pull of their hydrostatic
+        wall term (``hydrostatic``) for liquid particle i, the Shepard average of the liquid's last total k
+        over i's neighbours and i (DFSPH: kappa, as wall_pressure.mark takes it; WCSPH: the particle's
+        mirrored wall pressure / rho0), and the per-particle field that keeps it for the loads; a stub and
+        None unless ``wanted`` (the extrapolated wall pressure with a rigid body's map)."""
         from simcli.backend import stdout_to_stderr
 
         with stdout_to_stderr():
             import taichi as ti
 
-        if not with_hyd or F is None or fn is None:
+        if not wanted or F is None or fn is None:
 
             @ti.func
-            def none(i, g):
-                return ti.cast(0.0, f), ti.cast(0.0, f)
+            def none(i):
+                return ti.cast(0.0, f)
 
-            return none, None, None
-        n = F.x.shape[0]
-        hoff = ti.field(f, shape=n)
-        klim = ti.field(f, shape=n) if bodies else None
-        self._shepard_fields = (hoff, klim)
+            return none, None
+        klim = ti.field(f, shape=F.x.shape[0])
+        self._body_limit = klim
         x, nb_cnt, nb_j = F.x, F.nb_cnt, F.nb_j
         W, volume_of = fn.Wk, fn.volume_of
         kap = F.kappa
@@ -692,31 +681,24 @@ class VolumeMap:
         pw, mid, mat_rho0 = F.pw, F.mid, F.mat_rho0
 
         @ti.func
-        def shepard(i, g):
-            xi = x[i]
-            w0 = volume_of(i) * W(0.0)
-            den = w0
-            sd = ti.Vector.zero(f, xi.n)
-            sk = ti.cast(0.0, f)
-            if ti.static(bodies and dfsph):
-                sk = w0 * kap[i]
-            for k in range(nb_cnt[i]):
-                j = nb_j[i, k]
-                d = xi - x[j]
-                w = volume_of(j) * W(d.norm())
-                den += w
-                sd += w * d
-                if ti.static(bodies and dfsph):
-                    sk += w * kap[j]
+        def body_limit(i):
             lim = ti.cast(0.0, f)
-            if ti.static(bodies):
-                if ti.static(dfsph):
-                    lim = ti.max(sk / den, 0.0)
-                else:
-                    lim = ti.max(pw[i], 0.0) / mat_rho0[mid[i]]
-            return g.dot(sd / den), lim
+            if ti.static(dfsph):
+                xi = x[i]
+                w0 = volume_of(i) * W(0.0)
+                den = w0
+                sk = w0 * kap[i]
+                for k in range(nb_cnt[i]):
+                    j = nb_j[i, k]
+                    w = volume_of(j) * W((xi - x[j]).norm())
+                    den += w
+                    sk += w * kap[j]
+                lim = ti.max(sk / den, 0.0)
+            else:
+                lim = ti.max(pw[i], 0.0) / mat_rho0[mid[i]]
+            return lim
 
-        return shepard, hoff, klim
+        return body_limit, klim
 
     @staticmethod
     def make_wall_k(F, fn):
