@@ -22,6 +22,9 @@ def main() -> None:
     ap.add_argument("--dt", type=float, default=3.0e-3)
     ap.add_argument("--substeps", type=int, default=100)
     ap.add_argument("--scene", default="configs/bench/sph_dambreak_splishsplash.yaml")
+    ap.add_argument(
+        "--boundary", choices=["particles", "volume_map"], default=None, help="solvers.sph.boundary"
+    )
     args = ap.parse_args()
     import taichi as ti
 
@@ -30,7 +33,8 @@ def main() -> None:
     from simcli.scene.loader import load_scene
     from simcli.solvers.sph.solver import SPHSolver
 
-    scene = load_scene(args.scene, []).scene
+    sets = [] if args.boundary is None else [f"solvers.sph.boundary={args.boundary}"]
+    scene = load_scene(args.scene, sets).scene
     s = SPHSolver(scene, sample_scene(scene))
     s.build()
     for _ in range(5):  # compiles
@@ -51,6 +55,7 @@ def main() -> None:
     r = s.dfsph_stats.report() if s.opts.pressure_solver == "DFSPH" else {}
     out = {
         "threads": args.threads,
+        "boundary": s.opts.boundary,
         "cpu_ms_per_substep": round(1e3 * (c1 - c0) / args.substeps, 3),
         "kernel_ms_per_substep_sum_of_fastest": round(fastest, 3),
         "kernel_ms_per_substep_measured": round(total, 3),

@@ -143,7 +143,7 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                                     M += coef * g.outer_product(d)
                                     m_w += coef * bvel[b].dot(d) * g
         if ti.static(vmap):  # walls and static colliders as precomputed maps (volume_map.py)
-            psi, Bm, cm, Tm, Mm, mwm, Sm, Hy = fn.boundary_map(xi, gravity[None])
+            psi, Bm, cm, Tm, Mm, mwm, Sm, Hy = fn.boundary_map(xi, gravity[None], i)
             if ti.static(has_hb):
                 Hb[i] = Hy
             r_i += rho0_i * psi

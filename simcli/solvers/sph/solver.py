@@ -588,6 +588,8 @@ class SPHSolver(Solver):
                 self.has_noslip,
                 self.Hb is not None,
                 self.poses if self.poses.any_moving else None,
+                F,
+                fn,
             )
             fn.map_wall_k = self.vmap.make_wall_k(F, fn)
         fn.neighbours_density = make_neighbours_density(P, F, fn)
