@@ -270,3 +270,19 @@ def test_bad_scenes_with_a_mesh_collider_are_located_errors(tmp_path, what, moti
     with pytest.raises(SceneError) as ei:
         load_scene(p)
     assert what in str(ei.value) and "cloth.yaml:" in str(ei.value), str(ei.value)
+
+
+def test_a_box_edge_through_a_cloth_triangle_at_the_start_is_a_located_error(tmp_path):
+    """A thin Box pillar through the middle of a coarse sheet's triangle, every cloth vertex far from it (the
+    per-vertex signed distance sees nothing): the triangle check of the Mesh path finds the box's edge."""
+    from simcli.errors import SceneError
+    from simcli.scene.loader import load_scene
+
+    p = _scene(tmp_path, center="[0, 0, 0.2]", size="[0.4, 0.4]", res=1)
+    txt = p.read_text()
+    pillar = "colliders:\n  - {type: Box, lower: [0.09, -0.01, 0.1], upper: [0.11, 0.01, 0.3]}\n"
+    p.write_text(txt[: txt.index("colliders:")] + pillar + txt[txt.index("solvers:") :])
+    with pytest.raises(SceneError) as ei:
+        load_scene(p)
+    msg = str(ei.value)
+    assert "intersects colliders.0 (Box) at the start" in msg and "cloth.yaml:" in msg, msg
