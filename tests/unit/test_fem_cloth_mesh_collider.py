@@ -286,3 +286,19 @@ def test_a_box_edge_through_a_cloth_triangle_at_the_start_is_a_located_error(tmp
         load_scene(p)
     msg = str(ei.value)
     assert "intersects colliders.0 (Box) at the start" in msg and "cloth.yaml:" in msg, msg
+
+
+def test_a_box_collider_with_two_components_is_a_located_error_not_a_traceback(tmp_path):
+    """A Box's lower with 2 components in a 3D cloth scene: the collider checks' located message (the cloth's
+    obstacle checks skip it; they raised a broadcasting ValueError)."""
+    from simcli.errors import SceneError
+    from simcli.scene.loader import load_scene
+
+    p = _scene(tmp_path)
+    txt = p.read_text()
+    bad = "colliders:\n  - {type: Box, lower: [-0.1, -0.1], upper: [0.1, 0.1, 0.3]}\n"
+    p.write_text(txt[: txt.index("colliders:")] + bad + txt[txt.index("solvers:") :])
+    with pytest.raises(SceneError) as ei:
+        load_scene(p)
+    msg = str(ei.value)
+    assert "colliders.0.lower" in msg and "expected 3 components" in msg and "cloth.yaml:5:" in msg, msg

@@ -98,7 +98,7 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
     try:  # the colliders at their pose at t = 0 (a bad motion is reported by the collider checks)
         obst = Obstacles(scene, scene_dir, mesh_boxes=False)  # Box: its exact signed distance here too
         d, _, _ = obst.distances(x, 0.0)
-    except MotionError:
+    except (MotionError, ValueError, IndexError):  # a collider with other than 3 components: collider checks
         return out
     bad = d <= 0
     if bad.any():
@@ -133,7 +133,7 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
 
         try:  # a Mesh collider's own problems (file, closed surface) are reported by the collider checks
             out += [(("morph",), msg) for msg in initial_problems(x, t, scene, scene_dir, dhat)]
-        except (ValueError, OSError, ArithmeticError, MotionError):
+        except (ValueError, IndexError, OSError, ArithmeticError, MotionError):
             pass
     if not out:
         import ipctk
