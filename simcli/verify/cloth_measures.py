@@ -13,9 +13,9 @@ def cloth_intersections(f, entity, others=(), spheres=(), boxes=(), floor=None, 
     segment-triangle test, simcli.solvers.fem.cloth.geometry; with ``others``, the sheets of those entities
     too, as one mesh) plus the vertices inside any of ``spheres`` ([[cx, cy, cz, r], ...]) or ``boxes``
     ([[lower, upper], ...]) or below ``floor`` (z) [-]. With ``mesh_colliders``, the scene's `type: Mesh`
-    colliders' triangles at their prescribed pose at the frame's time join the mesh tested (a cloth edge
-    through a collider triangle or a collider edge through a cloth triangle counts), plus the cloth
-    vertices inside them (ray parity)."""
+    and `type: Box` colliders' triangles (a Box's 12) at their prescribed pose at the frame's time join the
+    mesh tested (a cloth edge through a collider triangle or a collider edge through a cloth triangle
+    counts), plus the cloth vertices inside them (ray parity)."""
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
 
     xs, ts, n0 = [], [], 0
@@ -52,8 +52,8 @@ def cloth_intersections(f, entity, others=(), spheres=(), boxes=(), floor=None, 
 
 
 def _mesh_colliders(f):
-    """The run's Mesh colliders (simcli.solvers.fem.cloth.mesh_obstacles.MeshObstacles), their files relative
-    to the scene's folder (run.json next to sim.h5 names the scene)."""
+    """The run's Mesh and Box colliders (simcli.solvers.fem.cloth.mesh_obstacles.MeshObstacles), files
+    relative to the scene's folder (run.json next to sim.h5 names the scene)."""
     import json
     from pathlib import Path
 

@@ -96,9 +96,9 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
     if len(lo) != 3 or len(hi) != 3:  # reported by the domain checks
         return out
     try:  # the colliders at their pose at t = 0 (a bad motion is reported by the collider checks)
-        obst = Obstacles(scene, scene_dir)
+        obst = Obstacles(scene, scene_dir, mesh_boxes=False)  # Box: its exact signed distance here too
         d, _, _ = obst.distances(x, 0.0)
-    except MotionError:
+    except (MotionError, ValueError, IndexError):  # a collider with other than 3 components: collider checks
         return out
     bad = d <= 0
     if bad.any():
@@ -126,12 +126,14 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
                     f"({dhat:g} m) to an obstacle (distance {float(d[k, i]):.3g} m): move the cloth away",
                 )
             )
-    if not out and any(c.type == "Mesh" for c in scene.colliders):
+    from simcli.solvers.fem.cloth.mesh_obstacles import MESH_TYPES
+
+    if not out and any(c.type in MESH_TYPES for c in scene.colliders):
         from simcli.solvers.fem.cloth.mesh_obstacles import initial_problems
 
         try:  # a Mesh collider's own problems (file, closed surface) are reported by the collider checks
             out += [(("morph",), msg) for msg in initial_problems(x, t, scene, scene_dir, dhat)]
-        except (ValueError, OSError, ArithmeticError, MotionError):
+        except (ValueError, IndexError, OSError, ArithmeticError, MotionError):
             pass
     if not out:
         import ipctk

@@ -1,7 +1,8 @@
-"""`type: Mesh` colliders for FEM.Cloth, the IPC way (Li et al. 2020): the collider's own triangles join the
-cloth's in one ipctk collision mesh as obstacle vertices (indices n .. n + m - 1 after the n cloth vertices)
-whose positions are prescribed, so the barrier, the lagged friction and the continuous collision check
-treat cloth-collider point-triangle and edge-edge pairs exactly as the cloth's own (no signed-distance grid).
+"""`type: Mesh` and `type: Box` colliders for FEM.Cloth, the IPC way (Li et al. 2020): the collider's own
+triangles join the cloth's in one ipctk collision mesh as obstacle vertices (indices n .. n + m - 1 after the
+n cloth vertices) whose positions are prescribed, so the barrier, the lagged friction and the continuous
+collision check treat cloth-collider point-triangle and edge-edge pairs exactly as the cloth's own (no
+signed-distance grid).
 
 * Static colliders: their vertices stay where the scene puts them (the file, scaled, rotated, translated).
 * Moving colliders (simcli.motion: constant linear/angular velocity about a pivot, keyframes, CSV): within a
@@ -13,6 +14,9 @@ treat cloth-collider point-triangle and edge-edge pairs exactly as the cloth's o
 * Loads: the contact potential's gradient on the obstacle vertices is the force the cloth puts on them
   (the barrier's and friction's reaction, exactly minus what the cloth receives); its impulse over each
   substep and moment about the collider's moving pivot go to ``collider_loads``.
+* A `type: Box` collider enters as its 12 exact triangles (8 corners, outward faces; pivot its centre, as
+  simcli.motion takes it): a convex signed distance per cloth vertex kept the vertices out of the box but
+  not the box's edges out of the cloth's triangles (a sheet draped over a box edge was cut by it).
 """
 
 from __future__ import annotations
@@ -21,9 +25,32 @@ import numpy as np
 
 from simcli.motion import collider_centre, collider_motion
 
+MESH_TYPES = ("Mesh", "Box")  # collider types whose exact triangles join the cloth's collision mesh
+
+# the 12 outward triangles of a box from its corners numbered by bits (x: 1, y: 2, z: 4 set = upper side)
+_BOX_TRIS = np.array(
+    [
+        [0, 2, 3], [0, 3, 1],  # z-
+        [4, 5, 7], [4, 7, 6],  # z+
+        [0, 1, 5], [0, 5, 4],  # y-
+        [2, 6, 7], [2, 7, 3],  # y+
+        [0, 4, 6], [0, 6, 2],  # x-
+        [1, 3, 7], [1, 7, 5],  # x+
+    ],
+    np.int64,
+)  # fmt: skip
+
+
+def box_mesh(lower, upper) -> tuple[np.ndarray, np.ndarray]:
+    """(8, 3) corners and (12, 3) outward triangles of the axis-aligned box [lower, upper]."""
+    lo, hi = np.asarray(lower, float), np.asarray(upper, float)
+    V = np.array([[(hi if (k >> a) & 1 else lo)[a] for a in range(3)] for k in range(8)])
+    return V, _BOX_TRIS.copy()
+
 
 class MeshObstacles:
-    """Every `type: Mesh` collider of a scene: obstacle vertices and triangles (numbered 0 .. m-1)."""
+    """Every `type: Mesh` and `type: Box` collider of a scene: obstacle vertices and triangles (numbered
+    0 .. m-1)."""
 
     def __init__(self, scene, scene_dir=None):
         from simcli.geometry.mesh import load_mesh_morph
@@ -31,17 +58,21 @@ class MeshObstacles:
         self.index, self.names, self.friction, self.motions, self.centres = [], [], [], [], []
         vs, ts, off = [], [], [0]
         for i, c in enumerate(scene.colliders):
-            if c.type != "Mesh":
+            if c.type not in MESH_TYPES:
                 continue
-            mesh = load_mesh_morph(c, scene_dir)
+            if c.type == "Box":
+                bv, bt = box_mesh(c.lower, c.upper)
+            else:
+                mesh = load_mesh_morph(c, scene_dir)
+                bv, bt = mesh.vertices, mesh.triangles
             self.index.append(i)
             self.names.append(getattr(c, "name", None))
             self.friction.append(float(c.friction))
             self.motions.append(collider_motion(c, 3, scene_dir))
             self.centres.append(collider_centre(c, 3))
-            vs.append(np.asarray(mesh.vertices, float))
-            ts.append(np.asarray(mesh.triangles, np.int64) + off[-1])
-            off.append(off[-1] + len(mesh.vertices))
+            vs.append(np.asarray(bv, float))
+            ts.append(np.asarray(bt, np.int64) + off[-1])
+            off.append(off[-1] + len(bv))
         self.offsets = off
         self.V0 = np.concatenate(vs) if vs else np.zeros((0, 3))
         self.T = np.concatenate(ts) if ts else np.zeros((0, 3), np.int64)
@@ -104,7 +135,7 @@ def blend_mu(a: float, b: float) -> float:
 
 def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float) -> list[str]:
     """Messages for a cloth (vertices x, triangles t) that starts intersecting, inside or within dhat of a
-    Mesh collider at its pose at t = 0 (located: the collider's index and the first point)."""
+    Mesh or Box collider at its pose at t = 0 (located: the collider's index and the first point)."""
     from simcli.collider_mesh import mesh_distance
     from simcli.geometry.mesh import TriMesh, points_inside_mesh
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
@@ -114,6 +145,7 @@ def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float
     out = []
     n = len(x)
     for k, ci in enumerate(mo.index):
+        typ = scene.colliders[ci].type
         lo, hi = mo.offsets[k], mo.offsets[k + 1]
         Vk = V[lo:hi]
         Tk = mo.T[(mo.T >= lo).all(axis=1) & (mo.T < hi).all(axis=1)] - lo
@@ -124,7 +156,7 @@ def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float
         ]  # a cloth edge through a collider triangle or a collider edge through a cloth triangle
         if hits:
             out.append(
-                f"the cloth intersects colliders.{ci} (Mesh) at the start (near "
+                f"the cloth intersects colliders.{ci} ({typ}) at the start (near "
                 f"{np.round(hits[0][2], 6).tolist()}); move the cloth or the collider apart"
             )
             continue
@@ -132,7 +164,7 @@ def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float
         ins = points_inside_mesh(TriMesh(Vk, Tk, vol, "collider"), x)
         if ins.any():
             out.append(
-                f"{int(ins.sum())} cloth vertex(es) start inside colliders.{ci} (Mesh) (first at "
+                f"{int(ins.sum())} cloth vertex(es) start inside colliders.{ci} ({typ}) (first at "
                 f"{np.round(x[np.argmax(ins)], 6).tolist()}); the cloth must start outside it: move it"
             )
             continue
@@ -147,7 +179,7 @@ def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float
             p = xs[np.argmin(d1)] if d1.min() <= d2.min() else vs[np.argmin(d2)]
             out.append(
                 f"the cloth starts closer than solvers.fem.contact_distance ({dhat:g} m) to colliders.{ci} "
-                f"(Mesh) (distance {min(d1.min(), d2.min()):.3g} m near {np.round(p, 6).tolist()}): move "
+                f"({typ}) (distance {min(d1.min(), d2.min()):.3g} m near {np.round(p, 6).tolist()}): move "
                 "the cloth away"
             )
     return out

@@ -7,7 +7,8 @@ Per substep (dt), with x_n, v_n the start state and x^ = x_n + dt v_n + dt^2 g:
   B: the IPC log barrier on squared distances below dhat = solvers.fem.contact_distance, over the cloth's
      point-triangle and edge-edge pairs (ipctk: broad phase, distances, barrier derivatives, CCD) and over
      (vertex, collider or domain wall) pairs through the obstacle's exact signed distance; `type: Mesh`
-     colliders' triangles are obstacle vertices/faces of the same ipctk collision mesh (mesh_obstacles.py).
+     colliders' triangles and `type: Box` colliders' 12 are obstacle vertices/faces of the same ipctk
+     collision mesh (mesh_obstacles.py).
   Newton: H p = -grad Phi on the free vertices (projected element Hessians; SuperLU factor, reused as a CG
      preconditioner within the substep, see _linear_solve); the step
      alpha starts at min(1, CCD), CCD: ipctk's additive CCD for the cloth against itself, conservative
