@@ -462,7 +462,7 @@ class SnowLaw(ClampLaw):
 
 @ti.data_oriented
 class SandLaw(_SVDPlasticLaw):
-    """``MPM.Sand``: Drucker-Prager (Klar et al. 2016) or Mohr-Coulomb, with cohesion and volume correction."""
+    """``MPM.Sand``: Drucker-Prager (Klar et al. 2016) or Mohr-Coulomb, cohesion, volume correction."""
 
     key = "sand"
     tracks_jp = True
@@ -487,7 +487,8 @@ class SandLaw(_SVDPlasticLaw):
         self.correct = self._param(materials, lambda m: 1.0 if m.volume_correction else 0.0)
         # Mohr-Coulomb (yield_surface: mohr_coulomb), compiled in only when a sand material asks for it
         self.use_mc = any(
-            self.uses(m) and getattr(m, "yield_surface", "drucker_prager") == "mohr_coulomb" for m in materials
+            self.uses(m) and getattr(m, "yield_surface", "drucker_prager") == "mohr_coulomb"
+            for m in materials
         )
         if self.use_mc:
             self.mc = self._param(materials, lambda m: 1.0 if m.yield_surface == "mohr_coulomb" else 0.0)
