@@ -24,7 +24,10 @@ last substep, ``svd3_via_b_warm``; 2D: ``ti.svd``), after the update F <- (I + d
   cohesion by moving the cone's apex to the tensile mean stress c / tan(phi), and the volume
   correction of Tampubolon et al. 2017 (sec. 4.3.2): the log-volume a particle gains when it is
   projected to the apex (grains separating) is remembered and given back before it resists
-  compression again.
+  compression again. ``yield_surface: mohr_coulomb`` replaces the cone by the Mohr-Coulomb pyramid
+  (sin(phi_mc) = tan(phi) for the simple_shear fit, so a flowing layer carries tan(phi) at any Lode
+  angle, where the cone does only at b = 0.5), returned exactly in principal strain with the Tresca
+  (zero-dilatancy) flow: main plane, edges, apex (``SandLaw.mohr_coulomb_return``).
 
 Each law computes the Kirchhoff stress from the same decomposition and stores it per particle
 (``stores_stress``): p2g reads it, so F is decomposed once per substep. J_p, where tracked, obeys
