@@ -561,18 +561,19 @@ class SandLaw(_SVDPlasticLaw):
         """Exact return onto the Mohr-Coulomb pyramid of the deviatoric Hencky strain ehat at the
         volumetric strain tr < tr_apex: (new strains, whether it flowed).
 
-        Principal Kirchhoff stresses sigma_i = 2 mu ehat_i + bulk tr / 3, sorted sigma_1 >= sigma_2 >= sigma_3
-        (tension positive); in strain units (divided by 2 mu) the planes are
+        Principal Kirchhoff stresses sigma_i = 2 mu ehat_i + bulk tr / 3, sorted sigma_1 >= sigma_2 >=
+        sigma_3 (tension positive); in strain units (divided by 2 mu) the planes are
         f_ij = (e_i - e_j) + (e_i + e_j + k) s <= 0, s = sin(phi_mc), k = bulk (tr - tr_apex) / (3 mu) < 0
-        (the apex c cot(phi_mc) is the mean stress at tr_apex). The flow potential is Tresca's
-        sigma_1 - sigma_3 (zero dilatancy: the return keeps tr, as the cone's does): the plastic strain is
-        dgamma_a (1, 0, -1) on the main plane f_13, plus dgamma_b (0, 1, -1) on the compression edge
-        (sigma_1 = sigma_2: f_23 active too) or dgamma_c (1, -1, 0) on the extension edge (sigma_2 =
-        sigma_3: f_12). Each return is linear in the dgammas, so exact: the main plane's
+        (the apex, cohesion / tan(friction_angle) as the cone's, is the mean stress at tr_apex). The flow
+        potential is Tresca's sigma_1 - sigma_3 (zero dilatancy: the return keeps tr, as the cone's does):
+        the plastic strain is dgamma_a (1, 0, -1) on the main plane f_13, plus dgamma_b (0, 1, -1) on the
+        compression edge (sigma_1 = sigma_2: f_23 active too) or dgamma_c (1, -1, 0) on the extension edge
+        (sigma_2 = sigma_3: f_12). Each return is linear in the dgammas, so exact: the main plane's
         dgamma_a = f_13 / 2, and the edges' 2 x 2 systems (de Souza Neto, Peric & Owen 2008, "Computational
-        methods for plasticity", sec. 8.2, boxes 8.4-8.5, with psi = 0). The main return is taken when it
-        keeps the order; otherwise the edge on the side of the smaller principal gap. The apex (tr >=
-        tr_apex) is the caller's, as for the cone: zero-dilatancy flow cannot reach it."""
+        methods for plasticity", ch. 8, the Mohr-Coulomb return in principal stresses, with psi = 0). The
+        main return is taken when it keeps the order; otherwise the edge on the side of the smaller
+        principal gap. The apex (tr >= tr_apex) is the caller's, as for the cone: zero-dilatancy flow
+        cannot reach it."""
         s = self.mc_sin[mid]
         k = bulk * (tr - tr_apex) / (3.0 * mu)
         # sort: i1 the largest (least compressive), i3 the smallest, i2 the other
