@@ -362,21 +362,26 @@ def test_sand_without_volume_correction_forgets_the_separation(ti_f32):
 
 
 @pytest.mark.parametrize(
-    "dim, cone, phi, mobilised",
+    "dim, cone, phi, mobilised, surface",
     [
-        (2, "simple_shear", 30.0, 30.0),  # the angle of repose is the friction angle
-        (3, "simple_shear", 40.0, 40.0),
-        (2, "plane_strain", 30.0, math.degrees(math.atan(math.sin(math.radians(30.0))))),  # Davis: 26.6
+        (2, "simple_shear", 30.0, 30.0, "drucker_prager"),  # the angle of repose is the friction angle
+        (3, "simple_shear", 40.0, 40.0, "drucker_prager"),
+        (2, "plane_strain", 30.0, math.degrees(math.atan(math.sin(math.radians(30.0)))), "drucker_prager"),
+        (2, "simple_shear", 30.0, 30.0, "mohr_coulomb"),  # sin(phi_mc) = tan(phi): the same as the cone
+        (3, "simple_shear", 40.0, 40.0, "mohr_coulomb"),
+        (2, "plane_strain", 30.0, math.degrees(math.atan(math.sin(math.radians(30.0)))), "mohr_coulomb"),
     ],
 )
-def test_sand_in_steady_simple_shear_mobilises_the_cone_s_friction(ti_f32, dim, cone, phi, mobilised):
+def test_sand_in_steady_simple_shear_mobilises_the_cone_s_friction(
+    ti_f32, dim, cone, phi, mobilised, surface
+):
     """A flowing granular layer is in simple shear: compress (sigma_yy < 0), then shear in x-y by
     small steps of the velocity gradient, F <- (I + d gamma e_x e_y^T) F, each followed by the return
     mapping. With the zero-dilatancy flow the stress becomes steady with equal normal stresses, and
     the shear plane's friction tau_xy / -sigma_yy is the cone's 3 alpha / sqrt(2): tan(friction_angle)
     for the ``simple_shear`` cone, sin(phi) for ``plane_strain`` (Davis 1968, "Theories of plasticity
     and the failure of soil masses": tan phi* = sin phi cos psi / (1 - sin phi sin psi), psi = 0)."""
-    m = mat(type="MPM.Sand", friction_angle=phi, cone=cone)
+    m = mat(type="MPM.Sand", friction_angle=phi, cone=cone, yield_surface=surface)
     h = Harness(m, dim=dim, n=1)
     F = np.eye(dim)
     F[1, 1] = 0.995  # 0.5% compression: mean stress about -2 kPa
@@ -421,6 +426,175 @@ def test_mu_i_sand_in_steady_simple_shear_mobilises_mu_of_I(ti_f32, dim, I_targe
     expected = mu_s + dmu * I / (I0 + I)
     assert t[0, 1] / p == pytest.approx(expected, rel=0.01)
     assert t[0, 1] / p > mu_s + 0.1 * dmu * I_target / (I0 + I_target)  # above the static cone
+
+
+# ------------------------------------------------------------------------- sand, Mohr-Coulomb
+
+
+def mc_yield(tau, sin_phi, apex=0.0):
+    """Mohr-Coulomb f = (s1 - s3) + (s1 + s3 - 2 apex) sin(phi) (<= 0 admissible; principal Kirchhoff
+    stresses s1 >= s3, tension positive) of 3x3 stresses."""
+    sig = np.linalg.eigvalsh(tau)
+    return (sig[:, 2] - sig[:, 0]) + (sig[:, 2] + sig[:, 0] - 2 * apex) * sin_phi
+
+
+def principal_trials(mean_strain, lode_deg, radius):
+    """3D F_E = diag(exp(eps)) with the log strains at a Lode angle (0: triaxial compression, the
+    least-compressive two equal; 60: triaxial extension) and deviatoric radius |dev eps|, mean given."""
+    th = np.radians(np.asarray(lode_deg, dtype=float))
+    # deviatoric unit directions: compression (1, 1, -2) / sqrt 6 turned to extension (2, -1, -1) / sqrt 6
+    a = np.array([1.0, 1.0, -2.0]) / math.sqrt(6)
+    b = np.array([1.0, -1.0, 0.0]) / math.sqrt(2)
+    d = np.cos(th)[:, None] * a + np.sin(th)[:, None] * b
+    eps = mean_strain + radius * d
+    return np.stack([np.diag(np.exp(e)) for e in eps]), eps
+
+
+@pytest.fixture(scope="module")
+def mc3(ti_f32):
+    m = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="mohr_coulomb")
+    return m, Harness(m, dim=3, n=61)
+
+
+def test_mohr_coulomb_sin_phi_follows_the_cone_fit():
+    """simple_shear: the flowing layer's friction tan(phi) is sin(phi_mc) (Davis 1968, psi = 0); the
+    other fits read friction_angle as the Mohr-Coulomb angle itself."""
+    assert mat(
+        type="MPM.Sand", friction_angle=30.0, yield_surface="mohr_coulomb"
+    ).mc_sin_phi == pytest.approx(math.tan(math.radians(30.0)))
+    m = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="mohr_coulomb", cone="plane_strain")
+    assert m.mc_sin_phi == pytest.approx(0.5)
+
+
+def test_mohr_coulomb_bad_combinations_are_refused():
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match="friction_angle < 45"):
+        mat(type="MPM.Sand", friction_angle=45.0, yield_surface="mohr_coulomb")
+    with pytest.raises(ValidationError, match="drucker_prager"):
+        mat(type="MPM.Sand", friction_angle=30.0, yield_surface="mohr_coulomb", mu_i={})
+    mat(type="MPM.Sand", friction_angle=50.0, yield_surface="mohr_coulomb", cone="plane_strain")  # fine
+
+
+@pytest.mark.parametrize("cohesion", [0.0, 2.0e3])
+def test_mohr_coulomb_sand_ends_on_or_inside_the_pyramid(ti_f32, cohesion):
+    """Random trial F_E (compressive and tensile, large shear): the stress ends on or inside the
+    pyramid, never beyond the apex c cot(phi_mc), the return keeps the volume (Tresca flow: no dilatancy)
+    except at the apex, and J_p J_E = J."""
+    m = mat(type="MPM.Sand", friction_angle=30.0, cohesion=cohesion, yield_surface="mohr_coulomb")
+    h = Harness(m, dim=3, n=256)
+    rng = np.random.default_rng(5)
+    F = np.stack(
+        [
+            random_rotation(rng) @ np.diag(rng.uniform(0.95, 1.03, 3)) @ random_rotation(rng)
+            for _ in range(h.n)
+        ]
+    )
+    Fo, tau = h.run(F)
+    apex = cohesion / math.tan(math.radians(30.0))  # the cone's apex, kept: the shear planes' cohesion
+    f = mc_yield(tau, m.mc_sin_phi, apex)
+    scale = np.abs(tau).max() + 1.0
+    assert f.max() <= 1e-5 * scale
+    on = f > -1e-5 * scale
+    assert on.sum() > h.n // 4
+    assert (np.trace(tau, axis1=1, axis2=2) / 3).max() <= apex * (1 + 1e-4) + 1e-3
+    at_apex = np.isclose(np.linalg.svd(Fo, compute_uv=False).std(axis=1), 0.0, atol=1e-6)
+    sel = on & ~at_apex
+    assert sel.sum() > h.n // 4
+    assert np.allclose(np.linalg.det(Fo[sel]), np.linalg.det(F[sel]), rtol=1e-5)
+    jp = h.jp.to_numpy().astype(np.float64)
+    assert np.allclose(jp * np.linalg.det(Fo), np.linalg.det(F), rtol=1e-5)
+    # idempotent: the returned state is admissible, so a second return changes nothing
+    Fo2, tau2 = h.run(Fo)
+    assert np.allclose(Fo2, Fo, atol=2e-6)
+    assert np.allclose(tau2, tau, atol=1e-4 * scale)
+
+
+def test_mohr_coulomb_main_plane_and_edge_returns(mc3):
+    """Trial strains at every Lode angle from triaxial compression (0 deg) to extension (60 deg), far
+    outside: each returns onto the pyramid at the same mean stress, coaxially with the principal order
+    kept, and its plastic strain is the Tresca flow of the active planes (KKT): on the main plane
+    dgamma (1, 0, -1); a middle component only on an edge, positive on the compression edge
+    (sigma_1 = sigma_2 after the return) and negative on the extension edge (sigma_2 = sigma_3). Near 0 and
+    60 deg the main return would cross an edge, so the edge returns are exercised; exactly at 0 and 60 deg
+    the stress stays triaxial."""
+    m, h = mc3
+    lode = np.linspace(0.0, 60.0, h.n)
+    F, eps = principal_trials(-0.004, lode, 0.02)
+    Fo, tau = h.run(F)
+    off = Fo - np.stack([np.diag(np.diagonal(x)) for x in Fo])
+    assert np.abs(off).max() < 1e-6  # coaxial: the principal axes are kept
+    e_new = np.log(np.diagonal(Fo, axis1=1, axis2=2))
+    sig = 2 * h.mu * e_new + h.lam * e_new.sum(1)[:, None]
+    s = m.mc_sin_phi
+    scale = np.abs(sig).max()
+    f = (sig.max(1) - sig.min(1)) + (sig.max(1) + sig.min(1)) * s
+    assert np.abs(f).max() < 2e-5 * scale  # on the pyramid
+    assert np.allclose(e_new.sum(1), eps.sum(1), atol=2e-6)  # the volume is kept
+    order = np.argsort(-eps, axis=1, kind="stable")  # trial order, sigma_1 (least compressive) first
+    es = np.take_along_axis(e_new, order, 1)
+    assert np.all(np.diff(es, axis=1) <= 2e-6)  # the order is kept
+    d = np.take_along_axis(eps, order, 1) - es  # plastic strain, sorted
+    tol = 2e-6
+    assert np.all(d[:, 0] >= -tol) and np.all(d[:, 2] <= tol)
+    edge_c = d[:, 1] > tol
+    edge_e = d[:, 1] < -tol
+    assert np.allclose(es[edge_c, 0], es[edge_c, 1], atol=tol)  # compression edge: sigma_1 = sigma_2
+    assert np.allclose(es[edge_e, 1], es[edge_e, 2], atol=tol)  # extension edge: sigma_2 = sigma_3
+    assert edge_c[0] and edge_e[-1]  # exact triaxial trials stay triaxial
+    assert edge_c.sum() > 2 and edge_e.sum() > 2 and (~edge_c & ~edge_e).sum() > h.n // 2
+
+
+def test_mohr_coulomb_friction_is_the_same_at_every_lode_angle(ti_f32):
+    """The point of the pyramid: on it the largest shear stress over the normal stress on that plane
+    (the Mohr circle's R / |centre|) is sin(phi_mc) = tan(30 deg) at any Lode angle, in triaxial
+    compression (a conical heap's radially spreading surface flow) as in plane strain; the simple_shear
+    Drucker-Prager cone gives the same in plane strain (b = 0.5) but only sin(25.4 deg) = 0.43 in
+    triaxial compression."""
+    target = math.tan(math.radians(30.0))
+    ratios = {}
+    for surface in ("mohr_coulomb", "drucker_prager"):
+        m = mat(type="MPM.Sand", friction_angle=30.0, yield_surface=surface)
+        h = Harness(m, dim=3, n=7)
+        F, _ = principal_trials(-0.004, np.linspace(0.0, 60.0, 7), 0.02)
+        _, tau = h.run(F)
+        sig = np.linalg.eigvalsh(tau)
+        ratios[surface] = (sig[:, 2] - sig[:, 0]) / -(sig[:, 2] + sig[:, 0])
+    assert np.allclose(ratios["mohr_coulomb"], target, rtol=1e-4)
+    dp = ratios["drucker_prager"]
+    assert dp[3] == pytest.approx(target, rel=2e-3)  # b = 0.5 (Lode 30 deg): the cone's fit
+    assert dp[0] == pytest.approx(math.sin(math.radians(25.4)), rel=2e-3)  # triaxial compression
+
+
+def test_mohr_coulomb_2d_is_the_3d_law_in_plane_strain(ti_f32):
+    """2D is plane strain: the same in-plane F_E (F_zz = 1) gives the same stress as the 3D law,
+    sigma_zz included, also where sigma_zz is the major or minor principal stress (plastic flow
+    out of the plane)."""
+    m = mat(type="MPM.Sand", friction_angle=30.0, cohesion=500.0, yield_surface="mohr_coulomb")
+    h2 = Harness(m, dim=2, n=128)
+    h3 = Harness(m, dim=3, n=128)
+    rng = np.random.default_rng(11)
+    F2 = np.stack(
+        [
+            random_rotation(rng, 2) @ np.diag(rng.uniform(0.96, 1.02, 2)) @ random_rotation(rng, 2)
+            for _ in range(128)
+        ]
+    )
+    F3 = np.zeros((128, 3, 3))
+    F3[:, :2, :2] = F2
+    F3[:, 2, 2] = 1.0
+    for k in range(3):  # a few steps: the 2D law's eps_zz carries the out-of-plane plastic flow
+        Fo2, tau2 = h2.run(F2)
+        if k == 0:  # sigma_zz the major or minor stress: plastic flow out of the plane changed eps_zz
+            assert (np.abs(h2.state()["sand_ezz"]) > 1e-6).sum() > 5
+        tzz = h2.tzz.to_numpy().astype(np.float64)
+        Fo3, tau3 = h3.run(F3)
+        scale = np.abs(tau3).max()
+        assert np.allclose(tau2, tau3[:, :2, :2], atol=2e-5 * scale)
+        assert np.allclose(tzz, tau3[:, 2, 2], atol=2e-5 * scale)
+        F2 = np.einsum("ij,njk->nik", np.array([[1.0, 0.004], [0.0, 0.999]]), Fo2)  # shear on
+        F3 = Fo3.copy()  # its zz: the elastic out-of-plane stretch, as the 2D law's eps_zz
+        F3[:, :2, :2] = F2
 
 
 def test_mu_i_needs_the_simple_shear_cone():

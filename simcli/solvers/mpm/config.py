@@ -159,7 +159,7 @@ class MuIRheology(_Options):
 
 
 class MPMSand(_Solid):
-    """Granular material: Drucker-Prager plasticity on the Hencky strain (Klar et al. 2016)."""
+    """Granular material: Drucker-Prager (Klar et al. 2016) or Mohr-Coulomb plasticity, Hencky strain."""
 
     type: Literal["MPM.Sand"]
     E: float = Field(
@@ -195,6 +195,21 @@ class MPMSand(_Solid):
         "triaxial compression (alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi))); a flowing layer mobilises "
         "tan = 3 alpha / sqrt(2) (34.7 deg for 30).",
     )
+    yield_surface: Literal["drucker_prager", "mohr_coulomb"] = Field(
+        "drucker_prager",
+        description="The yield surface's shape in the deviatoric plane, with the same zero-dilatancy "
+        "(volume-keeping) flow. drucker_prager: a circular cone, the same in every direction, fitted by "
+        "`cone`; fitted to simple shear it is, in triaxial compression (the surface flow of a conical heap, "
+        "spreading radially), a Mohr-Coulomb material of only 25.4 deg for 30 deg sand. mohr_coulomb: the "
+        "hexagonal pyramid (sigma_1 - sigma_3) + (sigma_1 + sigma_3 - 2 a) sin(phi_mc) <= 0 (Kirchhoff, "
+        "tension positive; a the apex, as the cone's), whose shear-plane friction does not depend on the "
+        "intermediate stress: exact return mapping in principal Hencky strain (main plane, edges, apex; "
+        "de Souza Neto, Peric & Owen 2008, ch. 8) with the Tresca flow potential sigma_1 - sigma_3. With "
+        "cone: simple_shear phi_mc = asin(tan(friction_angle)) (35.3 deg for 30), so a flowing layer "
+        "carries tan(friction_angle) times its normal stress at any Lode angle: in 2D as the drucker_prager "
+        "cone does, in 3D also where the flow spreads (needs friction_angle < 45); with plane_strain or "
+        "compression phi_mc = friction_angle.",
+    )
     mu_i: MuIRheology | None = Field(
         None,
         description="Rate-dependent friction, the mu(I) rheology: a flowing layer's friction rises "
@@ -212,6 +227,31 @@ class MPMSand(_Solid):
                 "friction coefficient); remove mu_i or set cone: simple_shear"
             )
         return self
+
+    @model_validator(mode="after")
+    def _mohr_coulomb_fit(self) -> MPMSand:
+        if self.yield_surface != "mohr_coulomb":
+            return self
+        if self.mu_i is not None:
+            raise ValueError(
+                "mu_i needs yield_surface: drucker_prager (the mu(I) return mapping is the cone's); remove "
+                "mu_i or set yield_surface: drucker_prager"
+            )
+        if self.cone == "simple_shear" and self.friction_angle >= 45.0:
+            raise ValueError(
+                "yield_surface: mohr_coulomb with cone: simple_shear needs friction_angle < 45 (a "
+                f"flowing layer's friction tan(phi) = {math.tan(math.radians(self.friction_angle)):.3g} is "
+                "the sine of the Mohr-Coulomb angle, so it must be below 1); lower friction_angle, or set "
+                "cone: plane_strain (friction_angle is then the Mohr-Coulomb angle itself)"
+            )
+        return self
+
+    @property
+    def mc_sin_phi(self) -> float:
+        """sin(phi_mc) of the ``mohr_coulomb`` surface (see ``yield_surface``)."""
+        if self.cone == "simple_shear":
+            return math.tan(math.radians(self.friction_angle))
+        return math.sin(math.radians(self.friction_angle))
 
     @property
     def grain_density(self) -> float:

@@ -24,7 +24,10 @@ last substep, ``svd3_via_b_warm``; 2D: ``ti.svd``), after the update F <- (I + d
   cohesion by moving the cone's apex to the tensile mean stress c / tan(phi), and the volume
   correction of Tampubolon et al. 2017 (sec. 4.3.2): the log-volume a particle gains when it is
   projected to the apex (grains separating) is remembered and given back before it resists
-  compression again.
+  compression again. ``yield_surface: mohr_coulomb`` replaces the cone by the Mohr-Coulomb pyramid
+  (sin(phi_mc) = tan(phi) for the simple_shear fit, so a flowing layer carries tan(phi) at any Lode
+  angle, where the cone does only at b = 0.5), returned exactly in principal strain with the Tresca
+  (zero-dilatancy) flow: main plane, edges, apex (``SandLaw.mohr_coulomb_return``).
 
 Each law computes the Kirchhoff stress from the same decomposition and stores it per particle
 (``stores_stress``): p2g reads it, so F is decomposed once per substep. J_p, where tracked, obeys
@@ -462,7 +465,7 @@ class SnowLaw(ClampLaw):
 
 @ti.data_oriented
 class SandLaw(_SVDPlasticLaw):
-    """``MPM.Sand``: Drucker-Prager (Klar et al. 2016) with cohesion and volume correction."""
+    """``MPM.Sand``: Drucker-Prager (Klar et al. 2016) or Mohr-Coulomb, cohesion, volume correction."""
 
     key = "sand"
     tracks_jp = True
@@ -485,6 +488,14 @@ class SandLaw(_SVDPlasticLaw):
         # mean Kirchhoff stress at the cone's apex: c cot(phi) (Mohr-Coulomb), 0 without cohesion
         self.apex = self._param(materials, lambda m: m.cohesion / math.tan(math.radians(m.friction_angle)))
         self.correct = self._param(materials, lambda m: 1.0 if m.volume_correction else 0.0)
+        # Mohr-Coulomb (yield_surface: mohr_coulomb), compiled in only when a sand material asks for it
+        self.use_mc = any(
+            self.uses(m) and getattr(m, "yield_surface", "drucker_prager") == "mohr_coulomb"
+            for m in materials
+        )
+        if self.use_mc:
+            self.mc = self._param(materials, lambda m: 1.0 if m.yield_surface == "mohr_coulomb" else 0.0)
+            self.mc_sin = self._param(materials, lambda m: m.mc_sin_phi)
         # mu(I) rheology (Jop et al. 2006), compiled in only when a sand material asks for it
         self.use_mu_i = any(self.uses(m) and getattr(m, "mu_i", None) is not None for m in materials)
         if self.use_mu_i:
@@ -529,6 +540,103 @@ class SandLaw(_SVDPlasticLaw):
         return ti.min(ti.max(d, 0.0), b)
 
     @ti.func
+    def drucker_prager_return(self, ehat, norm, tr, tr_apex, bulk, mu, mid):
+        """The cone's radial return (Klar et al. 2016, eq. 27) of the deviatoric Hencky strain ehat
+        (norm |ehat|) at the volumetric strain tr < tr_apex: (new strains, whether it flowed)."""
+        new_eps = ehat + tr / 3.0
+        flowed = False
+        dgamma = norm + bulk / (2.0 * mu) * self.alpha[mid] * (tr - tr_apex)  # Klar et al. eq. 27
+        if ti.static(self.use_mu_i):
+            if dgamma > 0.0 and self.dmu[mid] > 0.0:
+                # cone slope alpha = sqrt(2) mu / 3 (simple_shear): |ehat| on the cone = A mu
+                A = bulk / (2.0 * mu) * (tr_apex - tr) * ti.sqrt(2.0) / 3.0
+                dgamma = self.mu_i_projection(mid, dgamma, A, bulk * (tr_apex - tr) / 3.0)
+        if dgamma > 0.0:
+            new_eps = ehat + tr / 3.0 - (dgamma / norm) * ehat
+            flowed = True
+        return new_eps, flowed
+
+    @ti.func
+    def mohr_coulomb_return(self, ehat, tr, tr_apex, bulk, mu, mid):
+        """Exact return onto the Mohr-Coulomb pyramid of the deviatoric Hencky strain ehat at the
+        volumetric strain tr < tr_apex: (new strains, whether it flowed).
+
+        Principal Kirchhoff stresses sigma_i = 2 mu ehat_i + bulk tr / 3, sorted sigma_1 >= sigma_2 >=
+        sigma_3 (tension positive); in strain units (divided by 2 mu) the planes are
+        f_ij = (e_i - e_j) + (e_i + e_j + k) s <= 0, s = sin(phi_mc), k = bulk (tr - tr_apex) / (3 mu) < 0
+        (the apex, cohesion / tan(friction_angle) as the cone's, is the mean stress at tr_apex). The flow
+        potential is Tresca's sigma_1 - sigma_3 (zero dilatancy: the return keeps tr, as the cone's does):
+        the plastic strain is dgamma_a (1, 0, -1) on the main plane f_13, plus dgamma_b (0, 1, -1) on the
+        compression edge (sigma_1 = sigma_2: f_23 active too) or dgamma_c (1, -1, 0) on the extension edge
+        (sigma_2 = sigma_3: f_12). Each return is linear in the dgammas, so exact: the main plane's
+        dgamma_a = f_13 / 2, and the edges' 2 x 2 systems (de Souza Neto, Peric & Owen 2008, "Computational
+        methods for plasticity", ch. 8, the Mohr-Coulomb return in principal stresses, with psi = 0). The
+        main return is taken when it keeps the order; otherwise the edge on the side of the smaller
+        principal gap. The apex (tr >= tr_apex) is the caller's, as for the cone: zero-dilatancy flow
+        cannot reach it."""
+        s = self.mc_sin[mid]
+        k = bulk * (tr - tr_apex) / (3.0 * mu)
+        # sort: i1 the largest (least compressive), i3 the smallest, i2 the other
+        i1 = 0
+        i3 = 0
+        for i in ti.static(range(1, 3)):
+            if ehat[i] > ehat[i1]:
+                i1 = i
+            if ehat[i] < ehat[i3]:
+                i3 = i
+        if i1 == i3:  # all equal: on the hydrostatic axis, inside (k < 0)
+            i3 = (i1 + 2) % 3
+        i2 = 3 - i1 - i3
+        e1 = 0.0
+        e2 = 0.0
+        e3 = 0.0
+        for i in ti.static(range(3)):
+            if i == i1:
+                e1 = ehat[i]
+            if i == i2:
+                e2 = ehat[i]
+            if i == i3:
+                e3 = ehat[i]
+        f13 = (e1 - e3) + (e1 + e3 + k) * s
+        d1 = 0.0  # plastic strain increments of the sorted principal strains
+        d2 = 0.0
+        d3 = 0.0
+        flowed = False
+        if f13 > 0.0:
+            flowed = True
+            ga = 0.5 * f13  # main plane
+            if e1 - ga >= e2 and e3 + ga <= e2:
+                d1 = ga
+                d3 = -ga
+            elif e1 - e2 <= e2 - e3:
+                # compression edge (sigma_1 = sigma_2): f13 and f23 = (e2 - e3) + (e2 + e3 + k) s
+                f23 = (e2 - e3) + (e2 + e3 + k) * s
+                det = 4.0 - (1.0 - s) * (1.0 - s)
+                ga = (2.0 * f13 - (1.0 - s) * f23) / det
+                gb = (2.0 * f23 - (1.0 - s) * f13) / det
+                d1 = ga
+                d2 = gb
+                d3 = -ga - gb
+            else:
+                # extension edge (sigma_2 = sigma_3): f13 and f12 = (e1 - e2) + (e1 + e2 + k) s
+                f12 = (e1 - e2) + (e1 + e2 + k) * s
+                det = 4.0 - (1.0 + s) * (1.0 + s)
+                ga = (2.0 * f13 - (1.0 + s) * f12) / det
+                gc = (2.0 * f12 - (1.0 + s) * f13) / det
+                d1 = ga + gc
+                d2 = -gc
+                d3 = -ga
+        new_eps = ehat + tr / 3.0
+        for i in ti.static(range(3)):
+            if i == i1:
+                new_eps[i] -= d1
+            if i == i2:
+                new_eps[i] -= d2
+            if i == i3:
+                new_eps[i] -= d3
+        return new_eps, flowed
+
+    @ti.func
     def return_mapping(self, p, F, mid, mu, lam):
         U, s, V = self.decompose_warm(p, F)
         eps = self.log_strains(p, s, 1.0e-4)
@@ -551,14 +659,17 @@ class SandLaw(_SVDPlasticLaw):
             changed = True
         else:
             corrected = ehat + tr / 3.0
-            dgamma = norm + bulk / (2.0 * mu) * self.alpha[mid] * (tr - tr_apex)  # Klar et al. eq. 27
-            if ti.static(self.use_mu_i):
-                if dgamma > 0.0 and self.dmu[mid] > 0.0:
-                    # cone slope alpha = sqrt(2) mu / 3 (simple_shear): |ehat| on the cone = A mu
-                    A = bulk / (2.0 * mu) * (tr_apex - tr) * ti.sqrt(2.0) / 3.0
-                    dgamma = self.mu_i_projection(mid, dgamma, A, bulk * (tr_apex - tr) / 3.0)
-            if dgamma > 0.0:
-                new_eps = corrected - (dgamma / norm) * ehat
+            returned = corrected
+            flowed = False
+            if ti.static(self.use_mc):
+                if self.mc[mid] > 0.5:
+                    returned, flowed = self.mohr_coulomb_return(ehat, tr, tr_apex, bulk, mu, mid)
+                else:
+                    returned, flowed = self.drucker_prager_return(ehat, norm, tr, tr_apex, bulk, mu, mid)
+            else:
+                returned, flowed = self.drucker_prager_return(ehat, norm, tr, tr_apex, bulk, mu, mid)
+            if flowed:
+                new_eps = returned
                 changed = True
             elif vc != 0.0:
                 new_eps = corrected
