@@ -198,10 +198,11 @@ class SPHOptions(_Options):
         "included, Akinci et al. 2012), every substep from the positions. continuity: each particle's "
         "density is a state integrated from the continuity equation, d rho_i / dt = rho_i sum_j V_j (v_i - "
         "v_j) . grad W_ij (walls included, with their velocity), as delta-SPH does (Antuono et al. 2010; "
-        "Marrone et al. 2011); it starts at the hydrostatic density of a liquid at rest and emitted "
-        "particles at rho0. A splash keeps rho0 instead of the deficient sum of a free surface. With "
-        "clamp_pressure: true the density is floored at 0.5 rho0 (nothing else restores a stretching jet's). "
-        "Use it with density_diffusion. docs/SPH.md, delta-SPH.",
+        "Marrone et al. 2011); it starts at the hydrostatic density of a liquid at rest (depth "
+        "counted in each connected piece of a column; a piece with nothing under it, a falling drop, at "
+        "rho0) and emitted particles at rho0. A splash keeps rho0 instead of the deficient sum of a free "
+        "surface. With clamp_pressure: true the density is floored at 0.5 rho0 (nothing else restores a "
+        "stretching jet's). Use it with density_diffusion. docs/SPH.md, delta-SPH.",
     )
     density_diffusion: DensityDiffusion | None = Field(
         None,

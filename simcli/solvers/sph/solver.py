@@ -471,18 +471,24 @@ class SPHSolver(Solver):
         rho0 = np.array([m.rho for m in self.materials], dtype=np.float64)[mids]
         k = np.array([m.stiffness for m in self.materials], dtype=np.float64)[mids]
         ex = np.array([m.exponent for m in self.materials], dtype=np.float64)[mids]
-        p = rho0 * self._hydrostatic_stiffness(xs, mids) if n0 else np.zeros(0)
+        p = rho0 * self._hydrostatic_stiffness(xs, mids, split=True) if n0 else np.zeros(0)
         rho[:n0] = rho0 * (1.0 + p / k) ** (1.0 / ex)
         rho[n0:] = 0.0
         self.rho.from_numpy(rho.astype(self.npf))
 
-    def _hydrostatic_stiffness(self, xs: np.ndarray, mids: np.ndarray) -> np.ndarray:
+    def _hydrostatic_stiffness(self, xs: np.ndarray, mids: np.ndarray, split: bool = False) -> np.ndarray:
         """The DFSPH density solve's first warm start: the stiffness k = p / rho0 = |g| depth of a liquid at
         rest, depth measured below the top of each particle's column (bins of one particle size across the
         gravity direction; with several liquids p integrates each one's rho0 g down the column). A column
         released at rest has this pressure from its first instant (incompressible liquid); without it the
         first substeps must build it from zero with a Jacobi solver, which needs
-        O(layers^2) iterations."""
+        O(layers^2) iterations.
+
+        ``split`` (the continuity density's start, where the density is state, not a warm start): a column
+        is cut where its particles are more than 1.5 particle sizes apart, so a drop above a pool or liquid
+        under a shelf does not count the gap and what is above it; and a piece with nothing under it (no
+        boundary particle and not the domain's floor within 1.5 particle sizes below its lowest particle: a
+        falling drop) starts at zero pressure."""
         g = np.asarray(self.scene.sim.gravity_vec, dtype=np.float64)
         gn = float(np.linalg.norm(g))
         if gn == 0.0:
@@ -496,6 +502,8 @@ class SPHSolver(Solver):
         col = col.reshape(-1)
         top = np.full(col.max() + 1, -np.inf)
         np.maximum.at(top, col, height)
+        if split:
+            return self._split_column_stiffness(xs, mids, up, gn, basis, keys, height)
         if len(self.materials) == 1:
             depth = top[col] + 0.5 * self.ps - height
             return gn * depth
@@ -513,6 +521,50 @@ class SPHSolver(Solver):
         for a, b in zip(bounds[:-1], bounds[1:]):  # a running sum down each column (a loop over columns)
             p[o[a:b]] = np.cumsum(inc[a:b])
         return p / rho0
+
+    def _split_column_stiffness(self, xs, mids, up, gn, basis, keys, height) -> np.ndarray:
+        """``_hydrostatic_stiffness(split=True)``: p / rho0 integrated down each connected, supported piece
+        of a column (see there)."""
+        ps = self.ps
+        _, col = np.unique(keys, axis=0, return_inverse=True)
+        col = col.reshape(-1)
+        o = np.lexsort((-height, col))  # by column, then from the top down
+        c, h = col[o], height[o]
+        start = np.r_[True, (c[1:] != c[:-1]) | (h[:-1] - h[1:] > 1.5 * ps)]  # a piece's top particle
+        seg = np.cumsum(start) - 1
+        ends = np.r_[np.flatnonzero(start)[1:] - 1, len(o) - 1]  # a piece's lowest particle (sorted index)
+        bottom = h[ends]
+        # what holds a piece up: the domain's floor, or a boundary particle in its column just below it
+        lo, hi = np.asarray(self.scene.domain.lower, float), np.asarray(self.scene.domain.upper, float)
+        corners = np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(self.dim, -1).T
+        supported = bottom - float((corners @ up).min()) < 1.5 * ps
+        if self.nbp and not supported.all():
+            bx = self.bx.to_numpy()[: self.nbp].astype(np.float64)
+            bkeys = np.floor((bx @ basis) / ps + 0.5).astype(np.int64)
+            bh = bx @ up
+            below: dict = {}
+            for kk, hh in zip(map(tuple, bkeys), bh):
+                below.setdefault(kk, []).append(hh)
+            seg_key = keys[o][ends]
+            for sgi in np.flatnonzero(~supported):
+                hs = below.get(tuple(seg_key[sgi]))
+                if hs is not None:
+                    d = bottom[sgi] - np.asarray(hs)
+                    supported[sgi] = bool(((d > -0.5 * ps) & (d < 1.5 * ps)).any())
+        rho0 = np.array([m.rho for m in self.materials], dtype=np.float64)[mids]
+        r = rho0[o]
+        inc = np.empty(len(o))
+        inc[start] = gn * r[start] * 0.5 * ps  # half a particle size of the top particle's own liquid
+        nxt = ~start[1:]
+        inc[1:][nxt] = gn * 0.5 * (r[:-1] + r[1:])[nxt] * (h[:-1] - h[1:])[nxt]
+        p = np.empty(len(o))
+        bounds = np.r_[np.flatnonzero(start), len(o)]
+        for a, b in zip(bounds[:-1], bounds[1:]):  # a running sum down each piece
+            p[a:b] = np.cumsum(inc[a:b])
+        p *= supported[seg]
+        out = np.empty(len(o))
+        out[o] = p / r
+        return out
 
     def _count_func(self):
         """The particle loops' bound: the active count with emitters or sinks, else the constant n."""
