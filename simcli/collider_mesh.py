@@ -383,6 +383,10 @@ def check_collider(c: Any, scene: Any, scene_dir: Any) -> list[tuple[tuple, str]
             out.append(((key,), f"expected {n} components (got {len(getattr(c, key))})"))
     if not isinstance(c.scale, (int, float)) and len(c.scale) not in (1, 3):
         out.append((("scale",), f"give one factor or 3 (x, y, z), got {len(c.scale)}"))
+    factors = [c.scale] if isinstance(c.scale, (int, float)) else list(c.scale)
+    if any(not (1e-9 <= abs(float(f)) <= 1e9) for f in factors):
+        # (a scale of 1e300 overflowed into numpy warnings and an OSError's text as the message)
+        out.append((("scale",), f"give factors between 1e-9 and 1e9 in magnitude (got {c.scale})"))
     if out:
         return out
     try:

@@ -189,6 +189,13 @@ def test_a_collider_rate_no_step_resolves_is_refused_where_it_is(tmp_path):
     _expect(tmp_path, text, ":13:32:", "colliders.0.motion.angular_velocity", "at most 1e+09")
 
 
+def test_a_mesh_collider_scale_out_of_range_is_refused_where_it_is(tmp_path):
+    """scale: 1e300 overflowed into numpy warnings and an OSError's text as the message."""
+    mesh = (ROOT / "configs" / "meshes" / "bunny.ply").as_posix()
+    text = GOOD + f"colliders:\n  - {{name: c, type: Mesh, file: {mesh}, scale: 1.0e300}}\n"
+    _expect(tmp_path, text, ":9:", "colliders.0.scale", "between 1e-9 and 1e9")
+
+
 def test_booleans_and_fractions_are_not_numbers(tmp_path):
     """`E: true` was read as 1 Pa; strict types refuse it (and 2.5 for a count)."""
     _expect(
