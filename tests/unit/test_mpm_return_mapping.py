@@ -474,6 +474,10 @@ def test_mohr_coulomb_bad_combinations_are_refused():
     with pytest.raises(ValidationError, match="drucker_prager"):
         mat(type="MPM.Sand", friction_angle=30.0, yield_surface="mohr_coulomb", mu_i={})
     mat(type="MPM.Sand", friction_angle=50.0, yield_surface="mohr_coulomb", cone="plane_strain")  # fine
+    with pytest.raises(ValidationError, match="above 70 deg"):  # the edge returns' 2x2 solve, f32
+        mat(type="MPM.Sand", friction_angle=44.0, yield_surface="mohr_coulomb")
+    with pytest.raises(ValidationError, match="above 70 deg"):
+        mat(type="MPM.Sand", friction_angle=80.0, yield_surface="mohr_coulomb", cone="plane_strain")
 
 
 @pytest.mark.parametrize("cohesion", [0.0, 2.0e3])

@@ -207,8 +207,8 @@ class MPMSand(_Solid):
         "de Souza Neto, Peric & Owen 2008, ch. 8) with the Tresca flow potential sigma_1 - sigma_3. With "
         "cone: simple_shear phi_mc = asin(tan(friction_angle)) (35.3 deg for 30), so a flowing layer "
         "carries tan(friction_angle) times its normal stress at any Lode angle: in 2D as the drucker_prager "
-        "cone does, in 3D also where the flow spreads (needs friction_angle < 45); with plane_strain or "
-        "compression phi_mc = friction_angle.",
+        "cone does, in 3D also where the flow spreads (phi_mc at most 70 deg: friction_angle <= 43.2); "
+        "with plane_strain or compression phi_mc = friction_angle.",
     )
     mu_i: MuIRheology | None = Field(
         None,
@@ -238,11 +238,21 @@ class MPMSand(_Solid):
                 "mu_i or set yield_surface: drucker_prager"
             )
         if self.cone == "simple_shear" and self.friction_angle >= 45.0:
+            given = "friction_angle" in self.model_fields_set
             raise ValueError(
-                "yield_surface: mohr_coulomb with cone: simple_shear needs friction_angle < 45 (a "
+                ("" if given else "friction_angle is not set and its default is 45 deg: ")
+                + "yield_surface: mohr_coulomb with cone: simple_shear needs friction_angle < 45 (a "
                 f"flowing layer's friction tan(phi) = {math.tan(math.radians(self.friction_angle)):.3g} is "
                 "the sine of the Mohr-Coulomb angle, so it must be below 1); lower friction_angle, or set "
                 "cone: plane_strain (friction_angle is then the Mohr-Coulomb angle itself)"
+            )
+        if self.mc_sin_phi > math.sin(math.radians(70.0)):
+            # the edge returns solve a 2x2 system of determinant 4 - (1 + sin phi)^2: 0.014 at 85 deg
+            raise ValueError(
+                f"yield_surface: mohr_coulomb: the Mohr-Coulomb angle is "
+                f"{math.degrees(math.asin(min(self.mc_sin_phi, 1.0))):.1f} deg; above 70 deg its edge "
+                "returns are ill-conditioned in f32; lower friction_angle (with cone: simple_shear at most "
+                "43.2)"
             )
         return self
 
