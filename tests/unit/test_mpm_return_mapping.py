@@ -631,13 +631,11 @@ def test_liquid_keeps_only_the_volume(ti_f32, dim):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_liquid_without_tension_cuts_the_pressure_off_at_zero(ti_f32, dim):
     """tension: false: p = lambda max(1 - J, 0); compressed particles keep the pressure they had, expanded
-    ones carry none (stress, tau_zz in 2D and the energy density alike) and return with J = 1."""
+    ones carry none (stress, tau_zz in 2D and the energy density alike)."""
     h = Harness(mat(type="MPM.Liquid", tension=False), dim=dim, n=16)
     J = np.linspace(0.9, 1.1, h.n)
     F = np.stack([np.eye(dim) * j ** (1 / dim) for j in J])
-    Fo, tau = h.run(F)
-    # a parted liquid keeps no memory of its parting: the return mapping keeps J <= 1
-    assert np.allclose(np.linalg.det(Fo), np.minimum(J, 1.0), rtol=1e-5)
+    _, tau = h.run(F)
     lam = mat(type="MPM.Liquid").lam
     expect = lam * J * np.minimum(J - 1, 0)
     assert np.allclose(tau, expect[:, None, None] * np.eye(dim), rtol=1e-4, atol=1e-2)

@@ -341,9 +341,8 @@ class MPMLiquid(_Material):
         True,
         description="Whether the liquid carries tension (J > 1: p = lambda (1 - J) < 0, Genesis's equation "
         "of state). false: p = lambda max(1 - J, 0), a tensile cutoff: where the liquid spreads (a dam-break "
-        "front, a splash) its particles part instead of pulling each other back, and the volume ratio is "
-        "kept at J <= 1, so a parted liquid keeps no memory of the parting and carries pressure as soon "
-        "as it closes up and is compressed.",
+        "front, a splash) its particles part instead of pulling each other back; J is still tracked, so a "
+        "parted liquid that closes up again returns to zero pressure, not above it.",
     )
 
     @property

@@ -3,9 +3,8 @@
 * ``liquid`` / ``liquid_viscous`` (``MPM.Liquid``): weakly compressible. The return mapping
   keeps only the volume of F (F <- J^(1/d) I: a liquid has no memory of shape), the pressure is
   p = lambda (1 - J) (Kirchhoff tau = lambda J (J - 1) I, Genesis's and Stomakhin et al. 2014's
-  equation of state, energy lambda / 2 (J - 1)^2); ``tension: false`` cuts the pressure off at 0 (the
-  return mapping keeps J <= 1, the stress and the energy take min(J - 1, 0): a spreading liquid parts
-  instead of pulling back, and keeps no memory of the parting).
+  equation of state, energy lambda / 2 (J - 1)^2); ``tension: false`` cuts the pressure off at 0 (J - 1
+  taken as min(J - 1, 0) in the stress and the energy: a spreading liquid parts instead of pulling back).
   ``viscous: true`` adds the Newtonian
   viscous stress sigma_v = 2 mu dev(D), D = sym(grad v), grad v being the particle's APIC
   affine matrix C (exact for linear velocity fields, Jiang et al. 2015), so mu is a viscosity in
@@ -61,12 +60,6 @@ class LiquidLaw(ConstitutiveLaw):
     @ti.func
     def return_mapping(self, p, F, mid, mu, lam):
         J = ti.max(F.determinant(), self.J_MIN)
-        if ti.static(self.any_cutoff):
-            # no tension: a parted liquid keeps no memory of its expansion (J <= 1), so where its particles
-            # close up again they carry pressure as soon as they are compressed (kept, J grew to 1e3 in a
-            # splash and a settled pool's floor read zero)
-            if self.cutoff[self.mid[p]] != 0:
-                J = ti.min(J, 1.0)
         return ti.Matrix.identity(self.dtype, self.dim) * ti.pow(J, 1.0 / self.dim)
 
     @ti.func
