@@ -342,7 +342,9 @@ class MPMLiquid(_Material):
         description="Whether the liquid carries tension (J > 1: p = lambda (1 - J) < 0, Genesis's equation "
         "of state). false: p = lambda max(1 - J, 0), a tensile cutoff: where the liquid spreads (a dam-break "
         "front, a splash) its particles part instead of pulling each other back; J is still tracked, so a "
-        "parted liquid that closes up again returns to zero pressure, not above it.",
+        "parted liquid that closes up again returns to zero pressure, not above it. Experimental: J drifts "
+        "in a splash (particles that settle with J > 1 carry no pressure and the pool compacts), "
+        "docs/MPM.md.",
     )
 
     @property
