@@ -500,10 +500,10 @@ class SPHSolver(Solver):
         keys = np.floor((xs @ basis) / self.ps + 0.5).astype(np.int64)
         _, col = np.unique(keys, axis=0, return_inverse=True)
         col = col.reshape(-1)
+        if split:
+            return self._split_column_stiffness(mids, up, gn, basis, keys, col, height)
         top = np.full(col.max() + 1, -np.inf)
         np.maximum.at(top, col, height)
-        if split:
-            return self._split_column_stiffness(xs, mids, up, gn, basis, keys, height)
         if len(self.materials) == 1:
             depth = top[col] + 0.5 * self.ps - height
             return gn * depth
@@ -522,12 +522,10 @@ class SPHSolver(Solver):
             p[o[a:b]] = np.cumsum(inc[a:b])
         return p / rho0
 
-    def _split_column_stiffness(self, xs, mids, up, gn, basis, keys, height) -> np.ndarray:
+    def _split_column_stiffness(self, mids, up, gn, basis, keys, col, height) -> np.ndarray:
         """``_hydrostatic_stiffness(split=True)``: p / rho0 integrated down each connected, supported piece
-        of a column (see there)."""
+        of a column (see there; ``col``: each particle's column)."""
         ps = self.ps
-        _, col = np.unique(keys, axis=0, return_inverse=True)
-        col = col.reshape(-1)
         o = np.lexsort((-height, col))  # by column, then from the top down
         c, h = col[o], height[o]
         start = np.r_[True, (c[1:] != c[:-1]) | (h[:-1] - h[1:] > 1.5 * ps)]  # a piece's top particle
