@@ -9,9 +9,14 @@ position and pressure a few ms apart):
 * per frame time in the window: the incoming layer's depth and speed at x = 2.8 and 3.0 m against Ritter's
   dam-break solution, the thickness of the liquid attached to the wall at several heights (the run-up jet),
   the height the wall-attached liquid reaches, and the pressure of the liquid particles next to the wall
-  (within 1.5 particle sizes) per height band.
+  (within 1.5 particle sizes) per height band;
+* a resolution-free estimate of the same wall pressure (``--theory``, also without runs): the incoming
+  layer, d deep at speed U, turning up the wall in the corner as half of a plane jet 2d wide impinging
+  normally on a plate (Kirchhoff's free streamlines, steady, inviscid, no gravity): along the wall
+  y(q) = (4 d / pi) (artanh q + arctan q) and p = rho U^2 / 2 (1 - q^2), q the speed along the wall over U;
+  fed with Ritter's depth and speed at the wall, and with each run's own layer at x = 3.0 m.
 
-Usage: python tools/buchner_wall_profile.py RUN [RUN ...] [--times 2.5 2.75 3.0 3.25 3.5]
+Usage: python tools/buchner_wall_profile.py [RUN ...] [--times 2.5 2.75 3.0 3.25 3.5] [--theory]
 """
 
 import argparse
@@ -29,6 +34,7 @@ TS = np.sqrt(G / H)  # T = t * TS
 PN = RHO * G * H  # P = p / PN
 REF = Path(__file__).resolve().parents[1] / "simcli/verify/reference_data/buchner2002_dam_break_2d_p1.csv"
 HEIGHTS = (0.04, 0.08, 0.12, 0.16, 0.20, 0.30)
+THEORY_HEIGHTS = (0.04, 0.08, 0.10, 0.12, 0.14, 0.16, 0.20)
 
 
 def ritter(x, t):
@@ -38,6 +44,53 @@ def ritter(x, t):
     if s >= 2 * c0:
         return 0.0, 0.0
     return (4.0 / (9.0 * G)) * (c0 - s / 2) ** 2, (2.0 / 3.0) * (s + c0)
+
+
+def jet_wall_pressure(y, d, u):
+    """Kirchhoff's free-streamline wall pressure at height ``y`` [m] of a layer ``d`` deep at speed ``u``
+    turning up a wall in a corner (half of a plane jet 2d wide impinging normally on a plate): the
+    speed ratio q along the wall solves y = (4 d / pi) (artanh q + arctan q); p = rho u^2 / 2 (1 - q^2)."""
+    if d <= 0.0 or u <= 0.0:
+        return 0.0
+    lo, hi = 0.0, 1.0 - 1e-15
+    if 4.0 * d / np.pi * (np.arctanh(hi) + np.arctan(hi)) <= y:
+        return 0.0
+    for _ in range(200):  # bisection: the left side grows with q
+        mid = 0.5 * (lo + hi)
+        if 4.0 * d / np.pi * (np.arctanh(mid) + np.arctan(mid)) < y:
+            lo = mid
+        else:
+            hi = mid
+    q = 0.5 * (lo + hi)
+    return 0.5 * RHO * u * u * (1.0 - q * q)
+
+
+def theory(i_exp, label, depth_speed):
+    """The impulse error by height of the free-streamline wall pressure with the inflow ``depth_speed(t)``."""
+    ts = np.linspace(2.0 / TS, 3.5 / TS, 601)
+    row = []
+    for y in THEORY_HEIGHTS:
+        p = np.array([jet_wall_pressure(y, *depth_speed(t)) for t in ts]) / PN
+        i = window_integral(ts * TS, p, 2.0, 3.5)
+        row.append(f"y {y:.2f}: {100 * (i / i_exp - 1):+.0f} % (mean P {i / 1.5:.2f})")
+    print(f"  free-streamline wall pressure, {label}: " + "; ".join(row))
+
+
+def layer_at(f, dp, xc=3.0):
+    """The run's incoming layer at x = ``xc`` per frame: (times, depth, mean horizontal speed)."""
+    x, v, tf = f["entities/water/position"], f["entities/water/velocity"], f["time"][:]
+    out = []
+    for k in range(len(tf)):
+        if not (1.9 < tf[k] * TS < 3.6):
+            continue
+        xy = x[k].astype(np.float64)
+        col = np.abs(xy[:, 0] - xc) < dp
+        top = contiguous_extent(xy[col, 1], 0.0, 2.5 * dp, +1) if col.any() else None
+        d = 0.0 if top is None else top + dp / 2
+        sel = col & (xy[:, 1] <= d)
+        u = float(v[k][sel, 0].astype(np.float64).mean()) if sel.any() else 0.0
+        out.append((tf[k], d, u))
+    return np.array(out).T
 
 
 def contiguous_extent(v, start, gap, direction):
@@ -93,11 +146,14 @@ def frames(f, dp, times):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("runs", nargs="*", type=Path)
     ap.add_argument("--times", nargs="*", type=float, default=[2.5, 2.75, 3.0, 3.25, 3.5])
+    ap.add_argument("--theory", action="store_true", help="the free-streamline estimate (see the module doc)")
     a = ap.parse_args()
     ref = np.loadtxt(REF, delimiter=",", skiprows=2)
     i_exp = window_integral(ref[:, 0], ref[:, 1], 2.0, 3.5)
+    if a.theory:
+        theory(i_exp, "Ritter's layer at the wall (x = 3.22 m)", lambda t: ritter(L, t))
     for run in a.runs:
         with h5py.File(run / "sim.h5", "r") as f:
             n = f["entities/water/position"].shape[1]
@@ -115,6 +171,13 @@ def main():
             print(f"  experiment at P1: mean P {i_exp / 1.5:.2f}")
             if "entities/water/pressure" in f and f["time"].shape[0] > 2:
                 frames(f, dp, a.times)
+                if a.theory:
+                    tl, dl, ul = layer_at(f, dp)
+                    theory(
+                        i_exp,
+                        "this run's layer at x = 3.0 m",
+                        lambda t: (float(np.interp(t, tl, dl)), float(np.interp(t, tl, ul))),
+                    )
 
 
 if __name__ == "__main__":
