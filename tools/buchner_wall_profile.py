@@ -55,7 +55,7 @@ def jet_wall_pressure(y, d, u):
     lo, hi = 0.0, 1.0 - 1e-15
     if 4.0 * d / np.pi * (np.arctanh(hi) + np.arctan(hi)) <= y:
         return 0.0
-    for _ in range(200):  # bisection: the left side grows with q
+    for _ in range(64):  # bisection: the left side grows with q (2^-64 below double precision)
         mid = 0.5 * (lo + hi)
         if 4.0 * d / np.pi * (np.arctanh(mid) + np.arctan(mid)) < y:
             lo = mid

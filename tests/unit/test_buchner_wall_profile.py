@@ -31,3 +31,11 @@ def test_falls_with_height_and_scales_with_depth():
     # self-similar in y / d
     assert bwp.jet_wall_pressure(0.16, 0.08, 3.0) == pytest.approx(bwp.jet_wall_pressure(0.08, 0.04, 3.0))
     assert bwp.jet_wall_pressure(0.1, 0.0, 3.0) == 0.0
+
+
+def test_wall_force_is_the_layers_momentum_flux():
+    # the wall turns the layer's whole horizontal momentum flux rho U^2 d: int_0^inf p dy = rho U^2 d
+    d, u = 0.06, 3.5
+    y = np.concatenate([np.linspace(0.0, 0.5, 2001), np.linspace(0.5, 40.0 * d, 201)[1:]])
+    p = np.array([bwp.jet_wall_pressure(a, d, u) for a in y])
+    assert np.trapezoid(p, y) == pytest.approx(1000.0 * u * u * d, rel=2e-3)
