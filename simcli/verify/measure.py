@@ -125,7 +125,7 @@ def probe(f, entity=None, name=None, axis=None, nan_as=None, **_):
 @measurement("probe_mean")
 def probe_mean(f, entity=None, names=None, **_):
     """The mean of several scalar probes' time series sampled at the same times (a sensor of finite size as
-    probes along it, e.g. TrixiParticles' Buchner P1: the pressure averaged over a 0.09 m line); a dry
+    probes along it, as TrixiParticles.jl reads its pressure sensors: the mean along a short line); a dry
     sample (NaN) counts as 0, as TrixiParticles' line sensor counts it. ``entity`` is not used."""
     if not names:
         raise KeyError("probe_mean needs params: {names: [<probe name>, ...]}")

@@ -1,6 +1,6 @@
 """verify's probe_mean measurement (simcli/verify/measure.py): a finite sensor read as the mean of point
-probes along it (Buchner's P1 as TrixiParticles.jl reads it, cases sph_buchner_2d_*_p1_line_impulse); a dry
-sample (NaN) counts as 0."""
+probes along it (the wall band 0.07-0.16 m of Buchner's dam break, cases sph_buchner_2d_*_p1_line_impulse); a
+dry sample (NaN) counts as 0."""
 
 import h5py
 import numpy as np
