@@ -193,8 +193,7 @@ def test_sand_slope_holds_below_and_flows_above_the_friction_angle(ti_f32, beta,
     avalanches at 38 deg. A layer at rest can stand up to the cone's plane-strain Mohr-Coulomb angle
     asin(tan 30) = 35.3 deg (its steepest static slope, above the angle of repose as for real sand);
     the repose angle itself is checked in steady simple shear (test_mpm_return_mapping.py). Both yield
-    surfaces (the pyramid, the default since 2026-11-27, has the same static limit asin(tan 30) whatever
-    sigma_zz)."""
+    surfaces (the pyramid has the same static limit, asin(tan 30), whatever sigma_zz)."""
     scene = make_scene(
         sim={"dim": 2, "gravity": _tilted(beta)},
         domain={"lower": [0.0, 0.0], "upper": [0.3, 0.15], "boundary": {"type": "slip", "friction": 0.6}},

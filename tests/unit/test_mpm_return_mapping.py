@@ -303,8 +303,8 @@ def dp_yield(tau, alpha, apex=0.0):
 
 @pytest.mark.parametrize("cohesion", [0.0, 2.0e3])
 def test_sand_ends_on_or_inside_the_cone(ti_f32, cohesion):
-    # the cone's check: drucker_prager named (the default is mohr_coulomb since 2026-11-27; its
-    # equivalent is test_mohr_coulomb_sand_ends_on_or_inside_the_pyramid)
+    # the cone's check: drucker_prager named, so that it stays the cone's whatever the default (the
+    # pyramid's equivalent is test_mohr_coulomb_sand_ends_on_or_inside_the_pyramid)
     m = mat(type="MPM.Sand", friction_angle=30.0, cohesion=cohesion, yield_surface="drucker_prager")
     h = Harness(m, dim=3, n=64)
     rng = np.random.default_rng(5)
@@ -480,20 +480,6 @@ def test_mohr_coulomb_bad_combinations_are_refused():
         mat(type="MPM.Sand", friction_angle=44.0, yield_surface="mohr_coulomb")
     with pytest.raises(ValidationError, match="above 70 deg"):
         mat(type="MPM.Sand", friction_angle=80.0, yield_surface="mohr_coulomb", cone="plane_strain")
-
-
-def test_mohr_coulomb_is_the_default_where_it_can_represent_the_sand():
-    """yield_surface defaults to mohr_coulomb (issue 23); when it is not given and the pyramid cannot
-    represent the material (mu_i, or the simple_shear fit above 43.2 deg: Genesis's default 45), the cone
-    is used as before; given explicitly, those combinations are refused (test above)."""
-    assert mat(type="MPM.Sand", friction_angle=30.0).yield_surface == "mohr_coulomb"
-    assert mat(type="MPM.Sand", friction_angle=43.0).yield_surface == "mohr_coulomb"
-    assert mat(type="MPM.Sand", friction_angle=45.0, cone="plane_strain").yield_surface == "mohr_coulomb"
-    assert mat(type="MPM.Sand").yield_surface == "drucker_prager"  # friction_angle 45 by default
-    assert mat(type="MPM.Sand", friction_angle=44.0).yield_surface == "drucker_prager"
-    assert mat(type="MPM.Sand", friction_angle=30.0, mu_i={}).yield_surface == "drucker_prager"
-    m = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="drucker_prager")
-    assert m.yield_surface == "drucker_prager"
 
 
 @pytest.mark.parametrize("cohesion", [0.0, 2.0e3])

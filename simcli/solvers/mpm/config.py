@@ -158,10 +158,6 @@ class MuIRheology(_Options):
     )
 
 
-# the largest Mohr-Coulomb angle of yield_surface: mohr_coulomb (70 deg; see MPMSand._mohr_coulomb_fit)
-_MC_SIN_PHI_MAX = math.sin(math.radians(70.0))
-
-
 class MPMSand(_Solid):
     """Granular material: Drucker-Prager (Klar et al. 2016) or Mohr-Coulomb plasticity, Hencky strain."""
 
@@ -200,7 +196,7 @@ class MPMSand(_Solid):
         "tan = 3 alpha / sqrt(2) (34.7 deg for 30).",
     )
     yield_surface: Literal["drucker_prager", "mohr_coulomb"] = Field(
-        "mohr_coulomb",
+        "drucker_prager",
         description="The yield surface's shape in the deviatoric plane, with the same zero-dilatancy "
         "(volume-keeping) flow. drucker_prager: a circular cone, the same in every direction, fitted by "
         "`cone`; fitted to simple shear it is, in triaxial compression (the surface flow of a conical heap, "
@@ -212,10 +208,7 @@ class MPMSand(_Solid):
         "cone: simple_shear phi_mc = asin(tan(friction_angle)) (35.3 deg for 30), so a flowing layer "
         "carries tan(friction_angle) times its normal stress at any Lode angle: in 2D as the drucker_prager "
         "cone does, in 3D also where the flow spreads (phi_mc at most 70 deg: friction_angle <= 43.2); "
-        "with plane_strain or compression phi_mc = friction_angle. Default mohr_coulomb (since 2026-11-27; "
-        "before, drucker_prager); when yield_surface is not given and the pyramid cannot represent the "
-        "material (mu_i set, or cone: simple_shear with friction_angle above 43.2 deg, e.g. the default 45), "
-        "drucker_prager is used, as before.",
+        "with plane_strain or compression phi_mc = friction_angle.",
     )
     mu_i: MuIRheology | None = Field(
         None,
@@ -239,12 +232,6 @@ class MPMSand(_Solid):
     def _mohr_coulomb_fit(self) -> MPMSand:
         if self.yield_surface != "mohr_coulomb":
             return self
-        if "yield_surface" not in self.model_fields_set and (
-            self.mu_i is not None or self.mc_sin_phi > _MC_SIN_PHI_MAX
-        ):
-            # the default surface, where the pyramid cannot represent the material: the cone, as before
-            object.__setattr__(self, "yield_surface", "drucker_prager")  # frozen model
-            return self
         if self.mu_i is not None:
             raise ValueError(
                 "mu_i needs yield_surface: drucker_prager (the mu(I) return mapping is the cone's); remove "
@@ -259,7 +246,7 @@ class MPMSand(_Solid):
                 "the sine of the Mohr-Coulomb angle, so it must be below 1); lower friction_angle, or set "
                 "cone: plane_strain (friction_angle is then the Mohr-Coulomb angle itself)"
             )
-        if self.mc_sin_phi > _MC_SIN_PHI_MAX:
+        if self.mc_sin_phi > math.sin(math.radians(70.0)):
             # the edge returns solve a 2x2 system of determinant 4 - (1 + sin phi)^2: 0.014 at 85 deg
             raise ValueError(
                 f"yield_surface: mohr_coulomb: the Mohr-Coulomb angle is "
