@@ -185,13 +185,16 @@ def _tilted(beta_deg):
     return [G * math.sin(b), -G * math.cos(b)]
 
 
+# the pyramid's runs are slow-marked: the default suite keeps the default surface's two (its CI budget)
+@pytest.mark.parametrize("surface", ["drucker_prager", pytest.param("mohr_coulomb", marks=pytest.mark.slow)])
 @pytest.mark.parametrize("beta,flows", [(27.0, False), (38.0, True)])
-def test_sand_slope_holds_below_and_flows_above_the_friction_angle(ti_f32, beta, flows):
+def test_sand_slope_holds_below_and_flows_above_the_friction_angle(ti_f32, beta, flows, surface):
     """A sand layer in a box under gravity tilted by beta: its free surface is a slope at beta. With
     friction_angle 30 (the angle of repose, ``cone: simple_shear``) it stays put at 27 deg and
     avalanches at 38 deg. A layer at rest can stand up to the cone's plane-strain Mohr-Coulomb angle
     asin(tan 30) = 35.3 deg (its steepest static slope, above the angle of repose as for real sand);
-    the repose angle itself is checked in steady simple shear (test_mpm_return_mapping.py)."""
+    the repose angle itself is checked in steady simple shear (test_mpm_return_mapping.py). Both yield
+    surfaces (the pyramid has the same static limit, asin(tan 30), whatever sigma_zz)."""
     scene = make_scene(
         sim={"dim": 2, "gravity": _tilted(beta)},
         domain={"lower": [0.0, 0.0], "upper": [0.3, 0.15], "boundary": {"type": "slip", "friction": 0.6}},
@@ -205,6 +208,7 @@ def test_sand_slope_holds_below_and_flows_above_the_friction_angle(ti_f32, beta,
                     "rho": 1500.0,
                     "E": 1.0e6,
                     "nu": 0.3,
+                    "yield_surface": surface,
                 },
                 "morph": box((0.0, 0.0), (0.3, 0.06)),
             }
