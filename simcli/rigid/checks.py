@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-RIGID_FAMILIES = {"MPM", "PBD", "FEM", "SPH"}  # families whose colliders move and report loads
+RIGID_FAMILIES = {"MPM", "PBD", "FEM", "SPH", "FEMCloth"}  # families whose colliders move and report loads
 
 
 def _lattice(lo, hi, n: int) -> np.ndarray:

@@ -46,6 +46,24 @@ def _barrier(s, sh):
     return b, b1, b2
 
 
+class BodyLoads:
+    """The part of simcli.colliders.ColliderPoses that simcli.rigid.world reads a family's loads from: ``load``
+    (rows: the scene's colliders, then the rigid bodies; impulse [N s] and its moment about the body's centre
+    of mass [N m s]) with to_numpy / from_numpy, here a host array."""
+
+    any_named = True
+
+    def __init__(self, rows: int):
+        self.a = np.zeros((rows, 6))
+        self.load = self
+
+    def to_numpy(self) -> np.ndarray:
+        return self.a.copy()
+
+    def from_numpy(self, a) -> None:
+        self.a[:] = a
+
+
 class ClothSolver(Solver):
     family = "fem_cloth"
     REUSE_CG_ITERS = 10  # CG iterations with the previous factor before refactoring (a few solves' cost)
@@ -152,6 +170,13 @@ class ClothSolver(Solver):
             self.v[self.pin_idx] = self._pin_velocity(0.0)
         self.g = np.asarray(self.scene.sim.gravity_vec, float)
         self.obst = Obstacles(self.scene, self.scene_dir)
+        # free rigid bodies (simcli.rigid): moving obstacles whose pose the rigid world integrates
+        self.world = None
+        if getattr(self.scene, "rigid_bodies", None):
+            from simcli.rigid.world import world_for
+
+            self.world = world_for(self.scene, self.scene_dir)
+            self.obst.moving = True  # (their motions have no keyframes: Obstacles.next_key needs none)
         # Dirichlet steps: prescribed motion (moving pins, moving colliders) is part of each Newton step
         self.dirichlet = self.moving_pins or self.obst.moving
         self.tau = 0.0  # the time moving colliders are at (lags self.time only while a contact blocks them)
@@ -161,7 +186,10 @@ class ClothSolver(Solver):
         # n .. n + nm - 1 (mesh_obstacles.py); ipctk's static-obstacle filter drops collider-collider pairs
         from simcli.solvers.fem.cloth.mesh_obstacles import MeshObstacles
 
-        self.mobst = MeshObstacles(self.scene, self.scene_dir)
+        self.mobst = MeshObstacles(self.scene, self.scene_dir, self.world, self.dhat)
+        self._body_loads = None  # the rigid bodies' loads, read by simcli.rigid.world (collider_poses)
+        if self.world is not None:
+            self._body_loads = BodyLoads(self.world.n_colliders + len(self.world.bodies))
         self.nm = self.mobst.m
         self.vobs = self.mobst.positions(0.0)  # the obstacle vertices' current positions
         self.vobs_n = self.vobs
@@ -765,7 +793,11 @@ class ClothSolver(Solver):
         if self._tc is not None:
             f -= self.FP.gradient(self._tc, self.cm, (xf - self.xnf) / dt).reshape(-1, 3)[self.n :]
         for name, a in self.mobst.loads(f, self.vobs, tau, dt).items():
-            self._loads[name] = self._loads.get(name, 0.0) + a
+            row = self.mobst.body_rows.get(name)
+            if row is not None:  # a rigid body: the world reads it (and clears it) after this substep
+                self._body_loads.a[row] += a
+            else:
+                self._loads[name] = self._loads.get(name, 0.0) + a
 
     def _add_obstacle_loads(self, x, tau, dt):
         """The reaction on the named convex colliders over this substep: minus the barrier's and lagged
@@ -809,6 +841,10 @@ class ClothSolver(Solver):
         call (the IPC barrier's and friction's reaction; Mesh colliders and the convex ones alike)."""
         out, self._loads = getattr(self, "_loads", {}), {}
         return out
+
+    def collider_poses(self):
+        """Where simcli.rigid.world reads the impulse the cloth gave each rigid body (None: no bodies)."""
+        return self._body_loads if self._built else None
 
     # ------------------------------------------------------------ interface
     def sync(self) -> None:
