@@ -128,7 +128,9 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
             )
     from simcli.solvers.fem.cloth.mesh_obstacles import MESH_TYPES
 
-    if not out and any(c.type in MESH_TYPES for c in scene.colliders):
+    if not out and (
+        any(c.type in MESH_TYPES for c in scene.colliders) or getattr(scene, "rigid_bodies", None)
+    ):
         from simcli.solvers.fem.cloth.mesh_obstacles import initial_problems
 
         try:  # a Mesh collider's own problems (file, closed surface) are reported by the collider checks

@@ -239,51 +239,65 @@ def blend_mu(a: float, b: float) -> float:
 
 def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float) -> list[str]:
     """Messages for a cloth (vertices x, triangles t) that starts intersecting, inside or within dhat of a
-    Mesh or Box collider at its pose at t = 0 (located: the collider's index and the first point)."""
+    Mesh or Box collider at its pose at t = 0, or of a rigid body (located: the collider's or body's index
+    and the first point)."""
+    out = []
+    if any(c.type in MESH_TYPES for c in scene.colliders):
+        mo = MeshObstacles(scene, scene_dir)
+        V = mo.positions(0.0)
+        for k, ci in enumerate(mo.index):
+            lo, hi = mo.offsets[k], mo.offsets[k + 1]
+            Tk = mo.T[(mo.T >= lo).all(axis=1) & (mo.T < hi).all(axis=1)] - lo
+            msg = _initial_problem(x, t, V[lo:hi], Tk, f"colliders.{ci} ({scene.colliders[ci].type})", dhat)
+            if msg:
+                out.append(msg)
+    for i, rb in enumerate(getattr(scene, "rigid_bodies", None) or []):
+        try:  # a Mesh body's own problems (file, closed surface) are reported by the rigid body checks
+            Vb, Tb = body_mesh(rb, scene, scene_dir, dhat)
+        except (ValueError, OSError):
+            continue
+        msg = _initial_problem(x, t, Vb, Tb, f"rigid_bodies.{i} ('{rb.name}', {rb.morph.type})", dhat)
+        if msg:
+            out.append(msg)
+    return out
+
+
+def _initial_problem(x, t, Vk, Tk, what: str, dhat: float) -> str | None:
+    """The cloth (x, t) against one obstacle's triangles (Vk, Tk): crossing, a vertex inside, or closer
+    than dhat; None when clear."""
     from simcli.collider_mesh import mesh_distance
     from simcli.geometry.mesh import TriMesh, points_inside_mesh
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
 
-    mo = MeshObstacles(scene, scene_dir)
-    V = mo.positions(0.0)
-    out = []
     n = len(x)
-    for k, ci in enumerate(mo.index):
-        typ = scene.colliders[ci].type
-        lo, hi = mo.offsets[k], mo.offsets[k + 1]
-        Vk = V[lo:hi]
-        Tk = mo.T[(mo.T >= lo).all(axis=1) & (mo.T < hi).all(axis=1)] - lo
-        X = np.concatenate([x, Vk])
-        T = np.concatenate([t, Tk + n])
-        hits = [
-            h for h in edge_triangle_intersections(X, T) if (h[0][0] < n) == (h[1] >= len(t))
-        ]  # a cloth edge through a collider triangle or a collider edge through a cloth triangle
-        if hits:
-            out.append(
-                f"the cloth intersects colliders.{ci} ({typ}) at the start (near "
-                f"{np.round(hits[0][2], 6).tolist()}); move the cloth or the collider apart"
-            )
-            continue
-        vol = float(abs(np.einsum("ij,ij->i", Vk[Tk[:, 0]], np.cross(Vk[Tk[:, 1]], Vk[Tk[:, 2]])).sum()) / 6)
-        ins = points_inside_mesh(TriMesh(Vk, Tk, vol, "collider"), x)
-        if ins.any():
-            out.append(
-                f"{int(ins.sum())} cloth vertex(es) start inside colliders.{ci} ({typ}) (first at "
-                f"{np.round(x[np.argmax(ins)], 6).tolist()}); the cloth must start outside it: move it"
-            )
-            continue
-        # cloth vertices to the collider's triangles and collider vertices to the cloth's, each only where
-        # the other's bounding box (grown by dhat) reaches (brute force within)
-        near_x = np.all((x >= Vk.min(axis=0) - dhat) & (x <= Vk.max(axis=0) + dhat), axis=1)
-        near_v = np.all((Vk >= x.min(axis=0) - dhat) & (Vk <= x.max(axis=0) + dhat), axis=1)
-        xs, vs = x[near_x], Vk[near_v]
-        d1 = mesh_distance(Vk, Tk, xs) if len(xs) else np.full(1, np.inf)
-        d2 = mesh_distance(x, t, vs) if len(vs) else np.full(1, np.inf)
-        if min(d1.min(), d2.min()) < dhat:
-            p = xs[np.argmin(d1)] if d1.min() <= d2.min() else vs[np.argmin(d2)]
-            out.append(
-                f"the cloth starts closer than solvers.fem.contact_distance ({dhat:g} m) to colliders.{ci} "
-                f"({typ}) (distance {min(d1.min(), d2.min()):.3g} m near {np.round(p, 6).tolist()}): move "
-                "the cloth away"
-            )
-    return out
+    X = np.concatenate([x, Vk])
+    T = np.concatenate([t, Tk + n])
+    hits = [
+        h for h in edge_triangle_intersections(X, T) if (h[0][0] < n) == (h[1] >= len(t))
+    ]  # a cloth edge through an obstacle triangle or an obstacle edge through a cloth triangle
+    if hits:
+        return (
+            f"the cloth intersects {what} at the start (near {np.round(hits[0][2], 6).tolist()}); move the "
+            "cloth or the obstacle apart"
+        )
+    vol = float(abs(np.einsum("ij,ij->i", Vk[Tk[:, 0]], np.cross(Vk[Tk[:, 1]], Vk[Tk[:, 2]])).sum()) / 6)
+    ins = points_inside_mesh(TriMesh(Vk, Tk, vol, "collider"), x)
+    if ins.any():
+        return (
+            f"{int(ins.sum())} cloth vertex(es) start inside {what} (first at "
+            f"{np.round(x[np.argmax(ins)], 6).tolist()}); the cloth must start outside it: move it"
+        )
+    # cloth vertices to the obstacle's triangles and its vertices to the cloth's, each only where the
+    # other's bounding box (grown by dhat) reaches (brute force within)
+    near_x = np.all((x >= Vk.min(axis=0) - dhat) & (x <= Vk.max(axis=0) + dhat), axis=1)
+    near_v = np.all((Vk >= x.min(axis=0) - dhat) & (Vk <= x.max(axis=0) + dhat), axis=1)
+    xs, vs = x[near_x], Vk[near_v]
+    d1 = mesh_distance(Vk, Tk, xs) if len(xs) else np.full(1, np.inf)
+    d2 = mesh_distance(x, t, vs) if len(vs) else np.full(1, np.inf)
+    if min(d1.min(), d2.min()) < dhat:
+        p = xs[np.argmin(d1)] if d1.min() <= d2.min() else vs[np.argmin(d2)]
+        return (
+            f"the cloth starts closer than solvers.fem.contact_distance ({dhat:g} m) to {what} "
+            f"(distance {min(d1.min(), d2.min()):.3g} m near {np.round(p, 6).tolist()}): move the cloth away"
+        )
+    return None

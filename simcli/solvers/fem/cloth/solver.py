@@ -47,9 +47,9 @@ def _barrier(s, sh):
 
 
 class BodyLoads:
-    """The part of simcli.colliders.ColliderPoses that simcli.rigid.world reads a family's loads from: ``load``
-    (rows: the scene's colliders, then the rigid bodies; impulse [N s] and its moment about the body's centre
-    of mass [N m s]) with to_numpy / from_numpy, here a host array."""
+    """The part of simcli.colliders.ColliderPoses that simcli.rigid.world reads a family's loads from:
+    ``load`` (rows: the scene's colliders, then the rigid bodies; impulse [N s] and its moment about the
+    body's centre of mass [N m s]) with to_numpy / from_numpy, here a host array."""
 
     any_named = True
 
@@ -910,6 +910,7 @@ class ClothSolver(Solver):
             "position": (3, "m"),
             "velocity": (3, "m/s"),
             "displacement": (3, "m"),
+            "mass": (1, "kg"),  # lumped vertex mass (rho thickness area / 3 of each triangle)
             "strain": (1, "-"),  # largest principal Green membrane strain, per triangle
             "stress": (1, "Pa"),  # von Mises of the membrane's second Piola-Kirchhoff stress, per triangle
         }
@@ -925,6 +926,8 @@ class ClothSolver(Solver):
                 a = self.v
             elif f == "displacement":
                 a = self.x - self.X
+            elif f == "mass":
+                a = self.mass
             elif f in self.cell_fields:
                 t0, t1 = self.tri_offsets[k], self.tri_offsets[k + 1]
                 if f == "strain":
@@ -936,7 +939,7 @@ class ClothSolver(Solver):
                 continue
             else:
                 raise KeyError(
-                    f"unknown FEM.Cloth output field {f!r}; known: position, velocity, displacement"
+                    f"unknown FEM.Cloth output field {f!r}; known: position, velocity, displacement, mass"
                 )
             out[f] = np.array(a[lo:hi])
         return out

@@ -1,0 +1,118 @@
+"""FEM.Cloth against free rigid bodies (issues 20, 21): a body's triangles join the cloth's IPC collision mesh
+as moving obstacles at the pose the rigid world extrapolates over the substep, and the contact's reaction
+goes back to the body through the load the world reads (simcli.rigid.world). Small sheets, a few substeps
+(host numpy/scipy/ipctk and the host rigid world only, no Taichi)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+pytest.importorskip("ipctk")
+pytest.importorskip("scipy")
+
+from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections  # noqa: E402
+from simcli.solvers.fem.cloth.mesh_obstacles import body_mesh, cylinder_mesh, icosphere  # noqa: E402
+
+SCENE = """\
+version: 1
+sim: {dim: 3, dt: 5.0e-3, substeps: 1, duration: 0.1, gravity: [0, 0, 0]}
+domain: {lower: [-0.5, -0.5, -0.5], upper: [0.5, 0.5, 0.5]}
+solvers:
+  fem: {contact_distance: 2.0e-3}
+rigid_bodies:
+  - name: b
+    morph: %(morph)s
+    rho: 400
+    velocity: [0, 0, -1.0]
+    friction: 0.2
+entities:
+  - name: c
+    material: {type: FEM.Cloth, E: 1.0e5, nu: 0.3, rho: 300, thickness: 1.0e-3, damping: 0.0, friction: 0.2}
+    morph: {type: Rectangle, center: [0, 0, 0], size: [0.12, 0.12], resolution: 4}
+"""
+
+
+def _scene(tmp_path, morph):
+    p = tmp_path / "cloth_rigid.yaml"
+    p.write_text(textwrap.dedent(SCENE % dict(morph=morph)))
+    return p
+
+
+def _volume(V, T):
+    return float(np.einsum("ij,ij->i", V[T[:, 0]], np.cross(V[T[:, 1]], V[T[:, 2]])).sum()) / 6.0
+
+
+def test_body_meshes_are_closed_outward_and_close_to_the_shape():
+    """The inscribed icosphere and prism: every edge shared by two triangles (closed), positive volume
+    (outward), vertices on the surface, and the facets within contact_distance / 2 of it (so the volume is
+    a little below the shape's)."""
+    for V, T, exact in (
+        (*icosphere(2), 4.0 / 3.0 * np.pi),
+        (*cylinder_mesh([0.1, 0.2, 0.3], 0.05, 0.2, 0, 1e-3), np.pi * 0.05**2 * 0.2),
+        (*cylinder_mesh([0, 0, 0], 0.05, 0.2, 1, 1e-3), np.pi * 0.05**2 * 0.2),
+    ):
+        e = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
+        _, cnt = np.unique(e, axis=0, return_counts=True)
+        assert (cnt == 2).all()
+        vol = _volume(V - V.mean(axis=0), T)
+        assert 0.95 * exact < vol < exact  # (level 2 icosphere: 0.966)
+    V, _ = icosphere(3)
+    np.testing.assert_allclose(np.linalg.norm(V, axis=1), 1.0, rtol=1e-12)
+
+    class _M:  # a Sphere morph of radius 0.05 m: its facets' sag R a^2 / 6 below dhat / 2
+        type, radius, center = "Sphere", 0.05, [0.0, 0.0, 0.0]
+
+    class _RB:
+        morph = _M()
+
+    V, T = body_mesh(_RB(), None, None, 1e-3)
+    c = V[T].mean(axis=1)
+    assert 0.05 - np.linalg.norm(c, axis=1).min() < 0.5e-3
+
+
+@pytest.mark.parametrize(
+    "morph",
+    [
+        "{type: Box, center: [0.01, 0.02, 0.03], size: [0.04, 0.04, 0.04]}",
+        "{type: Sphere, center: [0.01, 0.02, 0.03], radius: 0.02}",
+    ],
+)
+def test_a_body_thrown_at_a_free_sheet_keeps_the_momentum_and_never_crosses_it(tmp_path, morph):
+    """No gravity, no damping: a 1 m/s body hits a free 12 cm sheet. The cloth's reaction on the body is
+    minus the contact impulse the cloth received, so sheet + body keep their total momentum (to the Newton
+    tolerance); the body slows down, the sheet is carried; no segment-triangle crossing at any substep."""
+    from simcli.rigid.world import release, world_for
+    from tests.unit.test_fem_cloth import _solver
+
+    s = _solver(_scene(tmp_path, morph))
+    w = world_for(s.scene)
+    assert s.world is w and s.collider_poses() is not None
+    b = w.bodies[0]
+    P0 = b.mass * b.state.v + s.mass @ s.v
+    dt = 5e-3
+    for _ in range(14):
+        s.substep(dt)
+        w.step([s], dt)
+        X = np.concatenate([s.x, s.vobs])
+        T = np.concatenate([s.tris, s.mobst.T + s.n])
+        assert edge_triangle_intersections(X, T) == []
+    P = b.mass * b.state.v + s.mass @ s.v
+    assert np.linalg.norm(P - P0) < 1e-4 * np.linalg.norm(P0)
+    assert s.mass @ s.v[:, 2] < -0.1 * abs(P0[2])  # the sheet took a tenth of the momentum or more
+    assert b.state.v[2] > -0.95
+    assert not w.frame_load[0, 2] == 0.0
+    release(s.scene)
+
+
+def test_a_cloth_starting_inside_a_rigid_body_is_refused_with_its_location(tmp_path):
+    p = _scene(tmp_path, "{type: Box, center: [0, 0, 0.01], size: [0.04, 0.04, 0.04]}")
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "validate", str(p)], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 65, r.stderr
+    assert f"{p}:" in r.stderr and "rigid_bodies.0 ('b', Box)" in r.stderr and "intersects" in r.stderr
