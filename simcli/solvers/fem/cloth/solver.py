@@ -823,7 +823,8 @@ class ClothSolver(Solver):
                 rd.write(self.vobs)
             if _DEBUG:
                 print("    alpha %.3e ccd %.3e |p| %.3e" % (a, a0, float(np.abs(p).max())))
-            if not pending and a * (pmax if pb is not None else float(np.abs(p).max())) < 1e-12 * self.bbox:
+            moved = a * pmax if pb is not None else float(np.abs(a * p).max())
+            if not pending and moved < 1e-12 * self.bbox:
                 break
         self._tau_to = None
         self._po = None
