@@ -9,7 +9,16 @@ from simcli.verify.registry import entity_group, measurement
 
 @measurement("cloth_intersections")
 def cloth_intersections(
-    f, entity, others=(), spheres=(), boxes=(), floor=None, mesh_colliders=False, rigid_bodies=False, **_
+    f,
+    entity,
+    others=(),
+    spheres=(),
+    boxes=(),
+    floor=None,
+    mesh_colliders=False,
+    rigid_bodies=False,
+    solids=(),
+    **_,
 ):
     """Per frame: the number of the sheet's edges crossing one of its non-adjacent triangles (an independent
     segment-triangle test, simcli.solvers.fem.cloth.geometry; with ``others``, the sheets of those entities
@@ -19,7 +28,8 @@ def cloth_intersections(
     mesh tested (a cloth edge through a collider triangle or a collider edge through a cloth triangle
     counts), plus the cloth vertices inside them (ray parity). With ``rigid_bodies``, every rigid body's
     triangles (the ones FEM.Cloth meets: simcli.solvers.fem.cloth.mesh_obstacles.body_mesh) at the pose
-    sim.h5 records for the frame (/rigid_bodies/<name>/position, orientation) are tested the same way."""
+    sim.h5 records for the frame (/rigid_bodies/<name>/position, orientation) are tested the same way, and
+    with ``solids`` (FEM entity names) their boundary triangles at the frame's recorded positions."""
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
 
     xs, ts, n0 = [], [], 0
@@ -33,6 +43,18 @@ def cloth_intersections(
     mo = _mesh_colliders(f) if mesh_colliders else None
     times = np.asarray(f["time"][: len(x)], dtype=np.float64)
     bodies = _rigid_body_meshes(f) if rigid_bodies else []
+    for name in solids:  # an FEM solid: its boundary triangles, posed by its recorded vertex positions
+        from simcli.geometry.tetmesh import boundary_faces
+
+        _, gs = entity_group(f, name)
+        xs_all = np.asarray(gs["position"][...], dtype=np.float64)
+        tets = np.asarray(gs["cells"][...], dtype=np.int64)[:, :4]
+        faces = boundary_faces(tets, xs_all[0])
+        ids = np.unique(faces)
+        remap = np.full(xs_all.shape[1], -1, np.int64)
+        remap[ids] = np.arange(len(ids))
+        # (body-frame vertices, triangles, pivot, positions, orientations): identity poses, per-frame vertices
+        bodies.append((xs_all[:, ids], remap[faces], None, None, None))
     out = []
     for k in range(len(x)):
         n_body = 0
@@ -41,7 +63,7 @@ def cloth_intersections(
             from simcli.motion import quat_to_matrix
 
             for V0, Tb, piv, pos, quat in bodies:
-                V = (V0 - piv) @ quat_to_matrix(quat[k]).T + pos[k]
+                V = V0[k] if piv is None else (V0 - piv) @ quat_to_matrix(quat[k]).T + pos[k]
                 n_body += len(
                     [
                         h

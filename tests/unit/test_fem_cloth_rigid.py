@@ -122,3 +122,73 @@ def test_a_cloth_starting_inside_a_rigid_body_is_refused_with_its_location(tmp_p
     )
     assert r.returncode == 65, r.stderr
     assert f"{p}:" in r.stderr and "rigid_bodies.0 ('b', Box)" in r.stderr and "intersects" in r.stderr
+
+
+class _Field:
+    def __init__(self, a):
+        self.a = np.array(a)
+
+    def to_numpy(self):
+        return self.a.copy()
+
+    def from_numpy(self, a):
+        self.a = np.array(a)
+
+
+def test_fem_solid_surface_is_its_boundary_and_takes_the_reaction_as_momentum():
+    """solid_obstacles.SolidSurface on a stand-in FEM solver (two tetrahedra sharing a face): its triangles
+    are the 6 boundary faces (not the shared one), the target is the solver's positions once it has stepped
+    to the substep's end (else extrapolated with its velocities), and the reaction dt f changes the solid's
+    momentum sum m v by exactly dt sum f (a held component excepted)."""
+    from simcli.solvers.fem.cloth.solid_obstacles import SolidSurface
+
+    class _Fem:
+        x0 = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1.0]])
+        tets = np.array([[0, 1, 2, 3], [1, 2, 3, 4]])
+        n = 5
+        mass = np.array([1.0, 2.0, 2.0, 2.0, 1.0])
+        time = 0.0
+
+    fem = _Fem()
+    fem.x, fem.v = _Field(fem.x0 + 0.1), _Field(np.ones((5, 3)))
+    free = np.ones((5, 3))
+    free[4, 2] = 0.0  # vertex 4 held in z
+    fem.free_f = _Field(free)
+    s = SolidSurface(fem)
+    assert s.m == 5 and len(s.T) == 6
+    np.testing.assert_allclose(s.target(0.01, 0.01), fem.x0 + 0.1 + 0.01)  # not stepped: extrapolated
+    fem.time = 0.01
+    np.testing.assert_allclose(s.target(0.01, 0.01), fem.x0 + 0.1)  # stepped: its own positions
+    f = np.arange(15.0).reshape(5, 3)
+    P0 = fem.mass @ fem.v.to_numpy()
+    s.apply(f, 0.01)
+    dP = fem.mass @ fem.v.to_numpy() - P0
+    expect = 0.01 * f.sum(axis=0)
+    expect[2] -= 0.01 * f[4, 2]
+    np.testing.assert_allclose(dP, expect, rtol=1e-12)
+
+
+def test_fem_cloth_beside_an_fem_solid_is_no_longer_said_to_pass_through(tmp_path):
+    from simcli.scene.coupling import coupling_warnings
+    from simcli.scene.loader import load_scene
+
+    p = tmp_path / "s.yaml"
+    p.write_text(
+        textwrap.dedent(
+            """\
+            version: 1
+            sim: {dim: 3, dt: 1.0e-2, duration: 0.1}
+            domain: {lower: [0, 0, 0], upper: [0.3, 0.3, 0.3]}
+            solvers:
+              fem: {contact_distance: 2.0e-3, integrator: implicit}
+            entities:
+              - name: block
+                material: {type: FEM.Elastic, E: 1.0e5, nu: 0.3, rho: 1000}
+                morph: {type: Box, lower: [0.1, 0.1, 0.0], upper: [0.2, 0.2, 0.1]}
+              - name: cloth
+                material: {type: FEM.Cloth, E: 1.0e5, nu: 0.3, rho: 300, thickness: 1.0e-3}
+                morph: {type: Rectangle, center: [0.15, 0.15, 0.14], size: [0.2, 0.2], resolution: 4}
+            """
+        )
+    )
+    assert not [w for w in coupling_warnings(load_scene(p)) if "FEM.Cloth" in w]

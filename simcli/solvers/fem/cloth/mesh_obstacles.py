@@ -188,6 +188,22 @@ class MeshObstacles:
             else np.zeros(0)
         )
 
+    def append_surface(self, V: np.ndarray, T: np.ndarray, friction: float) -> tuple[int, int]:
+        """Add a surface whose vertices the caller moves (an FEM solid's boundary): unnamed, no motion here.
+        Returns its obstacle-vertex range."""
+        lo = self.m
+        self.V0 = np.concatenate([self.V0, np.asarray(V, float)])
+        self.T = np.concatenate([self.T, np.asarray(T, np.int64) + lo])
+        self.names.append(None)
+        self.friction.append(float(friction))
+        self.motions.append(None)
+        self.centres.append(np.zeros(3))
+        self.offsets.append(lo + len(V))
+        self.n_entries += 1
+        self.m = len(self.V0)
+        self.vertex_mu = np.concatenate([self.vertex_mu, np.full(len(V), float(friction))])
+        return lo, self.m
+
     def __len__(self) -> int:
         return len(self.index)
 

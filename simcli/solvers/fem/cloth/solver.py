@@ -187,6 +187,14 @@ class ClothSolver(Solver):
 
         self.mobst = MeshObstacles(self.scene, self.scene_dir, self.world, self.dhat)
         self._body_loads = None  # the rigid bodies' loads, read by simcli.rigid.world (collider_poses)
+        self.solid = None  # an FEM solid's boundary, prescribed per substep (solid_obstacles.py)
+        if getattr(self, "_solid_fem", None) is not None:
+            from simcli.solvers.fem.cloth.solid_obstacles import SolidSurface
+
+            self.solid = SolidSurface(self._solid_fem)
+            mu_s = max((e.material.friction for e in self.entities), default=0.0)
+            self.solid.lo, self.solid.hi = self.mobst.append_surface(self.solid.V0, self.solid.T, mu_s)
+            self.dirichlet = True
         self.rdofs = None  # the bodies' 6 unknowns each in the Newton system (rigid_dofs.py)
         if self.world is not None:
             from simcli.solvers.fem.cloth.rigid_dofs import RigidDofs
@@ -676,6 +684,9 @@ class ClothSolver(Solver):
         self._fric = None
         self._fric = self._lagged_friction(self.xn, tau, t_end if tau is not None else None)
         self._tc = None
+        sol_to = None
+        if self.solid is not None:  # the FEM solid's surface: to its positions at the substep's end
+            sol_to = self.solid.target(t_end, dt)
         rd = self.rdofs
         if rd is not None:  # the bodies' unknowns, from where the last solve left them (rigid_dofs.py)
             rd.start(dt, self.g)
@@ -715,6 +726,7 @@ class ClothSolver(Solver):
                 pending = True
             self._tau_to = tau_to if dtau > 0 else None
             self._po = None
+            vo_to = None
             if (
                 dtau > 0 and self.mobst.moving
             ):  # the Mesh colliders' vertices: straight to their pose at tau_to
@@ -724,6 +736,20 @@ class ClothSolver(Solver):
                     for lo, hi in rd.ranges:
                         self._po[lo:hi] = 0.0
                         vo_to[lo:hi] = self.vobs[lo:hi]
+            d_sol = None
+            if sol_to is not None:  # the solid surface's motion still to make (a Dirichlet step)
+                sl = slice(self.solid.lo, self.solid.hi)
+                d_sol = sol_to - self.vobs[sl]
+                if self._po is not None:  # (prescribed colliders' step: mobst.positions has it at rest)
+                    self._po[sl] = d_sol
+                    vo_to[sl] = sol_to
+                if np.any(d_sol):
+                    pending = True
+                    if self._po is None:
+                        self._po = np.zeros((self.nm, 3))
+                        self._po[sl] = d_sol
+                else:
+                    d_sol = None
             e, g, H, ncontact = self._potential(x, 2, tau)
             r = g[free] / self.mass[free, None]
             res = float(np.abs(r).max()) if r.size else 0.0
@@ -815,10 +841,14 @@ class ClothSolver(Solver):
             if pending and pb is not None:
                 rd.accept(rd.trial(a, pb))
             x = xt
+            if d_sol is not None:
+                vs0 = self.vobs[sl].copy()
             if dtau > 0:
                 tau = tau_to if a >= 1.0 else tau + a * dtau
                 if self._po is not None:  # on the chord the CCD checked (exactly the pose at a = 1)
                     self.vobs = vo_to if a >= 1.0 else self.vobs + a * self._po
+            if d_sol is not None:  # on the chord (exactly the target at a = 1)
+                self.vobs[sl] = sol_to if a >= 1.0 else vs0 + a * d_sol
             if pb is not None:
                 rd.write(self.vobs)
             if _DEBUG:
@@ -832,6 +862,8 @@ class ClothSolver(Solver):
         self._lu = None
         if rd is not None:
             rd.finish()
+        if self.solid is not None:
+            self._solid_reaction(x, dt)
         if self.nm and any(nm is not None for nm in self.mobst.names):
             self._add_mesh_loads(x, tau, dt)
         if self._named_convex:
@@ -889,6 +921,23 @@ class ClothSolver(Solver):
                 self._body_loads.a[row, :3] += dt * fk.sum(axis=0)
                 self._body_loads.a[row, 3:] += dt * np.cross(self.vobs[lo:hi] - c, fk).sum(axis=0)
 
+    def _solid_reaction(self, x, dt):
+        """The contact's reaction on the FEM solid's surface vertices over this substep (minus the barrier's
+        and friction's gradient there at the end state), added to the solid's velocities (solid_obstacles)."""
+        import ipctk
+
+        xf = self._full(x)
+        lo, hi = self.n + self.solid.lo, self.n + self.solid.hi
+        f = np.zeros((hi - lo, 3))
+        col = ipctk.NormalCollisions()
+        col.build(self.cm, xf, self.dhat)
+        if len(col):
+            f -= self.kappa * self.B.gradient(col, self.cm, xf).reshape(-1, 3)[lo:hi]
+        if self._tc is not None:
+            f -= self.FP.gradient(self._tc, self.cm, (xf - self.xnf) / dt).reshape(-1, 3)[lo:hi]
+        if np.any(f):
+            self.solid.apply(f, dt)
+
     def _add_obstacle_loads(self, x, tau, dt):
         """The reaction on the named convex colliders over this substep: minus the barrier's and lagged
         friction's forces on the cloth's vertices at the step's end state, summed per collider as impulse and
@@ -931,6 +980,11 @@ class ClothSolver(Solver):
         call (the IPC barrier's and friction's reaction; Mesh colliders and the convex ones alike)."""
         out, self._loads = getattr(self, "_loads", {}), {}
         return out
+
+    def attach_solid(self, fem) -> None:
+        """The FEM solver of the scene's tetrahedral entities (simcli.coupling.make_coupler calls this before
+        the solvers are built): their boundary meets the cloth staggered (solid_obstacles.py)."""
+        self._solid_fem = fem
 
     def collider_poses(self):
         """Where simcli.rigid.world reads the impulse the cloth gave each rigid body (None: no bodies)."""
@@ -1042,7 +1096,7 @@ class ClothSolver(Solver):
             st["kappa"] = np.array([self.kappa, self.kappa_max])
         if self.obst.moving:  # moving colliders' time (behind self.time while a contact held them back)
             st["tau"] = np.array([self.tau])
-        if self.nm and self.mobst.moving:  # moving Mesh colliders' vertices (on a chord while held back)
+        if self.nm and (self.mobst.moving or self.solid is not None):  # (on a chord while held back)
             st["vobs"] = self.vobs.copy()
         if self.rdofs is not None and self.rdofs.end is not None:  # where the last solve left the bodies
             st["rigid_end"] = np.array([np.concatenate([c, R.ravel()]) for c, R in self.rdofs.end])
