@@ -192,3 +192,30 @@ def test_fem_cloth_beside_an_fem_solid_is_no_longer_said_to_pass_through(tmp_pat
         )
     )
     assert not [w for w in coupling_warnings(load_scene(p)) if "FEM.Cloth" in w]
+
+
+def test_a_cloth_starting_inside_an_fem_solid_is_refused_with_its_location(tmp_path):
+    p = tmp_path / "s.yaml"
+    p.write_text(
+        textwrap.dedent(
+            """\
+            version: 1
+            sim: {dim: 3, dt: 1.0e-2, duration: 0.1}
+            domain: {lower: [0, 0, 0], upper: [0.3, 0.3, 0.3]}
+            solvers:
+              fem: {contact_distance: 2.0e-3, integrator: implicit}
+            entities:
+              - name: block
+                material: {type: FEM.Elastic, E: 1.0e5, nu: 0.3, rho: 1000}
+                morph: {type: Box, lower: [0.1, 0.1, 0.0], upper: [0.2, 0.2, 0.1]}
+              - name: cloth
+                material: {type: FEM.Cloth, E: 1.0e5, nu: 0.3, rho: 300, thickness: 1.0e-3}
+                morph: {type: Rectangle, center: [0.15, 0.15, 0.09], size: [0.2, 0.2], resolution: 4}
+            """
+        )
+    )
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "validate", str(p)], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 65, r.stderr
+    assert f"{p}:12:" in r.stderr and "inside the FEM solid 'block'" in r.stderr
