@@ -864,6 +864,9 @@ class ClothSolver(Solver):
             rd.finish()
         if self.solid is not None:
             self._solid_reaction(x, dt)
+            # how far the cloth held the solid's surface back from the FEM solver's (the stagger's gap)
+            lag = float(np.abs(sol_to - self.vobs[self.solid.lo : self.solid.hi]).max(initial=0.0))
+            self.stats["solid_lag_max"] = max(self.stats.get("solid_lag_max", 0.0), lag)
         if self.nm and any(nm is not None for nm in self.mobst.names):
             self._add_mesh_loads(x, tau, dt)
         if self._named_convex:
