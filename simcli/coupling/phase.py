@@ -57,6 +57,8 @@ def make_coupler(scene: Any, solvers: list, warn: Callable[[str], None] | None =
     """The coupler of the pairs present and on, made before the solvers are built (a pair may ask a solver
     to keep what it reads, e.g. MPM's node masses); None when nothing is coupled."""
     by_family = {s.family: s for s in solvers}
+    if "fem" in by_family and "fem_cloth" in by_family:  # FEM.Cloth meets FEM solids in its own IPC step
+        by_family["fem_cloth"].attach_solid(by_family["fem"])
     cfg = getattr(scene, "coupling", None)
     pairs = []
     for key, a, b in PAIRS:

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-RIGID_FAMILIES = {"MPM", "PBD", "FEM", "SPH"}  # families whose colliders move and report loads
+RIGID_FAMILIES = {"MPM", "PBD", "FEM", "SPH", "FEMCloth"}  # families whose colliders move and report loads
 
 
 def _lattice(lo, hi, n: int) -> np.ndarray:
@@ -76,8 +76,9 @@ def check_rigid_bodies(loaded: Any, err) -> None:
     if unsupported:
         err(
             ("rigid_bodies",),
-            f"rigid bodies are coupled with {', '.join(sorted(RIGID_FAMILIES))} entities only (their "
-            f"colliders move and report loads); this scene has {', '.join(unsupported)} entities: remove "
+            f"rigid bodies are coupled with {', '.join(sorted(RIGID_FAMILIES - {'FEMCloth'}))} entities only "
+            f"(FEM.Cloth included; their colliders move and report loads); this scene has "
+            f"{', '.join(unsupported)} entities: remove "
             "rigid_bodies or those entities",
             key=True,
         )

@@ -34,7 +34,8 @@ def coupling_warnings(loaded: Any) -> list[str]:
     fams = s.families
     out = []
     for fam, label in UNCOUPLED.items():
-        others = sorted(f for f in fams if f != fam)
+        # (FEM.Cloth meets FEM solids in its own IPC step: simcli/solvers/fem/cloth/solid_obstacles.py)
+        others = sorted(f for f in fams if f != fam and not (fam == "FEMCloth" and f == "FEM"))
         if fam not in fams or not others:
             continue
         i = next(k for k, e in enumerate(s.entities) if e.family == fam)

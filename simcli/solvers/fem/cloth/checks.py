@@ -128,13 +128,17 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
             )
     from simcli.solvers.fem.cloth.mesh_obstacles import MESH_TYPES
 
-    if not out and any(c.type in MESH_TYPES for c in scene.colliders):
+    if not out and (
+        any(c.type in MESH_TYPES for c in scene.colliders) or getattr(scene, "rigid_bodies", None)
+    ):
         from simcli.solvers.fem.cloth.mesh_obstacles import initial_problems
 
         try:  # a Mesh collider's own problems (file, closed surface) are reported by the collider checks
             out += [(("morph",), msg) for msg in initial_problems(x, t, scene, scene_dir, dhat)]
         except (ValueError, IndexError, OSError, ArithmeticError, MotionError):
             pass
+    if not out:
+        out += _solid_problems(x, scene, dhat)
     if not out:
         import ipctk
 
@@ -158,3 +162,45 @@ def _first_intersection(x, t) -> str:
     if not hits:
         return ""
     return f" (near {np.round(hits[0][2], 6).tolist()})"
+
+
+def _solid_problems(x, scene, dhat: float) -> list[tuple[tuple, str]]:
+    """A cloth vertex inside, or closer than contact_distance to, an FEM solid's Box, Sphere or Cylinder morph
+    at t = 0 (the solid meets the cloth in its IPC step: solid_obstacles.py; Mesh morphs are not checked)."""
+    from simcli.solvers.fem.cloth.obstacles import Spec, _sdf
+
+    out = []
+    for j, e in enumerate(scene.entities):
+        m = e.morph
+        if e.family != "FEM" or m is None or m.type not in ("Box", "Sphere", "Cylinder"):
+            continue
+        try:
+            if m.type == "Box":
+                lo, hi = m.bounds()
+                sp = Spec("Box", tuple(lo), tuple(hi))
+            elif m.type == "Sphere":
+                sp = Spec("Sphere", tuple(m.center), (0.0,) * 3, radius=float(m.radius))
+            else:
+                sp = Spec(
+                    "Cylinder",
+                    tuple(m.center),
+                    (0.0,) * 3,
+                    radius=float(m.radius),
+                    half_height=0.5 * float(m.height),
+                    axis="xyz".index(m.axis),
+                )
+            d, _ = _sdf(sp, x)
+        except (TypeError, ValueError, AttributeError, IndexError):  # a malformed morph: its own checks
+            continue
+        if d.min() < dhat:
+            i = int(np.argmin(d))
+            what = "inside" if d[i] <= 0 else f"closer than solvers.fem.contact_distance ({dhat:g} m) to"
+            out.append(
+                (
+                    ("morph",),
+                    f"a vertex at {np.round(x[i], 6).tolist()} starts {what} the FEM solid '{e.name}' "
+                    f"(entities.{j}, {m.type}); FEM.Cloth meets FEM solids in its contact: move the cloth "
+                    "away",
+                )
+            )
+    return out

@@ -17,6 +17,12 @@ signed-distance grid).
 * A `type: Box` collider enters as its 12 exact triangles (8 corners, outward faces; pivot its centre, as
   simcli.motion takes it): a convex signed distance per cloth vertex kept the vertices out of the box but
   not the box's edges out of the cloth's triangles (a sheet draped over a box edge was cut by it).
+* Free rigid bodies (simcli.rigid, ``rigid_bodies``) enter the same way, after the colliders: a Box body its
+  12 triangles, a Mesh body its file's triangles, a Sphere an inscribed icosphere and a Cylinder an inscribed
+  prism (:func:`body_mesh`, fine enough that the facets lie within contact_distance / 2 of the true
+  surface). Their motion over a substep is the body's pose extrapolated from its state at the substep's
+  start (simcli.rigid.body.RigidMotion), and the reaction the cloth gives them goes back to the rigid world
+  (ClothSolver.collider_poses) instead of the named colliders' force output.
 """
 
 from __future__ import annotations
@@ -48,11 +54,96 @@ def box_mesh(lower, upper) -> tuple[np.ndarray, np.ndarray]:
     return V, _BOX_TRIS.copy()
 
 
-class MeshObstacles:
-    """Every `type: Mesh` and `type: Box` collider of a scene: obstacle vertices and triangles (numbered
-    0 .. m-1)."""
+def icosphere(level: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit icosphere: the icosahedron with each triangle split in four ``level`` times, vertices on the
+    unit sphere, outward triangles."""
+    g = (1.0 + 5.0**0.5) / 2.0
+    V = [[-1, g, 0], [1, g, 0], [-1, -g, 0], [1, -g, 0], [0, -1, g], [0, 1, g], [0, -1, -g], [0, 1, -g]]
+    V += [[g, 0, -1], [g, 0, 1], [-g, 0, -1], [-g, 0, 1]]
+    T = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2]]
+    T += [[10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5]]
+    T += [[2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]]
+    V = [np.asarray(v, float) / np.linalg.norm(v) for v in V]
+    for _ in range(level):
+        mid: dict[tuple[int, int], int] = {}
 
-    def __init__(self, scene, scene_dir=None):
+        def m(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in mid:
+                p = V[a] + V[b]
+                V.append(p / np.linalg.norm(p))
+                mid[key] = len(V) - 1
+            return mid[key]
+
+        T = [t for a, b, c in T for t in ([a, m(a, b), m(c, a)], [b, m(b, c), m(a, b)], [c, m(c, a), m(b, c)],
+                                         [m(a, b), m(b, c), m(c, a)])]  # fmt: skip
+    return np.array(V), np.array(T, np.int64)
+
+
+def _sag_level(radius: float, dhat: float) -> int:
+    """The icosphere level whose facets lie within dhat / 2 of the sphere (the centre of a face of edge
+    angle a sits R a^2 / 6 inside it; the icosahedron's edge angle is 1.107 rad, halved each level), 1..4."""
+    a, lev = 1.1071487, 0
+    while lev < 4 and (lev < 1 or radius * a * a / 6.0 > 0.5 * dhat):
+        a, lev = 0.5 * a, lev + 1
+    return lev
+
+
+def cylinder_mesh(center, radius, height, axis: int, dhat: float) -> tuple[np.ndarray, np.ndarray]:
+    """An inscribed prism of the cylinder (segments so the flats lie within dhat / 2 of the round side; 12 to
+    256), its caps fans about their centres; outward triangles."""
+    n = 12
+    while n < 256 and radius * (1.0 - np.cos(np.pi / n)) > 0.5 * dhat:
+        n *= 2
+    ang = 2 * np.pi * np.arange(n) / n
+    u, w = [a for a in range(3) if a != axis]
+    ring = np.zeros((n, 3))
+    ring[:, u], ring[:, w] = radius * np.cos(ang), radius * np.sin(ang)
+    c = np.asarray(center, float)
+    lo, hi = ring.copy(), ring.copy()
+    lo[:, axis], hi[:, axis] = -0.5 * height, 0.5 * height
+    caps = np.zeros((2, 3))
+    caps[0, axis], caps[1, axis] = -0.5 * height, 0.5 * height
+    V = np.concatenate([lo, hi, caps]) + c
+    i = np.arange(n)
+    j = (i + 1) % n
+    T = np.concatenate(
+        [
+            np.stack([i, j, n + j], 1),
+            np.stack([i, n + j, n + i], 1),
+            np.stack([np.full(n, 2 * n), j, i], 1),  # the lower cap
+            np.stack([np.full(n, 2 * n + 1), n + i, n + j], 1),  # the upper cap
+        ]
+    )
+    if (u, w, axis) not in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # a left-handed (u, w, axis): flip
+        T = T[:, [0, 2, 1]]
+    return V, T.astype(np.int64)
+
+
+def body_mesh(rb, scene, scene_dir, dhat: float) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles of rigid body ``rb`` (its body frame: its placement at t = 0) that FEM.Cloth meets."""
+    m = rb.morph
+    if m.type == "Box":
+        lo, hi = m.bounds()
+        return box_mesh(lo, hi)
+    if m.type == "Sphere":
+        V, T = icosphere(_sag_level(float(m.radius), dhat))
+        return V * float(m.radius) + np.asarray(m.center, float), T
+    if m.type == "Cylinder":
+        return cylinder_mesh(m.center, float(m.radius), float(m.height), "xyz".index(m.axis), dhat)
+    if m.type == "Mesh":
+        from simcli.rigid.body import mesh_sdf
+
+        sdf = mesh_sdf(rb, scene, scene_dir)
+        return np.asarray(sdf.vertices, float), np.asarray(sdf.triangles, np.int64)
+    raise ValueError(f"FEM.Cloth meets Box, Sphere, Cylinder and Mesh rigid bodies, not {m.type}")
+
+
+class MeshObstacles:
+    """Every `type: Mesh` and `type: Box` collider of a scene, then (given the rigid world) every rigid body:
+    obstacle vertices and triangles (numbered 0 .. m-1)."""
+
+    def __init__(self, scene, scene_dir=None, world=None, dhat: float = 1e-3):
         from simcli.geometry.mesh import load_mesh_morph
 
         self.index, self.names, self.friction, self.motions, self.centres = [], [], [], [], []
@@ -73,16 +164,45 @@ class MeshObstacles:
             vs.append(np.asarray(bv, float))
             ts.append(np.asarray(bt, np.int64) + off[-1])
             off.append(off[-1] + len(bv))
+        # rigid bodies: entries len(index) .. ; body k is row world.n_colliders + k of the loads it reads
+        self.body_rows: dict[str, int] = {}
+        for k, b in enumerate(world.bodies if world is not None else []):
+            bv, bt = body_mesh(b.cfg, scene, scene_dir, dhat)
+            self.names.append(b.name)
+            self.friction.append(float(b.cfg.friction))
+            self.motions.append(b.motion)
+            self.centres.append(np.asarray(b.pivot, float))
+            self.body_rows[b.name] = world.n_colliders + k
+            vs.append(np.asarray(bv, float))
+            ts.append(np.asarray(bt, np.int64) + off[-1])
+            off.append(off[-1] + len(bv))
+        self.n_entries = len(self.names)
         self.offsets = off
         self.V0 = np.concatenate(vs) if vs else np.zeros((0, 3))
         self.T = np.concatenate(ts) if ts else np.zeros((0, 3), np.int64)
         self.m = len(self.V0)
         self.moving = any(mo is not None for mo in self.motions)
         self.vertex_mu = (
-            np.concatenate([np.full(off[k + 1] - off[k], self.friction[k]) for k in range(len(self.index))])
+            np.concatenate([np.full(off[k + 1] - off[k], self.friction[k]) for k in range(self.n_entries)])
             if vs
             else np.zeros(0)
         )
+
+    def append_surface(self, V: np.ndarray, T: np.ndarray, friction: float) -> tuple[int, int]:
+        """Add a surface whose vertices the caller moves (an FEM solid's boundary): unnamed, no motion here.
+        Returns its obstacle-vertex range."""
+        lo = self.m
+        self.V0 = np.concatenate([self.V0, np.asarray(V, float)])
+        self.T = np.concatenate([self.T, np.asarray(T, np.int64) + lo])
+        self.names.append(None)
+        self.friction.append(float(friction))
+        self.motions.append(None)
+        self.centres.append(np.zeros(3))
+        self.offsets.append(lo + len(V))
+        self.n_entries += 1
+        self.m = len(self.V0)
+        self.vertex_mu = np.concatenate([self.vertex_mu, np.full(len(V), float(friction))])
+        return lo, self.m
 
     def __len__(self) -> int:
         return len(self.index)
@@ -135,51 +255,65 @@ def blend_mu(a: float, b: float) -> float:
 
 def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float) -> list[str]:
     """Messages for a cloth (vertices x, triangles t) that starts intersecting, inside or within dhat of a
-    Mesh or Box collider at its pose at t = 0 (located: the collider's index and the first point)."""
+    Mesh or Box collider at its pose at t = 0, or of a rigid body (located: the collider's or body's index
+    and the first point)."""
+    out = []
+    if any(c.type in MESH_TYPES for c in scene.colliders):
+        mo = MeshObstacles(scene, scene_dir)
+        V = mo.positions(0.0)
+        for k, ci in enumerate(mo.index):
+            lo, hi = mo.offsets[k], mo.offsets[k + 1]
+            Tk = mo.T[(mo.T >= lo).all(axis=1) & (mo.T < hi).all(axis=1)] - lo
+            msg = _initial_problem(x, t, V[lo:hi], Tk, f"colliders.{ci} ({scene.colliders[ci].type})", dhat)
+            if msg:
+                out.append(msg)
+    for i, rb in enumerate(getattr(scene, "rigid_bodies", None) or []):
+        try:  # a Mesh body's own problems (file, closed surface) are reported by the rigid body checks
+            Vb, Tb = body_mesh(rb, scene, scene_dir, dhat)
+        except (ValueError, OSError):
+            continue
+        msg = _initial_problem(x, t, Vb, Tb, f"rigid_bodies.{i} ('{rb.name}', {rb.morph.type})", dhat)
+        if msg:
+            out.append(msg)
+    return out
+
+
+def _initial_problem(x, t, Vk, Tk, what: str, dhat: float) -> str | None:
+    """The cloth (x, t) against one obstacle's triangles (Vk, Tk): crossing, a vertex inside, or closer
+    than dhat; None when clear."""
     from simcli.collider_mesh import mesh_distance
     from simcli.geometry.mesh import TriMesh, points_inside_mesh
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
 
-    mo = MeshObstacles(scene, scene_dir)
-    V = mo.positions(0.0)
-    out = []
     n = len(x)
-    for k, ci in enumerate(mo.index):
-        typ = scene.colliders[ci].type
-        lo, hi = mo.offsets[k], mo.offsets[k + 1]
-        Vk = V[lo:hi]
-        Tk = mo.T[(mo.T >= lo).all(axis=1) & (mo.T < hi).all(axis=1)] - lo
-        X = np.concatenate([x, Vk])
-        T = np.concatenate([t, Tk + n])
-        hits = [
-            h for h in edge_triangle_intersections(X, T) if (h[0][0] < n) == (h[1] >= len(t))
-        ]  # a cloth edge through a collider triangle or a collider edge through a cloth triangle
-        if hits:
-            out.append(
-                f"the cloth intersects colliders.{ci} ({typ}) at the start (near "
-                f"{np.round(hits[0][2], 6).tolist()}); move the cloth or the collider apart"
-            )
-            continue
-        vol = float(abs(np.einsum("ij,ij->i", Vk[Tk[:, 0]], np.cross(Vk[Tk[:, 1]], Vk[Tk[:, 2]])).sum()) / 6)
-        ins = points_inside_mesh(TriMesh(Vk, Tk, vol, "collider"), x)
-        if ins.any():
-            out.append(
-                f"{int(ins.sum())} cloth vertex(es) start inside colliders.{ci} ({typ}) (first at "
-                f"{np.round(x[np.argmax(ins)], 6).tolist()}); the cloth must start outside it: move it"
-            )
-            continue
-        # cloth vertices to the collider's triangles and collider vertices to the cloth's, each only where
-        # the other's bounding box (grown by dhat) reaches (brute force within)
-        near_x = np.all((x >= Vk.min(axis=0) - dhat) & (x <= Vk.max(axis=0) + dhat), axis=1)
-        near_v = np.all((Vk >= x.min(axis=0) - dhat) & (Vk <= x.max(axis=0) + dhat), axis=1)
-        xs, vs = x[near_x], Vk[near_v]
-        d1 = mesh_distance(Vk, Tk, xs) if len(xs) else np.full(1, np.inf)
-        d2 = mesh_distance(x, t, vs) if len(vs) else np.full(1, np.inf)
-        if min(d1.min(), d2.min()) < dhat:
-            p = xs[np.argmin(d1)] if d1.min() <= d2.min() else vs[np.argmin(d2)]
-            out.append(
-                f"the cloth starts closer than solvers.fem.contact_distance ({dhat:g} m) to colliders.{ci} "
-                f"({typ}) (distance {min(d1.min(), d2.min()):.3g} m near {np.round(p, 6).tolist()}): move "
-                "the cloth away"
-            )
-    return out
+    X = np.concatenate([x, Vk])
+    T = np.concatenate([t, Tk + n])
+    hits = [
+        h for h in edge_triangle_intersections(X, T) if (h[0][0] < n) == (h[1] >= len(t))
+    ]  # a cloth edge through an obstacle triangle or an obstacle edge through a cloth triangle
+    if hits:
+        return (
+            f"the cloth intersects {what} at the start (near {np.round(hits[0][2], 6).tolist()}); move the "
+            "cloth or the obstacle apart"
+        )
+    vol = float(abs(np.einsum("ij,ij->i", Vk[Tk[:, 0]], np.cross(Vk[Tk[:, 1]], Vk[Tk[:, 2]])).sum()) / 6)
+    ins = points_inside_mesh(TriMesh(Vk, Tk, vol, "collider"), x)
+    if ins.any():
+        return (
+            f"{int(ins.sum())} cloth vertex(es) start inside {what} (first at "
+            f"{np.round(x[np.argmax(ins)], 6).tolist()}); the cloth must start outside it: move it"
+        )
+    # cloth vertices to the obstacle's triangles and its vertices to the cloth's, each only where the
+    # other's bounding box (grown by dhat) reaches (brute force within)
+    near_x = np.all((x >= Vk.min(axis=0) - dhat) & (x <= Vk.max(axis=0) + dhat), axis=1)
+    near_v = np.all((Vk >= x.min(axis=0) - dhat) & (Vk <= x.max(axis=0) + dhat), axis=1)
+    xs, vs = x[near_x], Vk[near_v]
+    d1 = mesh_distance(Vk, Tk, xs) if len(xs) else np.full(1, np.inf)
+    d2 = mesh_distance(x, t, vs) if len(vs) else np.full(1, np.inf)
+    if min(d1.min(), d2.min()) < dhat:
+        p = xs[np.argmin(d1)] if d1.min() <= d2.min() else vs[np.argmin(d2)]
+        return (
+            f"the cloth starts closer than solvers.fem.contact_distance ({dhat:g} m) to {what} "
+            f"(distance {min(d1.min(), d2.min()):.3g} m near {np.round(p, 6).tolist()}): move the cloth away"
+        )
+    return None

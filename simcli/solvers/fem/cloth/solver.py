@@ -46,6 +46,24 @@ def _barrier(s, sh):
     return b, b1, b2
 
 
+class BodyLoads:
+    """The part of simcli.colliders.ColliderPoses that simcli.rigid.world reads a family's loads from:
+    ``load`` (rows: the scene's colliders, then the rigid bodies; impulse [N s] and its moment about the
+    body's centre of mass [N m s]) with to_numpy / from_numpy, here a host array."""
+
+    any_named = True
+
+    def __init__(self, rows: int):
+        self.a = np.zeros((rows, 6))
+        self.load = self
+
+    def to_numpy(self) -> np.ndarray:
+        return self.a.copy()
+
+    def from_numpy(self, a) -> None:
+        self.a[:] = a
+
+
 class ClothSolver(Solver):
     family = "fem_cloth"
     REUSE_CG_ITERS = 10  # CG iterations with the previous factor before refactoring (a few solves' cost)
@@ -152,6 +170,12 @@ class ClothSolver(Solver):
             self.v[self.pin_idx] = self._pin_velocity(0.0)
         self.g = np.asarray(self.scene.sim.gravity_vec, float)
         self.obst = Obstacles(self.scene, self.scene_dir)
+        # free rigid bodies (simcli.rigid): moving obstacles whose pose the rigid world integrates
+        self.world = None
+        if getattr(self.scene, "rigid_bodies", None):
+            from simcli.rigid.world import world_for
+
+            self.world = world_for(self.scene, self.scene_dir)
         # Dirichlet steps: prescribed motion (moving pins, moving colliders) is part of each Newton step
         self.dirichlet = self.moving_pins or self.obst.moving
         self.tau = 0.0  # the time moving colliders are at (lags self.time only while a contact blocks them)
@@ -161,7 +185,22 @@ class ClothSolver(Solver):
         # n .. n + nm - 1 (mesh_obstacles.py); ipctk's static-obstacle filter drops collider-collider pairs
         from simcli.solvers.fem.cloth.mesh_obstacles import MeshObstacles
 
-        self.mobst = MeshObstacles(self.scene, self.scene_dir)
+        self.mobst = MeshObstacles(self.scene, self.scene_dir, self.world, self.dhat)
+        self._body_loads = None  # the rigid bodies' loads, read by simcli.rigid.world (collider_poses)
+        self.solid = None  # an FEM solid's boundary, prescribed per substep (solid_obstacles.py)
+        if getattr(self, "_solid_fem", None) is not None:
+            from simcli.solvers.fem.cloth.solid_obstacles import SolidSurface
+
+            self.solid = SolidSurface(self._solid_fem)
+            mu_s = max((e.material.friction for e in self.entities), default=0.0)
+            self.solid.lo, self.solid.hi = self.mobst.append_surface(self.solid.V0, self.solid.T, mu_s)
+            self.dirichlet = True
+        self.rdofs = None  # the bodies' 6 unknowns each in the Newton system (rigid_dofs.py)
+        if self.world is not None:
+            from simcli.solvers.fem.cloth.rigid_dofs import RigidDofs
+
+            self._body_loads = BodyLoads(self.world.n_colliders + len(self.world.bodies))
+            self.rdofs = RigidDofs(self.world, self.mobst, len(X))
         self.nm = self.mobst.m
         self.vobs = self.mobst.positions(0.0)  # the obstacle vertices' current positions
         self.vobs_n = self.vobs
@@ -387,10 +426,15 @@ class ClothSolver(Solver):
             col.build(self.cm, xf, self.dhat)
         n_self = len(col)
         Hs = None
+        rd = self.rdofs
+        g_obs = np.zeros((self.nm, 3)) if rd is not None and order >= 1 else None
         if n_self:
             e += self.kappa * self.B(col, self.cm, xf)
             if order >= 1:
-                g = g + self.kappa * self.B.gradient(col, self.cm, xf).reshape(-1, 3)[:n]
+                gB = self.kappa * self.B.gradient(col, self.cm, xf).reshape(-1, 3)
+                g = g + gB[:n]
+                if g_obs is not None:
+                    g_obs += gB[n:]
             if order >= 2:
                 Hs = self.kappa * self.B.hessian(col, self.cm, xf, ipctk.PSDProjectionMethod.CLAMP)
         Hf = None
@@ -398,9 +442,16 @@ class ClothSolver(Solver):
             V = (xf - self.xnf) / dt
             e += dt * self.FP(self._tc, self.cm, V)
             if order >= 1:
-                g = g + self.FP.gradient(self._tc, self.cm, V).reshape(-1, 3)[:n]
+                gF = self.FP.gradient(self._tc, self.cm, V).reshape(-1, 3)
+                g = g + gF[:n]
+                if g_obs is not None:
+                    g_obs += gF[n:]
             if order >= 2:
                 Hf = self.FP.hessian(self._tc, self.cm, V, ipctk.PSDProjectionMethod.CLAMP) / dt
+        if rd is not None:  # the rigid bodies' inertia, and the contact's gradient in their unknowns
+            e += rd.energy()
+            if order >= 1:
+                self._gb = rd.gradient(g_obs)
         if order < 2:
             return e, g, None, n_self + n_obst
         t0 = time.perf_counter()
@@ -445,7 +496,9 @@ class ClothSolver(Solver):
             if self.dirichlet:
                 self._aux_c = C[:, self.fixed_dofs]
         H = self._fixed_pattern_sum(parts_r, parts_c, parts_v, nf + n_aux)
-        if var_r:
+        if rd is not None:
+            H = self._with_bodies(H, [Hx for Hx in (Hs, Hf) if Hx is not None])
+        elif var_r:
             r = self._ipc_map[np.concatenate(var_r)]
             c = self._ipc_map[np.concatenate(var_c)]
             v = np.concatenate(var_v)
@@ -453,6 +506,31 @@ class ClothSolver(Solver):
             H = H + sp.csc_matrix((v[keep], (r[keep], c[keep])), shape=H.shape)
         self.stats["assemble_s"] += time.perf_counter() - t0
         return e, g, H, n_self + n_obst
+
+    def _with_bodies(self, H, contact):
+        """H (free dofs and edge unknowns, N) grown by the rigid bodies' 6 unknowns each: P^T H_c P of the
+        contact Hessians (ipctk numbering: cloth vertices, then obstacle vertices), P the free cloth dofs'
+        identity and the bodies' dy/dq (rigid_dofs.py), plus their inertia blocks; held body dofs decoupled
+        (identity rows)."""
+        import scipy.sparse as sp
+
+        rd = self.rdofs
+        N = H.shape[0]
+        nb6 = 6 * rd.nb
+        fd = self.free_dofs
+        Pc = sp.csr_matrix((np.ones(len(fd)), (fd, np.arange(len(fd)))), shape=(3 * self.n, N + nb6))
+        Jb = rd.jacobian(self.nm)
+        Pb = sp.hstack([sp.csr_matrix((3 * self.nm, N)), Jb]).tocsr()
+        P = sp.vstack([Pc, Pb]).tocsr()
+        out = sp.bmat([[H, None], [None, sp.csc_matrix(rd.inertia_blocks())]], format="csc")
+        for Hx in contact:
+            out = out + (P.T @ Hx @ P).tocsc()
+        held = rd.fixed_mask()
+        if held.any():
+            keep = np.concatenate([np.ones(N), (~held).astype(float)])
+            D = sp.diags(keep)
+            out = (D @ out @ D + sp.diags(1.0 - keep)).tocsc()
+        return out
 
     def _fixed_pattern_sum(self, parts_r, parts_c, parts_v, N):
         """CSC (N, N) of the free dofs (and, past 3n, the bending model's edge unknowns) summed from COO
@@ -606,6 +684,13 @@ class ClothSolver(Solver):
         self._fric = None
         self._fric = self._lagged_friction(self.xn, tau, t_end if tau is not None else None)
         self._tc = None
+        sol_to = None
+        if self.solid is not None:  # the FEM solid's surface: to its positions at the substep's end
+            sol_to = self.solid.target(t_end, dt)
+        rd = self.rdofs
+        if rd is not None:  # the bodies' unknowns, from where the last solve left them (rigid_dofs.py)
+            rd.start(dt, self.g)
+            rd.write(self.vobs)
         self.vobs_n = self.vobs.copy() if self.nm else self.vobs
         self.xnf = self._full(self.xn, self.vobs_n)
         if self.mu_self > 0 or self.mesh_mu > 0:  # ipctk's friction (self, Mesh colliders) lagged at x_n
@@ -641,16 +726,38 @@ class ClothSolver(Solver):
                 pending = True
             self._tau_to = tau_to if dtau > 0 else None
             self._po = None
+            vo_to = None
             if (
                 dtau > 0 and self.mobst.moving
             ):  # the Mesh colliders' vertices: straight to their pose at tau_to
                 vo_to = self.mobst.positions(tau_to)
                 self._po = vo_to - self.vobs
+                if rd is not None:  # the bodies are unknowns, not prescribed
+                    for lo, hi in rd.ranges:
+                        self._po[lo:hi] = 0.0
+                        vo_to[lo:hi] = self.vobs[lo:hi]
+            d_sol = None
+            if sol_to is not None:  # the solid surface's motion still to make (a Dirichlet step)
+                sl = slice(self.solid.lo, self.solid.hi)
+                d_sol = sol_to - self.vobs[sl]
+                if self._po is not None:  # (prescribed colliders' step: mobst.positions has it at rest)
+                    self._po[sl] = d_sol
+                    vo_to[sl] = sol_to
+                if np.any(d_sol):
+                    pending = True
+                    if self._po is None:
+                        self._po = np.zeros((self.nm, 3))
+                        self._po[sl] = d_sol
+                else:
+                    d_sol = None
             e, g, H, ncontact = self._potential(x, 2, tau)
             r = g[free] / self.mass[free, None]
             res = float(np.abs(r).max()) if r.size else 0.0
-            if res0 is None:
+            if res0 is None:  # (the cloth's: a body's first residual is its inertia's, v / dt in free flight)
                 res0 = res
+            if rd is not None:
+                gb = np.where(rd.fixed_mask(), 0.0, self._gb)
+                res = max(res, rd.residual(gb))
             if _DEBUG:
                 print("  it", it, "res %.3e" % res, "e %.6e" % e, "nc", ncontact, "pending", pending)
             if not pending and (res <= self.opts.newton_atol or res <= self.opts.newton_tol * res0):
@@ -669,17 +776,34 @@ class ClothSolver(Solver):
                     rhs = rhs + self._obst_cross.ravel()[fd]
                 if self._po is not None and self._mesh_cross is not None:
                     rhs = rhs - self._mesh_cross
-            n_aux = H.shape[0] - len(fd)
+            nb6 = 6 * rd.nb if rd is not None else 0
+            n_aux = H.shape[0] - len(fd) - nb6
             if n_aux:  # edge unknowns of the bending model: at their optimum, so no residual of their own
                 r_aux = np.zeros(n_aux)
                 if pending and pc is not None:
                     r_aux = -(self._aux_c @ p.ravel()[self.fixed_dofs])
                 rhs = np.concatenate([rhs, r_aux])
-            pf = self._linear_solve(H, rhs)[: len(fd)]
+            if nb6:
+                rhs = np.concatenate([rhs, -gb])
+            sol = self._linear_solve(H, rhs)
+            pf = sol[: len(fd)]
+            pb = sol[len(sol) - nb6 :] if nb6 else None
             self.stats["solve_s"] += time.perf_counter() - t0
             p.ravel()[fd] = pf
-            if not pending and float(np.abs(pf).max(initial=0.0)) <= self.opts.newton_atol * dt * dt:
+            pmax = float(np.abs(pf).max(initial=0.0))
+            if pb is not None:  # the bodies' step: the translation, and the rotation times the body's reach
+                pmax = max(pmax, rd.step_size(pb))
+            if not pending and pmax <= self.opts.newton_atol * dt * dt:
                 break  # the Newton step's acceleration |p| / dt^2 is below newton_atol: converged
+            if pb is not None:  # the bodies' vertices: on the chord to their pose at a = 1 (the CCD's path)
+                if self._po is None:
+                    self._po = np.zeros((self.nm, 3))
+                    vo_to = None
+                u1, R1, _ = rd.trial(1.0, pb)
+                for (lo, hi), y1, y0 in zip(rd.ranges, rd.positions(u1, R1), rd.positions()):
+                    self._po[lo:hi] = y1 - y0
+                    if vo_to is not None:
+                        vo_to[lo:hi] = y1
             a = a0 = self._step_limit(x, p, tau, tau_to)
             ok = False
             if pending:
@@ -696,29 +820,53 @@ class ClothSolver(Solver):
                         break
                     a *= 0.5
             else:
+                keep_b = (rd.u, rd.R, rd.th, self.vobs.copy()) if pb is not None else None
                 for _ in range(40):
                     xt = x + a * p
+                    if pb is not None:  # the bodies' trial pose (exact rigid map), from the step's start
+                        rd.accept(keep_b[:3])
+                        rd.accept(rd.trial(a, pb))
+                        rd.write(self.vobs)
                     et = self._potential(xt, 0, tau)[0]
                     if et <= e:
                         ok = True
                         break
                     a *= 0.5
+                if not ok and keep_b is not None:
+                    rd.accept(keep_b[:3])
+                    self.vobs = keep_b[3]
             if not ok:
                 self.stats["line_search_fail"] += 1
                 break
+            if pending and pb is not None:
+                rd.accept(rd.trial(a, pb))
             x = xt
+            if d_sol is not None:
+                vs0 = self.vobs[sl].copy()
             if dtau > 0:
                 tau = tau_to if a >= 1.0 else tau + a * dtau
                 if self._po is not None:  # on the chord the CCD checked (exactly the pose at a = 1)
                     self.vobs = vo_to if a >= 1.0 else self.vobs + a * self._po
+            if d_sol is not None:  # on the chord (exactly the target at a = 1)
+                self.vobs[sl] = sol_to if a >= 1.0 else vs0 + a * d_sol
+            if pb is not None:
+                rd.write(self.vobs)
             if _DEBUG:
                 print("    alpha %.3e ccd %.3e |p| %.3e" % (a, a0, float(np.abs(p).max())))
-            if not pending and float(np.abs(a * p).max()) < 1e-12 * self.bbox:
+            moved = a * pmax if pb is not None else float(np.abs(a * p).max())
+            if not pending and moved < 1e-12 * self.bbox:
                 break
         self._tau_to = None
         self._po = None
         self._cand = None
         self._lu = None
+        if rd is not None:
+            rd.finish()
+        if self.solid is not None:
+            self._solid_reaction(x, dt)
+            # how far the cloth held the solid's surface back from the FEM solver's (the stagger's gap)
+            lag = float(np.abs(sol_to - self.vobs[self.solid.lo : self.solid.hi]).max(initial=0.0))
+            self.stats["solid_lag_max"] = max(self.stats.get("solid_lag_max", 0.0), lag)
         if self.nm and any(nm is not None for nm in self.mobst.names):
             self._add_mesh_loads(x, tau, dt)
         if self._named_convex:
@@ -765,7 +913,33 @@ class ClothSolver(Solver):
         if self._tc is not None:
             f -= self.FP.gradient(self._tc, self.cm, (xf - self.xnf) / dt).reshape(-1, 3)[self.n :]
         for name, a in self.mobst.loads(f, self.vobs, tau, dt).items():
-            self._loads[name] = self._loads.get(name, 0.0) + a
+            if name not in self.mobst.body_rows:
+                self._loads[name] = self._loads.get(name, 0.0) + a
+        rd = self.rdofs
+        if rd is not None:  # a rigid body: the world reads it (and clears it) after this substep
+            for k, (lo, hi) in enumerate(rd.ranges):
+                c = rd.c_n[k] + rd.u[k]  # its centre of mass where the solve left it
+                fk = f[lo:hi]
+                row = self.mobst.body_rows[rd.bodies[k].name]
+                self._body_loads.a[row, :3] += dt * fk.sum(axis=0)
+                self._body_loads.a[row, 3:] += dt * np.cross(self.vobs[lo:hi] - c, fk).sum(axis=0)
+
+    def _solid_reaction(self, x, dt):
+        """The contact's reaction on the FEM solid's surface vertices over this substep (minus the barrier's
+        and friction's gradient there at the end state), added to the solid's velocities (solid_obstacles)."""
+        import ipctk
+
+        xf = self._full(x)
+        lo, hi = self.n + self.solid.lo, self.n + self.solid.hi
+        f = np.zeros((hi - lo, 3))
+        col = ipctk.NormalCollisions()
+        col.build(self.cm, xf, self.dhat)
+        if len(col):
+            f -= self.kappa * self.B.gradient(col, self.cm, xf).reshape(-1, 3)[lo:hi]
+        if self._tc is not None:
+            f -= self.FP.gradient(self._tc, self.cm, (xf - self.xnf) / dt).reshape(-1, 3)[lo:hi]
+        if np.any(f):
+            self.solid.apply(f, dt)
 
     def _add_obstacle_loads(self, x, tau, dt):
         """The reaction on the named convex colliders over this substep: minus the barrier's and lagged
@@ -809,6 +983,15 @@ class ClothSolver(Solver):
         call (the IPC barrier's and friction's reaction; Mesh colliders and the convex ones alike)."""
         out, self._loads = getattr(self, "_loads", {}), {}
         return out
+
+    def attach_solid(self, fem) -> None:
+        """The FEM solver of the scene's tetrahedral entities (simcli.coupling.make_coupler calls this before
+        the solvers are built): their boundary meets the cloth staggered (solid_obstacles.py)."""
+        self._solid_fem = fem
+
+    def collider_poses(self):
+        """Where simcli.rigid.world reads the impulse the cloth gave each rigid body (None: no bodies)."""
+        return self._body_loads if self._built else None
 
     # ------------------------------------------------------------ interface
     def sync(self) -> None:
@@ -874,6 +1057,7 @@ class ClothSolver(Solver):
             "position": (3, "m"),
             "velocity": (3, "m/s"),
             "displacement": (3, "m"),
+            "mass": (1, "kg"),  # lumped vertex mass (rho thickness area / 3 of each triangle)
             "strain": (1, "-"),  # largest principal Green membrane strain, per triangle
             "stress": (1, "Pa"),  # von Mises of the membrane's second Piola-Kirchhoff stress, per triangle
         }
@@ -889,6 +1073,8 @@ class ClothSolver(Solver):
                 a = self.v
             elif f == "displacement":
                 a = self.x - self.X
+            elif f == "mass":
+                a = self.mass
             elif f in self.cell_fields:
                 t0, t1 = self.tri_offsets[k], self.tri_offsets[k + 1]
                 if f == "strain":
@@ -900,7 +1086,7 @@ class ClothSolver(Solver):
                 continue
             else:
                 raise KeyError(
-                    f"unknown FEM.Cloth output field {f!r}; known: position, velocity, displacement"
+                    f"unknown FEM.Cloth output field {f!r}; known: position, velocity, displacement, mass"
                 )
             out[f] = np.array(a[lo:hi])
         return out
@@ -913,8 +1099,10 @@ class ClothSolver(Solver):
             st["kappa"] = np.array([self.kappa, self.kappa_max])
         if self.obst.moving:  # moving colliders' time (behind self.time while a contact held them back)
             st["tau"] = np.array([self.tau])
-        if self.nm and self.mobst.moving:  # moving Mesh colliders' vertices (on a chord while held back)
+        if self.nm and (self.mobst.moving or self.solid is not None):  # (on a chord while held back)
             st["vobs"] = self.vobs.copy()
+        if self.rdofs is not None and self.rdofs.end is not None:  # where the last solve left the bodies
+            st["rigid_end"] = np.array([np.concatenate([c, R.ravel()]) for c, R in self.rdofs.end])
         return st
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
@@ -934,6 +1122,9 @@ class ClothSolver(Solver):
                 self.vobs = np.array(state["vobs"], dtype=np.float64).reshape(self.nm, 3)
             else:
                 self.vobs = self.mobst.positions(self.tau if self.mobst.moving else None)
+        if self.rdofs is not None and "rigid_end" in state:
+            a = np.asarray(state["rigid_end"], dtype=np.float64).reshape(-1, 12)
+            self.rdofs.end = [(r[:3].copy(), r[3:].reshape(3, 3).copy()) for r in a]
         if "kappa" in state:  # absent in checkpoints written before it was saved: set at the next substep
             k = np.asarray(state["kappa"], dtype=np.float64).reshape(-1)
             self.kappa, self.kappa_max = float(k[0]), float(k[1])
