@@ -96,6 +96,11 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
 
     kgc, Lm, Lc, kgc_scalar = P.kgc, F.Lm, F.Lc, P.kgc_scalar
     uniform = P.uniform  # one material: the pair terms in their single-material form (bitwise as before)
+    # the Jacobi iteration with gradient_correction: scalar keeps k_i c_i beside k_i (written with it in
+    # density_change): the velocity update's pairs then gather one number per neighbour instead of two
+    # (k_j and c_j), and the liquid's sum leaves the constant volume and the own term out of the pair loop
+    fast_kc = kgc_scalar and uniform and clamp
+    kc = ti.field(f, shape=n) if fast_kc else None
     wp = fn.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
     # volume maps with the extrapolated wall pressure (volume_map.py): the boundary's k is the particle's own
@@ -149,6 +154,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             else:
                 ki = DENSITY_WARM * kappa[i]
         kk[i] = ki
+        if ti.static(fast_kc):
+            kc[i] = ki * Lc[i]
 
     @ti.func
     def pressure_gradient(i, k_: ti.template(), g):
@@ -201,7 +208,18 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             # the map's boundary k: the Shepard average of the liquid's next to the particle (its own
             # included), as boundary particles' extrapolated k (volume_map.py, shepard_k)
             dv += fn.map_wall_k(i, kk) * B[i]
-        v[i] -= dt * pressure_gradient(i, kk, dv)
+        if ti.static(fast_kc):
+            # pressure_gradient's scalar-correction sum, V sum_j (k_i c_i + k_j c_j) s_ij (x_i - x_j), with
+            # k_j c_j read from kc (one gather instead of k_j and c_j) and V out of the loop
+            xi = x[i]
+            kci = kc[i]
+            acc = ti.Vector.zero(f, dim)
+            for k in range(nb_cnt[i]):
+                j = nb_j[i, k]
+                acc += ((kci + kc[j]) * nb_s[i, k]) * (xi - x[j])
+            v[i] -= dt * (dv + fn.volume_of(i) * acc)
+        else:
+            v[i] -= dt * pressure_gradient(i, kk, dv)
         kacc[i] += ki
 
     # ---- conjugate gradients for a liquid without a free surface (clamp_pressure false): the unprojected
