@@ -302,12 +302,32 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             density_change(i, dt, mode, False)
 
     @ti.func
-    def solve_begin(dt, mode: ti.template()):
-        """First residual, then (warm start) the previous substep's stiffness and the residual after it."""
+    def solve_begin(dt, mode: ti.template(), copy_v: ti.template()):
+        """First residual, then (warm start) the previous substep's stiffness and the residual after it.
+        copy_v: v = vnew first (the density solve: the non-pressure accelerations' velocity), in the same
+        loop when the warm start reads no neighbour."""
+        if ti.static(copy_v and not warm):
+            for i in range(N()):
+                v[i] = vnew[i]
         err_acc[None] = 0
         for i in range(N()):
+            if ti.static(copy_v and warm):
+                v[i] = vnew[i]
             kacc[i] = 0.0
-            density_change(i, dt, mode, True)
+            if ti.static(warm):
+                # the warm start's stiffness only: the first residual would be discarded (relax below
+                # resets the error sum and computes the residual after the warm start), so its pass over
+                # the neighbours is skipped
+                ki = ti.cast(0.0, f)
+                if ti.static(mode == DIV):
+                    ki = WARM * kappav[i] / dt
+                else:
+                    ki = DENSITY_WARM * kappa[i]
+                kk[i] = ki
+                if ti.static(fast_kc):
+                    kc[i] = ki * Lc[i]
+            else:
+                density_change(i, dt, mode, True)
         if ti.static(warm):
             relax(dt, mode)
         if ti.static(use_cg):
@@ -333,7 +353,7 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
     @ti.kernel
     def divergence_begin(dt: f):
         neighbours()
-        solve_begin(dt, DIV)
+        solve_begin(dt, DIV, False)
 
     @ti.kernel
     def divergence_iteration(dt: f):
@@ -341,12 +361,11 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
 
     @ti.kernel
     def density_begin(dt: f, after_divergence: ti.template()):
-        if ti.static(after_divergence):
-            for i in range(N()):
-                kappav[i] = kacc[i] * dt  # total divergence stiffness, dt independent
-        else:
+        if ti.static(not after_divergence):
             neighbours()
         for i in range(N()):
+            if ti.static(after_divergence):
+                kappav[i] = kacc[i] * dt  # total divergence stiffness, dt independent
             a = fn.non_pressure(i, False)
             if ti.static(ext):
                 a -= wp.wall_sum(i, wp.bhyd)  # the walls' hydrostatic pressure, once per substep
@@ -356,9 +375,7 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
         if ti.static(P.named_loads):  # no-slip viscosity's reaction on named colliders (moving.py)
             for i in range(N()):
                 fn.load_viscous(i, dt)
-        for i in range(N()):
-            v[i] = vnew[i]
-        solve_begin(dt, DENS)
+        solve_begin(dt, DENS, True)  # v = vnew first
 
     @ti.kernel
     def density_iteration(dt: f):
