@@ -40,7 +40,6 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     has_tension, has_noslip = P.has_tension, P.has_noslip
     dfsph = alpha is not None
     kgc, Lm, Lc, kgc_scalar = P.kgc, F.Lm, F.Lc, P.kgc_scalar
-    kgc_matrix = kgc and not kgc_scalar
     has_boundary = P.nbp > 0
     ext_walls, nbw_end, bflag = P.ext_walls and has_boundary, F.nbw_end, F.bflag
     linear = fn.linear
@@ -79,33 +78,23 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                 if r2 < h2 and j != i:
                     r = ti.sqrt(r2)
                     w, g, s = W_gradW_s(d, r)
-                    if ti.static(uniform and not kgc_matrix):
-                        # one material: V_j grad W_ij = (V s) d, so |V grad W|^2 = (V s)^2 r^2 and
-                        # V grad W . d = (V s) r^2: scalars instead of the vector's products
-                        t = volume_of(j) * s
+                    Vg = volume_of(j) * g
+                    if ti.static(uniform):
                         r_i += mass_of(j) * w
-                        sumsq += t * t * r2
-                        if ti.static(kgc_scalar):
-                            Mtr -= t * r2
-                        G += t * d
+                        sumsq += Vg.dot(Vg)
                     else:
-                        Vg = volume_of(j) * g
-                        if ti.static(uniform):
-                            r_i += mass_of(j) * w
-                            sumsq += Vg.dot(Vg)
-                        else:
-                            # number density rho0_i sum_j V_j W_ij (SPlisHSPlasH): continuous across an
-                            # interface of two rest densities, where the mass sum gives the lighter liquid
-                            # a false excess
-                            r_i += rho0_i * volume_of(j) * w
-                            # the pressure operator's diagonal with the momentum-conserving pair force
-                            # (dfsph.py): V_j (m_i / rho0_j) |grad W_ij|^2
-                            sumsq += (mass_of(i) / mat_rho0[mid[j]]) * Vg.dot(g)
-                        if ti.static(kgc_scalar):
-                            Mtr -= Vg.dot(d)
-                        elif ti.static(kgc):
-                            Mom -= Vg.outer_product(d)
-                        G += Vg
+                        # number density rho0_i sum_j V_j W_ij (SPlisHSPlasH): continuous across an
+                        # interface of two rest densities, where the mass sum gives the lighter liquid a
+                        # false excess
+                        r_i += rho0_i * volume_of(j) * w
+                        # the pressure operator's diagonal with the momentum-conserving pair force
+                        # (dfsph.py): V_j (m_i / rho0_j) |grad W_ij|^2
+                        sumsq += (mass_of(i) / mat_rho0[mid[j]]) * Vg.dot(g)
+                    if ti.static(kgc_scalar):
+                        Mtr -= Vg.dot(d)
+                    elif ti.static(kgc):
+                        Mom -= Vg.outer_product(d)
+                    G += Vg
                     if cnt < K:
                         nb_j[i, cnt] = j
                         if ti.static(store_grad):
