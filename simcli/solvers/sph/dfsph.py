@@ -98,7 +98,7 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
     uniform = P.uniform  # one material: the pair terms in their single-material form (bitwise as before)
     # the Jacobi iteration with gradient_correction: scalar keeps k_i c_i beside k_i (written with it in
     # density_change): the velocity update's pairs then gather one number per neighbour instead of two
-    # (k_j and c_j), and the liquid's sum leaves the constant volume and the own term out of the pair loop
+    # (k_j and c_j), and the constant volume V leaves the pair loop (the same sum to round-off)
     fast_kc = kgc_scalar and uniform and clamp
     kc = ti.field(f, shape=n) if fast_kc else None
     wp = fn.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
