@@ -143,6 +143,7 @@ class SPHFields:
     pw: Any = None  # volume maps, WCSPH's extrapolated wall pressure: each particle's relaxing wall pressure
     drho: Any = None  # WCSPH, density: continuity: d rho / dt of the substep (delta_sph.py)
     grad_rho: Any = None  # ... density_diffusion antuono: the renormalised density gradient
+    pr2: Any = None  # WCSPH, one material: p_i / rho_i^2, written with the pressure (the force pass's pairs)
 
 
 @dataclass

@@ -25,7 +25,7 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     h2 = h * h
     eps_visc = VISC_EPS * h2
     W_gradW_s = make_kernel_factor(h, dim, f)
-    store_grad = P.store_grad
+    store_grad = F.nb_s is not None  # DFSPH, and WCSPH on the CPU (solver.py)
     W0 = kernel_constant(h, dim)  # W(0)
     x, mid, rho = F.x, F.mid, F.rho
     nb_cnt, nbb_cnt, nb_j, nb_s, B, Sb = F.nb_cnt, F.nbb_cnt, F.nb_j, F.nb_s, F.B, F.Sb

@@ -96,6 +96,11 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
 
     kgc, Lm, Lc, kgc_scalar = P.kgc, F.Lm, F.Lc, P.kgc_scalar
     uniform = P.uniform  # one material: the pair terms in their single-material form (bitwise as before)
+    # the Jacobi iteration with gradient_correction: scalar keeps k_i c_i beside k_i (written with it in
+    # density_change): the velocity update's pairs then gather one number per neighbour instead of two
+    # (k_j and c_j), and the constant volume V leaves the pair loop (the same sum to round-off)
+    fast_kc = kgc_scalar and uniform and clamp
+    kc = ti.field(f, shape=n) if fast_kc else None
     wp = fn.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
     # volume maps with the extrapolated wall pressure (volume_map.py): the boundary's k is the particle's own
@@ -149,6 +154,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             else:
                 ki = DENSITY_WARM * kappa[i]
         kk[i] = ki
+        if ti.static(fast_kc):
+            kc[i] = ki * Lc[i]
 
     @ti.func
     def pressure_gradient(i, k_: ti.template(), g):
@@ -201,7 +208,18 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             # the map's boundary k: the Shepard average of the liquid's next to the particle (its own
             # included), as boundary particles' extrapolated k (volume_map.py, shepard_k)
             dv += fn.map_wall_k(i, kk) * B[i]
-        v[i] -= dt * pressure_gradient(i, kk, dv)
+        if ti.static(fast_kc):
+            # pressure_gradient's scalar-correction sum, V sum_j (k_i c_i + k_j c_j) s_ij (x_i - x_j), with
+            # k_j c_j read from kc (one gather instead of k_j and c_j) and V out of the loop
+            xi = x[i]
+            kci = kc[i]
+            acc = ti.Vector.zero(f, dim)
+            for k in range(nb_cnt[i]):
+                j = nb_j[i, k]
+                acc += ((kci + kc[j]) * nb_s[i, k]) * (xi - x[j])
+            v[i] -= dt * (dv + fn.volume_of(i) * acc)
+        else:
+            v[i] -= dt * pressure_gradient(i, kk, dv)
         kacc[i] += ki
 
     # ---- conjugate gradients for a liquid without a free surface (clamp_pressure false): the unprojected
@@ -284,12 +302,32 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             density_change(i, dt, mode, False)
 
     @ti.func
-    def solve_begin(dt, mode: ti.template()):
-        """First residual, then (warm start) the previous substep's stiffness and the residual after it."""
+    def solve_begin(dt, mode: ti.template(), copy_v: ti.template()):
+        """First residual, then (warm start) the previous substep's stiffness and the residual after it.
+        copy_v: v = vnew first (the density solve: the non-pressure accelerations' velocity), in the same
+        loop when the warm start reads no neighbour."""
+        if ti.static(copy_v and not warm):
+            for i in range(N()):
+                v[i] = vnew[i]
         err_acc[None] = 0
         for i in range(N()):
+            if ti.static(copy_v and warm):
+                v[i] = vnew[i]
             kacc[i] = 0.0
-            density_change(i, dt, mode, True)
+            if ti.static(warm):
+                # the warm start's stiffness only: the first residual would be discarded (relax below
+                # resets the error sum and computes the residual after the warm start), so its pass over
+                # the neighbours is skipped
+                ki = ti.cast(0.0, f)
+                if ti.static(mode == DIV):
+                    ki = WARM * kappav[i] / dt
+                else:
+                    ki = DENSITY_WARM * kappa[i]
+                kk[i] = ki
+                if ti.static(fast_kc):
+                    kc[i] = ki * Lc[i]
+            else:
+                density_change(i, dt, mode, True)
         if ti.static(warm):
             relax(dt, mode)
         if ti.static(use_cg):
@@ -315,7 +353,7 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
     @ti.kernel
     def divergence_begin(dt: f):
         neighbours()
-        solve_begin(dt, DIV)
+        solve_begin(dt, DIV, False)
 
     @ti.kernel
     def divergence_iteration(dt: f):
@@ -323,12 +361,11 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
 
     @ti.kernel
     def density_begin(dt: f, after_divergence: ti.template()):
-        if ti.static(after_divergence):
-            for i in range(N()):
-                kappav[i] = kacc[i] * dt  # total divergence stiffness, dt independent
-        else:
+        if ti.static(not after_divergence):
             neighbours()
         for i in range(N()):
+            if ti.static(after_divergence):
+                kappav[i] = kacc[i] * dt  # total divergence stiffness, dt independent
             a = fn.non_pressure(i, False)
             if ti.static(ext):
                 a -= wp.wall_sum(i, wp.bhyd)  # the walls' hydrostatic pressure, once per substep
@@ -338,9 +375,7 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
         if ti.static(P.named_loads):  # no-slip viscosity's reaction on named colliders (moving.py)
             for i in range(N()):
                 fn.load_viscous(i, dt)
-        for i in range(N()):
-            v[i] = vnew[i]
-        solve_begin(dt, DENS)
+        solve_begin(dt, DENS, True)  # v = vnew first
 
     @ti.kernel
     def density_iteration(dt: f):

@@ -24,7 +24,7 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     h2 = h * h
     eps_visc = VISC_EPS * h2
     gradW, Ckern = fn.gradW, fn.Ckern
-    store_grad = P.store_grad
+    store_grad = F.nb_s is not None  # the list keeps grad W's factor (DFSPH; WCSPH on the CPU)
     x, v, mid, rho = F.x, F.v, F.mid, F.rho
     nb_cnt, nb_j, nb_s = F.nb_cnt, F.nb_j, F.nb_s
     nrm, Mv, mw = F.nrm, F.Mv, F.mw
@@ -36,6 +36,8 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     uniform = P.uniform
     mass_of = fn.mass_of
     p = F.p
+    pr2 = F.pr2
+    has_pr2 = pr2 is not None
 
     @ti.func
     def non_pressure(i, with_pressure: ti.template()):
@@ -69,13 +71,15 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                     r2 = d.dot(d)
                 g = ti.Vector.zero(f, dim)
                 if ti.static(store_grad):
-                    g = (xi - x[j]) * nb_s[i, k]  # the list's factor: grad W_ij
+                    g = (xi - x[j]) * nb_s[i, k]  # the list's factor: grad W_ij (d when computed above)
                 else:
                     g = gradW(d, ti.sqrt(r2))
                 rj = rho[j]
                 mj = mass_of(j)
                 if ti.static(with_pressure):
-                    if ti.static(uniform):
+                    if ti.static(uniform and has_pr2):
+                        ap -= mj * (dpi + pr2[j]) * g  # p_j / rho_j^2, written with the pressure
+                    elif ti.static(uniform):
                         ap -= mj * (dpi + p[j] / (rj * rj)) * g
                     else:
                         # several materials: Solenthaler & Pajarola's (2008) density-contrast form,

@@ -25,16 +25,21 @@ def neighbour_capacity(dim: int, support_factor: float) -> int:
 
 
 # SPH, per particle at f32: x, v, new v, boundary gradient sum (dim each), 10 scalars, 6 ints, the reorder
-# copies (2 dim + 4) and the neighbour list (capacity x (index + DFSPH's kernel-gradient factor: one number
+# copies (2 dim + 4) and the neighbour list (capacity x (index + the kernel-gradient factor: one number
 # since 2026-11-27, grad W_ij = (x_i - x_j) s_ij, 8 bytes per entry instead of 16)); per boundary
 # particle position, velocity, volume, flag; per cell (cell = support / 2) count and start offsets of the
 # liquid and of the boundary particles. Host: the sampled bodies and the output copies.
 def _sph_bytes_per_particle(
     dim: int, support_factor: float, dfsph: bool = True, kgc: bool | str = False
 ) -> int:
-    entry = 2 if dfsph else 1  # index (+ grad W's factor)
-    # DFSPH gradient_correction: a dim x dim matrix per particle, or one number (scalar)
-    correction = 1 if kgc == "scalar" else dim * dim if kgc else 0
+    # index + grad W's factor: DFSPH, and since 2026-11-27 WCSPH on the CPU too (a GPU's WCSPH list keeps the
+    # index alone: the estimate counts the CPU's)
+    entry = 2
+    # DFSPH gradient_correction: a dim x dim matrix per particle, or one number (scalar, with k_i c_i beside
+    # it); WCSPH: p / rho^2
+    correction = 2 if kgc == "scalar" else dim * dim if kgc else 0
+    if not dfsph:
+        correction = 1
     return 4 * (4 * dim + 10 + 6 + 2 * dim + 4 + correction + neighbour_capacity(dim, support_factor) * entry)
 
 

@@ -283,7 +283,11 @@ class SPHSolver(Solver):
         # per entry, a quarter of the list's memory and traffic
         self.store_grad = self.opts.pressure_solver == "DFSPH"
         # DFSPH: grad W_ij's factor per list entry (grad W_ij = (x_i - x_j) s_ij; bundle.py)
-        self.nb_s = ti.field(f, shape=(n, self.K)) if self.store_grad else None
+        # WCSPH on the CPU keeps it too (its force pass then skips the kernel's q, branch and division per
+        # pair, which the neighbour pass has computed already: docs/PERFORMANCE_SPH.md, 2026-11-27); on a
+        # GPU it recomputes, where the list's traffic costs more than the arithmetic
+        self.list_s = self.store_grad or cpu
+        self.nb_s = ti.field(f, shape=(n, self.K)) if self.list_s else None
         self.nrm = vec() if self.has_tension else None
         self.Mv = ti.Matrix.field(dim, dim, f, shape=n) if self.has_noslip else None
         self.shift = vec() if self.opts.shifting > 0 else None
@@ -306,6 +310,9 @@ class SPHSolver(Solver):
         self.diffusion_model = dd.model if (dd is not None and self.continuity) else ""
         self.drho = scal() if self.continuity else None
         self.grad_rho = vec() if self.diffusion_model == "antuono" else None
+        # WCSPH, one material: p / rho^2 per particle, written with the pressure, so that the force pass's
+        # pairs read it instead of dividing p_j by rho_j^2 each
+        self.pr2 = scal() if (not dfsph and len(self.materials) == 1) else None
         self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
         self.bflag = ti.field(ti.i32, shape=max(1, self.nbp)) if self.ext_walls else None
         # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves

@@ -196,6 +196,7 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
     mat_k, mat_n = F.mat_k, F.mat_n
     bq = ti.field(f, shape=nbp) if not P.store_grad else None  # WCSPH: p_b / rho_b^2 (one material)
     p_liq = F.p
+    list_s = nb_s is not None  # WCSPH on the CPU keeps grad W's factor in the list too (solver.py)
     gradW, bV = fn.gradW, F.bV
 
     @ti.func
@@ -238,7 +239,11 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
         for k in range(nb_cnt[i], nbw_end[i]):
             b = nb_j[i, k]
             d = xi - bx[b]
-            g = gradW(d, ti.sqrt(d.dot(d))) * bV[b]
+            g = ti.Vector.zero(f, dim)
+            if ti.static(list_s):
+                g = (d * nb_s[i, k]) * bV[b]  # the list's factor (the neighbour pass's grad W)
+            else:
+                g = gradW(d, ti.sqrt(d.dot(d))) * bV[b]
             q = ti.cast(0.0, f)
             if ti.static(uniform):
                 q = bq[b]

@@ -53,6 +53,8 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
 
         density_gradient, density_rate, artificial_viscosity = make_delta_sph(P, F, fn)
     drho = F.drho
+    pr2 = F.pr2
+    has_pr2 = pr2 is not None
 
     @ti.func
     def equation_of_state(i):
@@ -62,6 +64,8 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         if ti.static(clamp):
             pi = ti.max(pi, 0.0)
         p[i] = pi + p_bg
+        if ti.static(has_pr2):
+            pr2[i] = p[i] / (rho[i] * rho[i])  # the force pass's p_j / rho_j^2 (non_pressure.py)
 
     wp = fn.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
