@@ -120,6 +120,22 @@ def check_rigid_bodies(loaded: Any, err) -> None:
         if m.type == "Mesh":
             sdf = _check_mesh_body(loaded, rb, base, err)
             ok = ok and sdf is not None
+        if rb.cpic:  # CPIC bodies (docs/RIGID.md): an MPM feature of the APIC transfer, on thin Boxes
+            if m.type != "Box":
+                err(
+                    base + ("cpic",),
+                    f"cpic: true is for Box bodies (a plate along its thinnest axis), not {m.type}",
+                )
+            elif not any(str(e.material.type).startswith("MPM.") for e in s.entities):
+                err(
+                    base + ("cpic",),
+                    "cpic: true acts on MPM materials only and the scene has none: remove it",
+                )
+            elif getattr(s.solvers.mpm, "transfer", "apic") == "flip":
+                err(
+                    base + ("cpic",),
+                    "cpic: true needs solvers.mpm.transfer: apic (FLIP's increment is not masked)",
+                )
         if rb.velocity is not None and len(rb.velocity) != dim:
             err(base + ("velocity",), f"expected {dim} components for dim {dim} (got {len(rb.velocity)})")
         na = 1 if dim == 2 else 3

@@ -51,6 +51,13 @@ class RigidBody(BaseModel):
     boundary: Literal["slip", "sticky", "separate"] = Field(
         "separate", description="Contact condition the materials meet on its surface (as for colliders)."
     )
+    cpic: bool = Field(
+        False,
+        description="MPM, Box bodies: Compatible Particle-In-Cell (Hu et al. 2018), as a Box collider's "
+        "cpic: a particle and a grid node on opposite sides of the body (a plate along its thinnest axis) "
+        "exchange nothing, so a free plate thinner than the kernel's support cuts the material cleanly; the "
+        "impulse of that exchange is the body's load (docs/RIGID.md, CPIC bodies). Default off.",
+    )
     fixed_dofs: list[Literal["x", "y", "z", "rx", "ry", "rz"]] = Field(
         default_factory=list,
         description="Degrees of freedom held at their initial velocity (e.g. [x, y, z, rx, ry] for a wheel "

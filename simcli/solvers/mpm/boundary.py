@@ -45,6 +45,7 @@ from simcli.colliders import (
     sdf_sphere,
     wall_specs,
 )
+from simcli.solvers.mpm.cpic import cpic_indices
 
 with stdout_to_stderr():
     import taichi as ti
@@ -80,7 +81,7 @@ class GridBoundary:
         self.n_colliders = len(self.colliders)
         # CPIC colliders (cpic.py) have no image (its mirror point lies across a thin plate) and their
         # contact condition also acts on the nodes up to CPIC_REACH cells in front of them
-        self.cpic = frozenset(k for k, c in enumerate(scene.colliders) if getattr(c, "cpic", False))
+        self.cpic = frozenset(cpic_indices(scene))  # colliders and rigid bodies with cpic: true
         # moving and named colliders: poses uploaded per substep, loads summed (compiled only if any)
         self.poses = ColliderPoses(self.colliders, collider_motions(scene, dim, scene_dir), dim, dtype)
         self.any_moving, self.any_named, self.named = (

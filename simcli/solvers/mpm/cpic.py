@@ -52,8 +52,14 @@ KINDS = ("Plane", "Box")
 
 
 def cpic_indices(scene: Any) -> list[int]:
-    """Indices (in boundary.GridBoundary.colliders order: the scene's colliders first) of the CPIC ones."""
-    return [k for k, c in enumerate(scene.colliders) if getattr(c, "cpic", False)]
+    """Indices (in boundary.GridBoundary.colliders order: the scene's colliders first, then its rigid bodies,
+    simcli.colliders.collider_specs) of the CPIC ones: colliders and rigid bodies with ``cpic: true``."""
+    out = [k for k, c in enumerate(scene.colliders) if getattr(c, "cpic", False)]
+    nc = len(scene.colliders)
+    out += [
+        nc + k for k, b in enumerate(getattr(scene, "rigid_bodies", None) or []) if getattr(b, "cpic", False)
+    ]
+    return out
 
 
 @ti.data_oriented
