@@ -51,7 +51,8 @@ class MeshSDFField:
         callers that use it only inside (phi < 0) skip the gradient elsewhere."""
         self.dtype = dtype
         self.normal_below = normal_below
-        self.normal_everywhere = normal_below is None
+        # a 2D polygon's grid (a 2D Mesh body): normals everywhere, the MPM image reads them in front
+        self.normal_everywhere = normal_below is None or len(sdf.shape) == 2
         self.shape = sdf.shape
         self.origin = tuple(float(v) for v in sdf.origin)
         self.inv_h = 1.0 / sdf.h

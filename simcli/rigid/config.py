@@ -23,9 +23,10 @@ class RigidBody(BaseModel):
     )
     morph: RigidShape = Field(
         description="Shape at t = 0: Box (axis-aligned), Sphere (a disk in 2D), Cylinder (3D) or Mesh (3D: a "
-        "closed triangle surface, scaled, rotated and translated as a Mesh morph; not with SF). Mass, "
-        "centre of mass and inertia follow from it and rho (a Mesh: exact polyhedral "
-        "integrals)."
+        "closed triangle surface, scaled, rotated and translated as a Mesh morph; not with SF; 2D: a closed "
+        "polygon in the x-y plane, one OBJ f line or l lines closing a loop, rotate the angle about z, with "
+        "MPM and SPH entities). Mass, centre of mass and inertia follow from it and rho (a Mesh: exact "
+        "polyhedral or polygon integrals)."
     )
     rho: float = Field(gt=0, description="Density [kg/m^3] (2D: per metre of depth).")
     sdf_cell: float | None = Field(
