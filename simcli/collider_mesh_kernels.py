@@ -43,14 +43,16 @@ def mesh_fields(specs: list, dtype: Any, normal_below: float | None = None) -> l
 @ti.data_oriented
 class MeshSDFField:
     """The grid of a MeshSDF in a Taichi field; :meth:`sample` gives (phi, unit outward normal) at a
-    body-frame point by trilinear interpolation (the normal is the interpolant's gradient)."""
+    body-frame point by trilinear interpolation (the normal is the interpolant's gradient); a 2D grid
+    (simcli.rigid.polygon.PolygonSDF, a 2D Mesh rigid body) bilinearly."""
 
     def __init__(self, sdf: MeshSDF, dtype: Any, normal_below: float | None = None) -> None:
         """``normal_below``: the normal is computed only where phi is below it [m] (None: everywhere);
         callers that use it only inside (phi < 0) skip the gradient elsewhere."""
         self.dtype = dtype
         self.normal_below = normal_below
-        self.normal_everywhere = normal_below is None
+        # a 2D polygon's grid (a 2D Mesh body): normals everywhere, the MPM image reads them in front
+        self.normal_everywhere = normal_below is None or len(sdf.shape) == 2
         self.shape = sdf.shape
         self.origin = tuple(float(v) for v in sdf.origin)
         self.inv_h = 1.0 / sdf.h
@@ -59,6 +61,47 @@ class MeshSDFField:
 
     @ti.func
     def sample(self, x):
+        phi = ti.cast(FAR, self.dtype)
+        n = x * 0.0
+        if ti.static(len(self.shape) == 2):  # a 2D polygon's grid (simcli.rigid.polygon): bilinear
+            phi, n = self._sample2(x)
+        else:
+            phi, n = self._sample3(x)
+        return phi, n
+
+    @ti.func
+    def _sample2(self, x):
+        phi = ti.cast(FAR, self.dtype)
+        n = ti.Vector([0.0, 1.0], dt=self.dtype)
+        g = (x - ti.Vector(self.origin, dt=self.dtype)) * self.inv_h
+        inside = True
+        for d in ti.static(range(2)):
+            if g[d] < 0 or g[d] > self.shape[d] - 1:
+                inside = False
+        if inside:
+            i = ti.min(ti.cast(ti.floor(g[0]), ti.i32), self.shape[0] - 2)
+            j = ti.min(ti.cast(ti.floor(g[1]), ti.i32), self.shape[1] - 2)
+            fx = g[0] - i
+            fy = g[1] - j
+            v00 = self.phi[i, j]
+            v10 = self.phi[i + 1, j]
+            v01 = self.phi[i, j + 1]
+            v11 = self.phi[i + 1, j + 1]
+            c0 = v00 + fx * (v10 - v00)
+            c1 = v01 + fx * (v11 - v01)
+            phi = c0 + fy * (c1 - c0)
+            need = True
+            if ti.static(not self.normal_everywhere):
+                need = phi < self.normal_below
+            if need:  # the interpolant's gradient
+                grad = ti.Vector([(v10 - v00) + fy * ((v11 - v01) - (v10 - v00)), c1 - c0], dt=self.dtype)
+                gn = grad.norm()
+                if gn > 0:
+                    n = grad / gn
+        return phi, n
+
+    @ti.func
+    def _sample3(self, x):
         phi = ti.cast(FAR, self.dtype)
         n = ti.Vector([0.0, 0.0, 1.0], dt=self.dtype)
         inside, base, f = grid_cell(x, ti.Vector(self.origin, dt=self.dtype), self.inv_h, self.shape)

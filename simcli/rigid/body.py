@@ -7,7 +7,8 @@ The body frame is the body's placement at t = 0: its collider spec is the morph 
 axis-aligned, a Cylinder along its axis, a Mesh its file scaled, rotated and translated), and the pose
 maps it to the world with R(q) about the centre of mass. A Mesh body is the signed-distance grid of a
 Mesh collider (simcli.collider_mesh), with its mass, centre of mass and inertia integrated exactly over
-the closed polyhedron (:func:`mesh_mass_properties`). No Taichi here.
+the closed polyhedron (:func:`mesh_mass_properties`); in 2D a closed polygon's (simcli.rigid.polygon).
+No Taichi here.
 """
 
 from __future__ import annotations
@@ -164,7 +165,7 @@ def mesh_body_spec(rb, sdf, com: np.ndarray) -> ColliderSpec:
         rb.boundary,
         0,
         tuple(float(v) for v in 0.5 * (lo + hi)),
-        (0.0, 0.0, 0.0),
+        (0.0,) * len(lo),
         0.5 * float(np.linalg.norm(hi - lo)),
         0.0,
         rb.friction,
@@ -189,7 +190,15 @@ class RigidBodyModel:
 
     def __init__(self, rb, dim: int, scene=None, scene_dir=None):
         self.cfg, self.name, self.dim = rb, rb.name, dim
-        if rb.morph.type == "Mesh":
+        if rb.morph.type == "Mesh" and dim == 2:  # a closed polygon (simcli.rigid.polygon)
+            from simcli.rigid.polygon import build_polygon_sdf, polygon_mass_properties
+
+            sdf = build_polygon_sdf(rb, scene, scene_dir)
+            self.mass, com, J = polygon_mass_properties(sdf.vertices, float(rb.rho))
+            self.inertia = np.diag([0.0, 0.0, J])
+            self.pivot = com
+            self.spec = mesh_body_spec(rb, sdf, com)
+        elif rb.morph.type == "Mesh":
             sdf = mesh_sdf(rb, scene, scene_dir)
             self.mass, com, self.inertia = mesh_mass_properties(sdf.vertices, sdf.triangles, float(rb.rho))
             self.pivot = com  # the centre of mass in the body frame

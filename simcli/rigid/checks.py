@@ -32,9 +32,8 @@ def _check_mesh_body(loaded: Any, rb, base: tuple, err):
     cells of its grid); returns its signed-distance grid, or None after an error."""
     s = loaded.scene
     path = base + ("morph",)
-    if s.sim.dim != 3:
-        err(path + ("type",), "Mesh rigid bodies need dim 3 (use a Box or a Sphere in 2D)")
-        return None
+    if s.sim.dim == 2:
+        return _check_polygon_body(loaded, rb, base, err)
     if "SF" in s.families:
         err(
             path + ("type",),
@@ -60,6 +59,52 @@ def _check_mesh_body(loaded: Any, rb, base: tuple, err):
         err(
             path + ("file",),
             f"the mesh is thinner ({np.min(hi - lo):.3g} m) than two cells of its signed-distance grid "
+            f"({sdf.h:.3g} m): material would pass through it; thicken it or set sdf_cell below "
+            f"{np.min(hi - lo) / 2:.3g}",
+        )
+        return None
+    return sdf
+
+
+POLYGON_FAMILIES = {"MPM", "SPH"}  # families a 2D Mesh (polygon) body meets so far
+
+
+def _check_polygon_body(loaded: Any, rb, base: tuple, err):
+    """A 2D Mesh body (a closed polygon, simcli.rigid.polygon): families, the transform's keys, a readable
+    simple outline thicker than two cells of its grid; returns its PolygonSDF, or None after an error."""
+    s = loaded.scene
+    path = base + ("morph",)
+    other = sorted(s.families - POLYGON_FAMILIES)
+    if other:
+        err(
+            path + ("type",),
+            f"2D Mesh rigid bodies meet {' and '.join(sorted(POLYGON_FAMILIES))} entities so far; this scene "
+            f"has {', '.join(other)} entities: use a Box or a Sphere body in 2D",
+        )
+        return None
+    m = rb.morph
+    if len(m.rotate) not in (1, 3) or (len(m.rotate) == 3 and any(abs(a) > 0 for a in m.rotate[:2])):
+        err(path + ("rotate",), "in 2D, rotate is the angle about z [deg]: one number, or [0, 0, angle]")
+        return None
+    if len(m.translate) not in (2, 3) or (len(m.translate) == 3 and m.translate[2] != 0):
+        err(path + ("translate",), "in 2D, translate is [x, y] (a third component must be 0)")
+        return None
+    if not isinstance(m.scale, (int, float)) and len(m.scale) not in (2, 3):
+        err(path + ("scale",), f"expected 1, 2 or 3 components (got {len(m.scale)})")
+        return None
+    from simcli.rigid.polygon import build_polygon_sdf, polygon_mass_properties
+
+    try:
+        sdf = build_polygon_sdf(rb, s, loaded.scene_dir)
+        polygon_mass_properties(sdf.vertices, float(rb.rho))
+    except (ValueError, OSError) as ex:
+        err(path + ("file",), str(ex))
+        return None
+    lo, hi = sdf.bounds
+    if np.min(hi - lo) < 2 * sdf.h:
+        err(
+            path + ("file",),
+            f"the polygon is thinner ({np.min(hi - lo):.3g} m) than two cells of its signed-distance grid "
             f"({sdf.h:.3g} m): material would pass through it; thicken it or set sdf_cell below "
             f"{np.min(hi - lo) / 2:.3g}",
         )
@@ -121,6 +166,22 @@ def check_rigid_bodies(loaded: Any, err) -> None:
         if m.type == "Mesh":
             sdf = _check_mesh_body(loaded, rb, base, err)
             ok = ok and sdf is not None
+        if rb.cpic:  # CPIC bodies (docs/RIGID.md): an MPM feature of the APIC transfer, on thin Boxes
+            if m.type != "Box":
+                err(
+                    base + ("cpic",),
+                    f"cpic: true is for Box bodies (a plate along its thinnest axis), not {m.type}",
+                )
+            elif not any(str(e.material.type).startswith("MPM.") for e in s.entities):
+                err(
+                    base + ("cpic",),
+                    "cpic: true acts on MPM materials only and the scene has none: remove it",
+                )
+            elif getattr(s.solvers.mpm, "transfer", "apic") == "flip":
+                err(
+                    base + ("cpic",),
+                    "cpic: true needs solvers.mpm.transfer: apic (FLIP's increment is not masked)",
+                )
         if rb.velocity is not None and len(rb.velocity) != dim:
             err(base + ("velocity",), f"expected {dim} components for dim {dim} (got {len(rb.velocity)})")
         na = 1 if dim == 2 else 3

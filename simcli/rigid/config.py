@@ -23,9 +23,10 @@ class RigidBody(BaseModel):
     )
     morph: RigidShape = Field(
         description="Shape at t = 0: Box (axis-aligned), Sphere (a disk in 2D), Cylinder (3D) or Mesh (3D: a "
-        "closed triangle surface, scaled, rotated and translated as a Mesh morph; not with SF). Mass, "
-        "centre of mass and inertia follow from it and rho (a Mesh: exact polyhedral "
-        "integrals)."
+        "closed triangle surface, scaled, rotated and translated as a Mesh morph; not with SF; 2D: a closed "
+        "polygon in the x-y plane, one OBJ f line or l lines closing a loop, rotate the angle about z, with "
+        "MPM and SPH entities). Mass, centre of mass and inertia follow from it and rho (a Mesh: exact "
+        "polyhedral or polygon integrals)."
     )
     rho: float = Field(gt=0, description="Density [kg/m^3] (2D: per metre of depth).")
     sdf_cell: float | None = Field(
@@ -50,6 +51,13 @@ class RigidBody(BaseModel):
     )
     boundary: Literal["slip", "sticky", "separate"] = Field(
         "separate", description="Contact condition the materials meet on its surface (as for colliders)."
+    )
+    cpic: bool = Field(
+        False,
+        description="MPM, Box bodies: Compatible Particle-In-Cell (Hu et al. 2018), as a Box collider's "
+        "cpic: a particle and a grid node on opposite sides of the body (a plate along its thinnest axis) "
+        "exchange nothing, so a free plate thinner than the kernel's support cuts the material cleanly; the "
+        "impulse of that exchange is the body's load (docs/RIGID.md, CPIC bodies). Default off.",
     )
     fixed_dofs: list[Literal["x", "y", "z", "rx", "ry", "rz"]] = Field(
         default_factory=list,

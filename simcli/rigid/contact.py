@@ -29,6 +29,10 @@ def surface_points(spec, dim: int, n: int = 4) -> np.ndarray:
         if n <= 1 or len(V) > MESH_DENSE:  # a dense mesh's vertices already sample its faces finely
             return V
         T = np.asarray(spec.mesh.triangles, np.int64)
+        if T.shape[1] == 2:  # 2D: a polygon's vertices and its edges' quarter points
+            t = np.array([0.25, 0.5, 0.75])[:, None, None]
+            E = (V[T[:, 0]] + t * (V[T[:, 1]] - V[T[:, 0]])).reshape(-1, V.shape[1])
+            return np.concatenate([V, E])
         e = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
         e = np.unique(e, axis=0)
         return np.concatenate([V, 0.5 * (V[e[:, 0]] + V[e[:, 1]]), V[T].mean(axis=1)])
@@ -104,7 +108,7 @@ def sdf_local(spec, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         x = np.asarray(x, float)
         return (x - np.asarray(spec.a, float)) @ nrm, np.broadcast_to(nrm, x.shape).copy()
     if spec.kind == "Mesh":  # the grid's trilinear phi and its central-difference gradient
-        x = np.asarray(x, float).reshape(-1, 3)
+        x = np.asarray(x, float).reshape(-1, np.asarray(spec.mesh.vertices).shape[1])
         return spec.mesh.sample(x), spec.mesh.normal(x)
     a = np.asarray(spec.a, float)
     if spec.kind == "Sphere":

@@ -493,6 +493,9 @@ def resolved_scene_dict(scene: Scene, name: str) -> dict:
             em.pop("reuse")
     if not d.get("rigid_bodies"):  # scenes without rigid bodies echo as before
         d.pop("rigid_bodies", None)
+    for rb in d.get("rigid_bodies") or []:  # (and those without CPIC bodies: runs checkpointed before resume)
+        if rb.get("cpic") is False:
+            rb.pop("cpic")
     if d.get("coupling") is None:  # scenes without the key echo as before
         d.pop("coupling", None)
     d["output"]["dir"] = scene.output.dir if scene.output.dir is not None else f"out/{name}"

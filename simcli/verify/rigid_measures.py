@@ -163,3 +163,46 @@ def rigid_momentum_error(f, entity="*", axis=None, **_):
         P = P[:, axis : axis + 1]
     ref = np.linalg.norm(P[0])
     return t, np.linalg.norm(P - P[0], axis=1) / (ref if ref > 0 else 1.0)
+
+
+@measurement("rigid_energy_growth")
+def rigid_energy_growth(f, entity="*", **_):
+    """(E(t) - E(0)) / E(0) of the total energy without gravity: the entities' kinetic energy (sum m v^2 / 2:
+    needs the ``mass`` output field) plus their elastic energy where the ``elastic_energy`` field is written,
+    plus every rigid body's translational and rotational kinetic energy (m v^2 / 2 + w.I w / 2, the inertia
+    from its shape and rho as the run computed it), clipped below at 0 [-] (as probe_growth): 0 while the
+    total never exceeds its start."""
+    from simcli.rigid.body import RigidBodyModel
+    from simcli.verify.registry import scene_of
+
+    t = np.asarray(f["time"][...], dtype=np.float64)
+    n = len(t)
+    E = np.zeros(n)
+    for name in f["entities"]:
+        g = f["entities"][name]
+        if "mass" not in g:
+            raise KeyError(f"entity '{name}' has no mass field: add mass to output.fields")
+        for i in range(n):
+            v = np.asarray(g["velocity"][i], float)
+            E[i] += 0.5 * float(np.asarray(g["mass"][i], float) @ (v * v).sum(axis=1))
+            if "elastic_energy" in g:
+                E[i] += float(np.asarray(g["elastic_energy"][i], float).sum())
+    if "rigid_bodies" in f:
+        scene = scene_of(f)
+        dim = int(scene.sim.dim)
+        for rb in scene.rigid_bodies:
+            g = f["rigid_bodies"][rb.name]
+            body = RigidBodyModel(rb, dim, scene)
+            v = np.asarray(g["velocity"][:n], float)
+            w = np.asarray(g["angular_velocity"][:n], float)
+            E += 0.5 * body.mass * (v * v).sum(axis=1)
+            if dim == 2:
+                E += 0.5 * body.inertia[2, 2] * w[:, 0] ** 2
+            else:  # the body-frame inertia turned with the body's orientation
+                from simcli.motion import quat_to_matrix
+
+                q = np.asarray(g["orientation"][:n], float)
+                for i in range(n):
+                    R = quat_to_matrix(q[i])
+                    E[i] += 0.5 * float(w[i] @ (R @ body.inertia @ R.T) @ w[i])
+    return t, np.maximum(0.0, (E - E[0]) / (E[0] if E[0] > 0 else 1.0))

@@ -123,8 +123,8 @@ def test_mesh_bodies_are_checked_with_the_location(tmp_path):
         material: {type: MPM.Elastic, E: 1.0e4, nu: 0.3, rho: 1000}
         morph: {type: Box, lower: [0.0, 0.0], upper: [0.2, 0.04]}
     """
-    rc, out = _validate(tmp_path, flat2d % cube)
-    assert rc == 65 and "rigid_bodies.0.morph.type" in out and "dim 3" in out, out
+    rc, out = _validate(tmp_path, flat2d % cube)  # a 2D Mesh body is a polygon: a 3D surface is refused
+    assert rc == 65 and "rigid_bodies.0.morph.file" in out and "needs dim 3" in out, out
     flat = tmp_path / "open.obj"
     flat.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\n")  # one face missing
     rc, out = _validate(tmp_path, SCENE3.format(cube=flat, ball=ball, entities=ENT))

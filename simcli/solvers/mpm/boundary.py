@@ -45,6 +45,7 @@ from simcli.colliders import (
     sdf_sphere,
     wall_specs,
 )
+from simcli.solvers.mpm.cpic import cpic_indices
 
 with stdout_to_stderr():
     import taichi as ti
@@ -80,7 +81,7 @@ class GridBoundary:
         self.n_colliders = len(self.colliders)
         # CPIC colliders (cpic.py) have no image (its mirror point lies across a thin plate) and their
         # contact condition also acts on the nodes up to CPIC_REACH cells in front of them
-        self.cpic = frozenset(k for k, c in enumerate(scene.colliders) if getattr(c, "cpic", False))
+        self.cpic = frozenset(cpic_indices(scene))  # colliders and rigid bodies with cpic: true
         # moving and named colliders: poses uploaded per substep, loads summed (compiled only if any)
         self.poses = ColliderPoses(self.colliders, collider_motions(scene, dim, scene_dir), dim, dtype)
         self.any_moving, self.any_named, self.named = (
@@ -114,8 +115,8 @@ class GridBoundary:
             self.mesh_fields = mesh_fields(self.colliders, f, normal_below=0.0)  # normals used inside only
             # squared reach of each Mesh from its pivot (+ a cell): beyond it a point is outside the mesh
             piv = self.poses.pivot.to_numpy() if self.poses.needed else np.zeros((self.n_colliders, dim))
-            self.mesh_reach2 = tuple(
-                (float(np.linalg.norm(c.mesh.vertices - piv[k], axis=1).max()) + self.dx) ** 2
+            self.mesh_reach2 = tuple(  # (2D polygon bodies: their image's 1.5 dx in front too)
+                (float(np.linalg.norm(c.mesh.vertices - piv[k], axis=1).max()) + self._mesh_margin(k)) ** 2
                 if c.kind == "Mesh"
                 else 0.0
                 for k, c in enumerate(self.colliders)
@@ -171,7 +172,8 @@ class GridBoundary:
                 d2 += (x[i] - self.poses.pose[slot, k, 9 + i]) ** 2
             if d2 < self.mesh_reach2[k]:
                 phi, nb = self.sdf(k, self.poses.to_body(k, x, slot))
-                if phi < 0:  # (the normal and the surface velocity are used inside only)
+                # (the normal and the surface velocity are used inside only; a 2D polygon's image in front)
+                if phi < ti.static(self.reach(k) if self.has_image(k) else 0.0):
                     n = self.poses.normal_to_world(k, nb, slot)
                     vw = self.poses.velocity(k, x, slot)
         elif ti.static(self.colliders[k].moving):
@@ -253,15 +255,20 @@ class GridBoundary:
             return self.CPIC_REACH * self.dx
         return 1.5 * self.dx if self.has_image(k) else 0.0
 
+    def _mesh_margin(self, k: int) -> float:
+        return (2.0 if self.has_image(k) else 1.0) * self.dx
+
     def has_image(self, k: int) -> bool:
         """Collider k mirrors the material near it onto the free nodes in front of it (``_image``): a
         frictionless slip or separate surface of an analytic shape (a Mesh's normals are sampled inside
-        it only). Not with friction: the band of image nodes, 1.5 dx in front of the surface, would brake
-        material that is not in contact yet (a disk rolling down an incline, mpm_roll_incline, covered
-        0.057 m instead of 0.148 m of 0.221 m), and without friction on it a sliding block loses its
-        Coulomb friction (+40% distance); nor sticky."""
+        it only; a 2D Mesh body's polygon grid has them in front too, simcli.rigid.polygon). Not with
+        friction: the band of image nodes, 1.5 dx in front of the surface, would brake material that is
+        not in contact yet (a disk rolling down an incline, mpm_roll_incline, covered 0.057 m instead of
+        0.148 m of 0.221 m), and without friction on it a sliding block loses its Coulomb friction (+40%
+        distance); nor sticky."""
         c = self.colliders[k]
-        return c.kind != "Mesh" and c.contact != "sticky" and c.friction <= 0 and k not in self.cpic
+        analytic = c.kind != "Mesh" or self.dim == 2  # 2D: a polygon body's grid has its normals in front
+        return analytic and c.contact != "sticky" and c.friction <= 0 and k not in self.cpic
 
     @ti.func
     def raw(self, J):

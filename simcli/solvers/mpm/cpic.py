@@ -1,6 +1,8 @@
 """Compatible Particle-In-Cell (CPIC; Hu, Fang, Ge, Qu, Zhu, Pradhana, Jiang 2018, "A moving least squares
 material point method with displacement discontinuity and two-way rigid body coupling", section 5) for
-thin colliders: a collider key ``cpic: true`` (Plane and Box colliders of MPM scenes).
+thin colliders: a collider key ``cpic: true`` (Plane and Box colliders of MPM scenes), and free thin plates:
+the same key on a Box rigid body (``rigid_bodies``; docs/RIGID.md, CPIC bodies), which is a moving named
+collider whose pose the rigid world integrates and whose load (below) is the impulse that moves it.
 
 A particle and a grid node whose segment crosses a CPIC collider are *incompatible*:
 
@@ -52,8 +54,14 @@ KINDS = ("Plane", "Box")
 
 
 def cpic_indices(scene: Any) -> list[int]:
-    """Indices (in boundary.GridBoundary.colliders order: the scene's colliders first) of the CPIC ones."""
-    return [k for k, c in enumerate(scene.colliders) if getattr(c, "cpic", False)]
+    """Indices (in boundary.GridBoundary.colliders order: the scene's colliders first, then its rigid bodies,
+    simcli.colliders.collider_specs) of the CPIC ones: colliders and rigid bodies with ``cpic: true``."""
+    out = [k for k, c in enumerate(scene.colliders) if getattr(c, "cpic", False)]
+    nc = len(scene.colliders)
+    out += [
+        nc + k for k, b in enumerate(getattr(scene, "rigid_bodies", None) or []) if getattr(b, "cpic", False)
+    ]
+    return out
 
 
 @ti.data_oriented
