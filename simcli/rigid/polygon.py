@@ -50,8 +50,19 @@ def _read_obj(path: Path) -> tuple[np.ndarray, list[int]]:
             elif tok[0] in ("f", "l"):
                 idx = []
                 for t in tok[1:]:
-                    i = int(t.split("/")[0])
-                    idx.append(i - 1 if i > 0 else len(verts) + i)
+                    try:
+                        i = int(t.split("/")[0])
+                    except ValueError:
+                        raise PolygonError(
+                            f"'{path.name}': '{t}' in an {tok[0]} line is not a vertex index"
+                        ) from None
+                    k = i - 1 if i > 0 else len(verts) + i
+                    if i == 0 or not 0 <= k < len(verts):
+                        raise PolygonError(
+                            f"'{path.name}': vertex index {i} in an {tok[0]} line is out of range (1..{len(verts)} "
+                            f"or -1..-{len(verts)} for the {len(verts)} v lines before it)"
+                        )
+                    idx.append(k)
                 if tok[0] == "f":
                     if face is not None:
                         raise PolygonError(

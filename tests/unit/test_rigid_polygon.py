@@ -123,3 +123,19 @@ def test_2d_mesh_bodies_are_checked_with_the_location(tmp_path):
         tmp_path, (SCENE2 % (MPM, SQUARE)).replace("translate: [0.2, 0.165]", "translate: [0.2, 0.04]")
     )
     assert rc == 65 and "overlaps entity 'w'" in out, out
+
+
+def test_a_polygon_file_with_a_bad_vertex_index_is_refused_with_the_location(tmp_path):
+    """An f or l line naming a vertex that is not there (past the v lines, 0, or not a number) is a scene
+    error at morph.file, not a traceback (review, 2026-11-27: 'f 1 2 3 9' on 4 vertices raised IndexError)."""
+    for name, face, what in [
+        ("past.obj", "f 1 2 3 9", "out of range"),
+        ("zero.obj", "f 0 1 2 3", "out of range"),
+        ("neg.obj", "f -1 -2 -9", "out of range"),
+        ("word.obj", "f a b c", "not a vertex index"),
+        ("line.obj", "l 1 2 3 7 1", "out of range"),
+    ]:
+        p = tmp_path / name
+        p.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n" + face + "\n")
+        rc, out = _validate(tmp_path, SCENE2 % (MPM, p))
+        assert rc == 65 and "s.yaml:10:" in out and what in out and "Traceback" not in out, (name, out)
