@@ -59,8 +59,8 @@ def _read_obj(path: Path) -> tuple[np.ndarray, list[int]]:
                     k = i - 1 if i > 0 else len(verts) + i
                     if i == 0 or not 0 <= k < len(verts):
                         raise PolygonError(
-                            f"'{path.name}': vertex index {i} in an {tok[0]} line is out of range (1..{len(verts)} "
-                            f"or -1..-{len(verts)} for the {len(verts)} v lines before it)"
+                            f"'{path.name}': vertex index {i} in an {tok[0]} line is out of range "
+                            f"(1..{len(verts)} or -1..-{len(verts)} for the {len(verts)} v lines before it)"
                         )
                     idx.append(k)
                 if tok[0] == "f":
