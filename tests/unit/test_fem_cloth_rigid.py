@@ -282,3 +282,93 @@ def test_resume_with_a_rigid_body_equals_the_uninterrupted_run(tmp_path):
             # (the body's reaction is a sum of ipctk's parallel per-pair gradients: its order, and so the last
             # bit, varies from run to run, as two uninterrupted runs show; the cloth here is bit for bit)
             np.testing.assert_allclose(f[k][()], v, rtol=0, atol=1e-12, err_msg=k)
+
+
+def test_a_held_moving_body_pushes_a_pinned_sheet_and_never_crosses_it(tmp_path):
+    """A body with all six dofs held (fixed_dofs) at 1 m/s downwards over a sheet pinned at two sides: the
+    held dofs are a Dirichlet step of the cloth's Newton system (like moving pins), so the cloth meets the
+    body where the rigid world moves it: the sheet is pushed down with the body, the world reads a non-zero
+    reaction, and no segment-triangle crossing at any substep."""
+    from simcli.rigid.world import release, world_for
+    from tests.unit.test_fem_cloth import _solver
+
+    p = tmp_path / "held.yaml"
+    p.write_text(
+        textwrap.dedent(
+            """\
+            version: 1
+            sim: {dim: 3, dt: 1.0e-2, substeps: 1, duration: 0.06}
+            domain: {lower: [-0.3, -0.3, 0], upper: [0.3, 0.3, 0.5]}
+            solvers:
+              fem: {contact_distance: 2.0e-3}
+            rigid_bodies:
+              - name: ram
+                morph: {type: Box, center: [0, 0, 0.235], size: [0.06, 0.06, 0.06]}
+                rho: 200
+                velocity: [0, 0, -1.0]
+                fixed_dofs: [x, y, z, rx, ry, rz]
+            entities:
+              - name: sheet
+                material: {type: FEM.Cloth, E: 1.0e5, nu: 0.3, rho: 300, thickness: 1.0e-3, damping: 3.0}
+                morph: {type: Rectangle, center: [0, 0, 0.2], size: [0.3, 0.3], resolution: 6}
+                fixed:
+                  - {type: Box, lower: [-0.16, -0.16, 0.19], upper: [-0.14, 0.16, 0.21]}
+                  - {type: Box, lower: [0.14, -0.16, 0.19], upper: [0.16, 0.16, 0.21]}
+            """
+        )
+    )
+    s = _solver(p)
+    w = world_for(s.scene)
+    b = w.bodies[0]
+    dt = 1e-2
+    fz = 0.0
+    for k in range(5):
+        s.substep(dt)
+        w.step([s], dt)
+        X = np.concatenate([s.x, s.vobs])
+        T = np.concatenate([s.tris, s.mobst.T + s.n])
+        assert edge_triangle_intersections(X, T) == []
+        # the held body is where the world moved it, in the cloth's contact too
+        np.testing.assert_allclose(b.state.x, [0, 0, 0.235 - (k + 1) * dt], atol=1e-12)
+        np.testing.assert_allclose(s.rdofs.end[0][0], b.state.x, atol=1e-9)
+        fz = max(fz, float(w.frame_load[0, 2]))
+    bottom = 0.205 - 5 * dt  # 0.155 m: 4.5 cm below the sheet's rest plane
+    assert s.x[:, 2].min() < bottom + 1e-3  # the sheet was pushed down with the body (not passed through)
+    assert fz > 0.0  # the sheet pushes the body up: a reaction the world reads
+    release(s.scene)
+
+
+@pytest.mark.slow  # compiles the FEM solid's implicit kernels in a subprocess: about 20 s
+def test_fem_solid_and_a_moving_convex_collider_beside_a_cloth_run(tmp_path):
+    """A moving Sphere collider (not a Mesh) with an FEM solid beside a cloth: the solid's surface step and
+    the collider's motion share a Dirichlet step (this crashed with a TypeError once)."""
+    p = tmp_path / "s.yaml"
+    p.write_text(
+        textwrap.dedent(
+            """\
+            version: 1
+            sim: {dim: 3, dt: 1.0e-2, substeps: 1, duration: 0.02}
+            domain: {lower: [0.0, 0.0, 0.0], upper: [0.3, 0.3, 0.3], boundary: {type: slip}}
+            colliders:
+              - {name: mover, type: Sphere, center: [0.02, 0.02, 0.25], radius: 0.01,
+                 motion: {linear_velocity: [0.1, 0, 0]}}
+            solvers:
+              fem: {contact_distance: 2.0e-3, resolution: 8, integrator: implicit}
+            entities:
+              - name: block
+                material: {type: FEM.Elastic, E: 1.0e5, nu: 0.3, rho: 1000, model: stable_neohookean}
+                morph: {type: Box, lower: [0.1, 0.1, 0.0], upper: [0.2, 0.2, 0.1]}
+              - name: cloth
+                material: {type: FEM.Cloth, E: 1.0e5, nu: 0.3, rho: 300, thickness: 1.0e-3}
+                morph: {type: Rectangle, center: [0.15, 0.15, 0.14], size: [0.2, 0.2], resolution: 4}
+            output: {every: 1, formats: [hdf5]}
+            """
+        )
+    )
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "run", str(p), "-o", str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "Traceback" not in r.stderr

@@ -526,7 +526,10 @@ class ClothSolver(Solver):
         for Hx in contact:
             out = out + (P.T @ Hx @ P).tocsc()
         held = rd.fixed_mask()
+        self._held_cols = None
         if held.any():
+            # the free rows' coupling to the held dofs (for H_fh p_h in the rhs of a Dirichlet step)
+            self._held_cols = out[:, N + np.flatnonzero(held)].tocsr()
             keep = np.concatenate([np.ones(N), (~held).astype(float)])
             D = sp.diags(keep)
             out = (D @ out @ D + sp.diags(1.0 - keep)).tocsc()
@@ -748,8 +751,18 @@ class ClothSolver(Solver):
                     if self._po is None:
                         self._po = np.zeros((self.nm, 3))
                         self._po[sl] = d_sol
+                        if dtau > 0:  # (a moving convex collider alone: the chord's end, for a = 1)
+                            vo_to = self.vobs.copy()
+                            vo_to[sl] = sol_to
                 else:
                     d_sol = None
+            dq_held = None
+            if rd is not None:  # held body dofs: their prescribed motion still to make (a Dirichlet step)
+                dq_held = rd.held_offset()
+                if np.any(dq_held):
+                    pending = True
+                else:
+                    dq_held = None
             e, g, H, ncontact = self._potential(x, 2, tau)
             r = g[free] / self.mass[free, None]
             res = float(np.abs(r).max()) if r.size else 0.0
@@ -785,6 +798,10 @@ class ClothSolver(Solver):
                 rhs = np.concatenate([rhs, r_aux])
             if nb6:
                 rhs = np.concatenate([rhs, -gb])
+                if dq_held is not None and self._held_cols is not None:
+                    hi_ = np.flatnonzero(rd.fixed_mask())
+                    rhs = rhs - self._held_cols @ dq_held[hi_]
+                    rhs[len(rhs) - nb6 + hi_] = dq_held[hi_]
             sol = self._linear_solve(H, rhs)
             pf = sol[: len(fd)]
             pb = sol[len(sol) - nb6 :] if nb6 else None
@@ -846,7 +863,10 @@ class ClothSolver(Solver):
             if dtau > 0:
                 tau = tau_to if a >= 1.0 else tau + a * dtau
                 if self._po is not None:  # on the chord the CCD checked (exactly the pose at a = 1)
-                    self.vobs = vo_to if a >= 1.0 else self.vobs + a * self._po
+                    if a >= 1.0 and vo_to is not None:
+                        self.vobs = vo_to
+                    else:
+                        self.vobs = self.vobs + min(a, 1.0) * self._po
             if d_sol is not None:  # on the chord (exactly the target at a = 1)
                 self.vobs[sl] = sol_to if a >= 1.0 else vs0 + a * d_sol
             if pb is not None:
