@@ -372,3 +372,43 @@ def test_fem_solid_and_a_moving_convex_collider_beside_a_cloth_run(tmp_path):
     )
     assert r.returncode == 0, r.stderr[-2000:]
     assert "Traceback" not in r.stderr
+
+
+def test_a_cloth_crossing_an_fem_solid_from_a_tet_mesh_file_is_refused_with_its_location(tmp_path):
+    """An FEM solid given as a Mesh morph (a .msh of tetrahedra): its boundary is checked against the cloth at
+    validate (this passed validate and then failed in the run's PSD projection)."""
+    meshio = pytest.importorskip("meshio")
+    from simcli.geometry.tetmesh import box_tets
+
+    tm = box_tets([0.1, 0.1, 0.0], [0.2, 0.2, 0.1], 20)
+    meshio.write(
+        tmp_path / "block.msh",
+        meshio.Mesh(np.asarray(tm.x), [("tetra", np.asarray(tm.tets))]),
+        file_format="gmsh22",
+    )
+    p = tmp_path / "s.yaml"
+    scene = """\
+        version: 1
+        sim: {dim: 3, dt: 1.0e-2, duration: 0.1}
+        domain: {lower: [0, 0, 0], upper: [0.3, 0.3, 0.3]}
+        solvers:
+          fem: {contact_distance: 2.0e-3, integrator: implicit}
+        entities:
+          - name: block
+            material: {type: FEM.Elastic, E: 1.0e5, nu: 0.3, rho: 1000}
+            morph: {type: Mesh, file: block.msh}
+          - name: cloth
+            material: {type: FEM.Cloth, E: 1.0e5, nu: 0.3, rho: 300, thickness: 1.0e-3}
+            morph: {type: Rectangle, center: [0.15, 0.15, %s], size: [0.2, 0.2], resolution: 4}
+        """
+    p.write_text(textwrap.dedent(scene % "0.09"))
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "validate", str(p)], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 65, r.stderr
+    assert f"{p}:12:" in r.stderr and "the FEM solid 'block' (entities.0, Mesh)" in r.stderr
+    p.write_text(textwrap.dedent(scene % "0.14"))  # 4 cm above it: valid
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "validate", str(p)], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0, r.stderr
