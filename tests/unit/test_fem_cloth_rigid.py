@@ -1,7 +1,7 @@
-"""FEM.Cloth against free rigid bodies (issues 20, 21): a body's triangles join the cloth's IPC collision mesh
-as moving obstacles at the pose the rigid world extrapolates over the substep, and the contact's reaction
-goes back to the body through the load the world reads (simcli.rigid.world). Small sheets, a few substeps
-(host numpy/scipy/ipctk and the host rigid world only, no Taichi)."""
+"""FEM.Cloth against free rigid bodies (issues 20, 21): a body's triangles join the cloth's IPC collision
+mesh, its 6 dofs unknowns of the cloth's Newton system (held dofs moved at their prescribed rate), and the
+contact's reaction goes back to the body through the load the world reads (simcli.rigid.world). Small
+sheets, a few substeps (host numpy/scipy/ipctk and the host rigid world only, no Taichi)."""
 
 from __future__ import annotations
 

@@ -191,7 +191,8 @@ class RigidDofs:
         return out
 
     def residual(self, gb: np.ndarray) -> float:
-        """Largest acceleration-like residual of the bodies' rows: |g_u| / m and |g_theta| / (m r^2)."""
+        """Largest acceleration-like residual of the bodies' rows: |g_u| / m and |g_theta| / (m r), r the
+        body's radius of gyration about its largest principal axis (sqrt(I_max / m))."""
         out = 0.0
         for k in range(self.nb):
             out = max(out, float(np.abs(gb[6 * k : 6 * k + 3]).max()) / self.m[k])
