@@ -387,7 +387,8 @@ class Output(Strict):
         description="Per-particle fields to write: 'default' (position, velocity) or a list from position, "
         "velocity, J, stress (von Mises [Pa]), material_id (MPM); position, velocity, density [kg/m^3], "
         "pressure [Pa], material_id (SPH); position, velocity, displacement [m], reaction (force of the "
-        "supports on pinned vertices [N]), density [kg/m^3] (PBD).",
+        "supports on pinned vertices [N]), density [kg/m^3] (PBD); position, velocity, displacement [m], "
+        "mass (lumped vertex mass [kg]), strain, stress [Pa] (FEM.Cloth).",
     )
 
 

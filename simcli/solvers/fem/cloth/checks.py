@@ -140,6 +140,8 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
     if not out:
         out += _solid_problems(x, scene, dhat)
     if not out:
+        out += _solid_mesh_problems(x, t, scene, scene_dir, dhat)
+    if not out:
         import ipctk
 
         cm = ipctk.CollisionMesh(x, ipctk.edges(t), t)
@@ -166,7 +168,8 @@ def _first_intersection(x, t) -> str:
 
 def _solid_problems(x, scene, dhat: float) -> list[tuple[tuple, str]]:
     """A cloth vertex inside, or closer than contact_distance to, an FEM solid's Box, Sphere or Cylinder morph
-    at t = 0 (the solid meets the cloth in its IPC step: solid_obstacles.py; Mesh morphs are not checked)."""
+    at t = 0 (the solid meets the cloth in its IPC step: solid_obstacles.py; Mesh morphs:
+    _solid_mesh_problems)."""
     from simcli.solvers.fem.cloth.obstacles import Spec, _sdf
 
     out = []
@@ -203,4 +206,40 @@ def _solid_problems(x, scene, dhat: float) -> list[tuple[tuple, str]]:
                     "away",
                 )
             )
+    return out
+
+
+def _solid_mesh_problems(x, t, scene, scene_dir, dhat: float) -> list[tuple[tuple, str]]:
+    """The cloth (x, t) crossing, inside or within contact_distance of an FEM solid given as a Mesh morph at
+    t = 0: the boundary of its tetrahedral file (.msh, ...) or its closed surface (which TetGen fills), as
+    mesh_obstacles._initial_problem checks a Mesh collider's."""
+    from simcli.solvers.fem.cloth.mesh_obstacles import _initial_problem
+
+    out = []
+    for j, e in enumerate(scene.entities):
+        m = e.morph
+        if e.family != "FEM" or m is None or m.type != "Mesh" or e.material.type == "FEM.Cloth":
+            continue
+        try:  # a bad file or an open surface is reported by the FEM checks
+            from simcli.geometry.mesh import load_mesh_morph
+            from simcli.geometry.tetmesh import boundary_faces, read_tets
+
+            got = read_tets(m, scene_dir)
+            if got is not None:
+                X, tets = np.asarray(got[0], float), np.asarray(got[1], np.int64)
+                faces = boundary_faces(tets, X)
+                ids = np.unique(faces)
+                remap = np.full(len(X), -1, np.int64)
+                remap[ids] = np.arange(len(ids))
+                V, T = X[ids], remap[faces]
+            else:
+                surf = load_mesh_morph(m, scene_dir)
+                V, T = np.asarray(surf.vertices, float), np.asarray(surf.triangles, np.int64)
+        except Exception:  # noqa: BLE001 (any problem of the file is the FEM checks' to report)
+            continue
+        if len(T) == 0 or V.shape[1:] != (3,):
+            continue
+        msg = _initial_problem(x, t, V, T, f"the FEM solid '{e.name}' (entities.{j}, Mesh)", dhat)
+        if msg:
+            out.append((("morph",), msg))
     return out

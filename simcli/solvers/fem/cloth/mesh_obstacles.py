@@ -20,9 +20,10 @@ signed-distance grid).
 * Free rigid bodies (simcli.rigid, ``rigid_bodies``) enter the same way, after the colliders: a Box body its
   12 triangles, a Mesh body its file's triangles, a Sphere an inscribed icosphere and a Cylinder an inscribed
   prism (:func:`body_mesh`, fine enough that the facets lie within contact_distance / 2 of the true
-  surface). Their motion over a substep is the body's pose extrapolated from its state at the substep's
-  start (simcli.rigid.body.RigidMotion), and the reaction the cloth gives them goes back to the rigid world
-  (ClothSolver.collider_poses) instead of the named colliders' force output.
+  surface up to a radius of 10^4 contact_distance). Their pose over a substep is an unknown of the cloth's
+  Newton system (rigid_dofs.py; held dofs move at their prescribed rate), and the reaction the cloth gives
+  them goes back to the rigid world (ClothSolver.collider_poses) instead of the named colliders' force
+  output.
 """
 
 from __future__ import annotations
@@ -82,9 +83,10 @@ def icosphere(level: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _sag_level(radius: float, dhat: float) -> int:
     """The icosphere level whose facets lie within dhat / 2 of the sphere (the centre of a face of edge
-    angle a sits R a^2 / 6 inside it; the icosahedron's edge angle is 1.107 rad, halved each level), 1..4."""
+    angle a sits R a^2 / 6 inside it; the icosahedron's edge angle is 1.107 rad, halved each level), 1..6
+    (level 6, 81920 triangles, holds that up to R = 10^4 dhat)."""
     a, lev = 1.1071487, 0
-    while lev < 4 and (lev < 1 or radius * a * a / 6.0 > 0.5 * dhat):
+    while lev < 6 and (lev < 1 or radius * a * a / 6.0 > 0.5 * dhat):
         a, lev = 0.5 * a, lev + 1
     return lev
 

@@ -117,11 +117,21 @@ class RigidDofs:
         return e
 
     def fixed_mask(self) -> np.ndarray:
-        """(6 nb,) True where a degree of freedom is held (fixed_dofs): kept at its prescribed rate."""
+        """(6 nb,) True where a degree of freedom is held (fixed_dofs): moved at its prescribed rate by a
+        Dirichlet step (held_offset), as pinned cloth vertices are."""
         out = np.zeros(6 * self.nb, bool)
         for k, b in enumerate(self.bodies):
             out[6 * k : 6 * k + 3] = b.lin_fixed
             out[6 * k + 3 : 6 * k + 6] = b.ang_fixed
+        return out
+
+    def held_offset(self) -> np.ndarray:
+        """(6 nb,) the held degrees of freedom's prescribed motion still to make in this substep (u^ and
+        theta^ are the held velocities times dt: the body moves as the rigid world moves it), 0 elsewhere."""
+        out = np.zeros(6 * self.nb)
+        for k, b in enumerate(self.bodies):
+            out[6 * k : 6 * k + 3] = np.where(b.lin_fixed, self.uh[k] - self.u[k], 0.0)
+            out[6 * k + 3 : 6 * k + 6] = np.where(b.ang_fixed, self.th_h[k] - self.th[k], 0.0)
         return out
 
     def gradient(self, g_obs: np.ndarray) -> np.ndarray:
@@ -181,7 +191,8 @@ class RigidDofs:
         return out
 
     def residual(self, gb: np.ndarray) -> float:
-        """Largest acceleration-like residual of the bodies' rows: |g_u| / m and |g_theta| / (m r^2)."""
+        """Largest acceleration-like residual of the bodies' rows: |g_u| / m and |g_theta| / (m r), r the
+        body's radius of gyration about its largest principal axis (sqrt(I_max / m))."""
         out = 0.0
         for k in range(self.nb):
             out = max(out, float(np.abs(gb[6 * k : 6 * k + 3]).max()) / self.m[k])
