@@ -193,6 +193,9 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
         from simcli.scene.sources import check_sources
 
         check_sources(s, err)
+    from simcli.scene.output_fields import check_output_fields
+
+    check_output_fields(s, err)
     sph_rho = sorted({e.material.rho for e in s.entities if e.family == "SPH"})
     if sph.pressure_solver == "DFSPH" and not sph.clamp_pressure and len(sph_rho) > 1:
         err(
