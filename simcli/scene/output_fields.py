@@ -1,7 +1,7 @@
 """The output fields each family writes (``output.fields``), Taichi-free, so that ``simcli validate`` refuses
 a field an entity cannot write with its location, as ``run`` would after building its solvers
-(runner._entity_meta checks the solvers' ``output_fields()``; tests/unit/test_output_fields.py keeps the two
-in step)."""
+(runner._entity_meta checks the solvers' ``output_fields()``; the solvers' ``OUTPUT_FIELDS`` are these tuples,
+and tests/unit/test_output_fields.py keeps their ``output_fields()`` in step)."""
 
 from __future__ import annotations
 

@@ -16,6 +16,7 @@ import numpy as np
 from simcli.backend import stdout_to_stderr
 from simcli.geometry.regions import points_in_regions, points_in_shape
 from simcli.geometry.tetmesh import boundary_faces, mesh_for_entity, signed_volumes
+from simcli.scene.output_fields import FIELDS
 from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
 from simcli.solvers.fem.models import LAWS, lame_for
 from simcli.solvers.taichi_funcs import make_body_frame_stats
@@ -23,17 +24,7 @@ from simcli.solvers.taichi_funcs import make_body_frame_stats
 with stdout_to_stderr():
     import taichi as ti
 
-OUTPUT_FIELDS = (
-    "position",
-    "velocity",
-    "displacement",
-    "von_mises",
-    "J",
-    "von_mises_nodal",
-    "J_nodal",
-    "mass",
-    "elastic_energy",
-)
+OUTPUT_FIELDS = FIELDS["FEM"]  # the Taichi-free table validate checks (simcli/scene/output_fields.py)
 
 
 def _active_factor(m) -> float:

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
+from simcli.scene.output_fields import FIELDS
 from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, upload_state_array
 from simcli.solvers.pbd.topology import PBDMesh, colour, fixed_vertices, mesh_for_entity
 from simcli.solvers.sources import ActiveSet, has_sources, is_emitter
@@ -46,7 +47,7 @@ from simcli.solvers.taichi_funcs import make_body_frame_stats, make_finite
 with stdout_to_stderr():
     import taichi as ti
 
-OUTPUT_FIELDS = ("position", "velocity", "reaction", "displacement", "density")
+OUTPUT_FIELDS = FIELDS["PBD"]  # the Taichi-free table validate checks (simcli/scene/output_fields.py)
 # Up to this many constraints the sweeps of a substep run in one single-threaded kernel launch: a launch
 # and a task per colour cost ~10-60 us on a CPU, a constraint ~20 ns.
 SERIAL_CONSTRAINTS = 4000

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
+from simcli.scene.output_fields import FIELDS
 from simcli.solvers.base import (
     Body,
     FrameStats,
@@ -47,7 +48,7 @@ from simcli.solvers.sf.projection import Projection
 with stdout_to_stderr():
     import taichi as ti
 
-OUTPUT_FIELDS = ("velocity", "pressure", "density", "temperature", "divergence", "vorticity", "solid")
+OUTPUT_FIELDS = FIELDS["SF"]  # the Taichi-free table validate checks (simcli/scene/output_fields.py)
 DEFAULT_FIELDS = ["velocity", "pressure", "density", "temperature", "divergence"]
 HISTORY_KEEP = 100_000  # per-substep solver records kept for run.json
 _SAFE = {

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
+from simcli.scene.output_fields import FIELDS
 from simcli.solvers.base import Body, FrameStats, Solver, frame_stats_per_body, initial_positions
 from simcli.solvers.probe_view import ProbeView
 from simcli.solvers.sources import ActiveSet, has_sources, is_emitter
@@ -54,7 +55,7 @@ from simcli.solvers.sph.wcsph import make_wcsph
 with stdout_to_stderr():
     import taichi as ti
 
-OUTPUT_FIELDS = ("position", "velocity", "density", "pressure", "material_id")
+OUTPUT_FIELDS = FIELDS["SPH"]  # the Taichi-free table validate checks (simcli/scene/output_fields.py)
 # dt <= VISCOUS_SAFETY particle_size^2 / nu: explicit viscosity is stable up to 0.14 ps^2 / nu for the SPH
 # Laplacian on a lattice (support 2, checkerboard mode; 0.31 at support 3), about half that next to a
 # no-slip wall; 0.05 leaves room for disorder.
