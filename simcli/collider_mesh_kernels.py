@@ -151,7 +151,7 @@ class PBDRestitution:
     slower than 2 |g| dt are left inelastic (a resting particle stays at rest). Allocated and compiled
     only when some collider has restitution > 0."""
 
-    def __init__(self, specs: list, n: int, dtype: Any, v: Any, gravity: float) -> None:
+    def __init__(self, specs: list, n: int, dtype: Any, v: Any, gravity: float, dim: int = 3) -> None:
         self.es = tuple(float(s.restitution) for s in specs)
         self.any = any(e > 0 for e in self.es)
         self.v = v
@@ -159,8 +159,8 @@ class PBDRestitution:
         if self.any:
             self.e = ti.field(dtype, shape=n)
             self.vn = ti.field(dtype, shape=n)
-            self.nrm = ti.Vector.field(3, dtype, shape=n)
-            self.vw = ti.Vector.field(3, dtype, shape=n)
+            self.nrm = ti.Vector.field(dim, dtype, shape=n)
+            self.vw = ti.Vector.field(dim, dtype, shape=n)
 
     @ti.func
     def record(self, i, k: ti.template(), gap, n, vrel, vw):

@@ -120,7 +120,9 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
         if e.family == "PBD":  # sheets, polylines and open meshes: the PBD family checks its own morphs
             from simcli.solvers.pbd.config import check_entity
 
-            for p, msg in check_entity(e, dim, loaded.scene_dir, lo if ok_dom else None, hi, s.solvers.pbd):
+            for p, msg in check_entity(
+                e, dim, loaded.scene_dir, lo if ok_dom else None, hi, s.solvers.pbd, scene=s
+            ):
                 err(base + p, msg)
             continue
         if e.family == "SF" and m.type == "Mesh":

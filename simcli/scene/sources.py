@@ -249,7 +249,7 @@ def check_sources(scene, err) -> None:
         if em.family == "PBD" and dim != 3:
             err(
                 base + ("material", "type"),
-                f"{t}: PBD is 3D only; use sim.dim: 3, or an SPH.Liquid / MPM material in 2D",
+                f"{t}: PBD emitters are 3D only; use sim.dim: 3, or an SPH.Liquid / MPM material in 2D",
             )
             continue
         if em.stop is not None and em.stop <= em.start:

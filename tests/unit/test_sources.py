@@ -251,7 +251,7 @@ def test_pbd_emitters_refused_where_they_cannot_work(tmp_path):
     assert any(":25:" in ln and "PBD.Elastic cannot be emitted" in ln for ln in lines), "\n".join(lines)
     two_d = BAD.replace("PBD.Cloth", "PBD.Liquid")
     lines = _validate_lines(tmp_path, two_d)
-    assert any(":25:" in ln and "PBD is 3D only" in ln for ln in lines), "\n".join(lines)
+    assert any(":25:" in ln and "PBD emitters are 3D only" in ln for ln in lines), "\n".join(lines)
 
 
 @pytest.mark.slow

@@ -203,12 +203,69 @@ MORPHS = {
 }
 
 
-def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple, str]]:
-    """Semantic checks of a PBD entity: (path below the entity, message) per problem."""
+# PBD materials that run in 2D scenes (free particles: the liquid and the granular crowd); the meshed bodies
+# (cloth, rods, soft bodies), emitters, sinks and coupling with other families are 3D only.
+MATERIALS_2D = ("PBD.Liquid", "PBD.Particle")
+MORPHS_2D = ("Box", "Sphere")
+# coupling keys of the pairs with PBD: 3D only (a pair turned off may share a 2D scene)
+COUPLED_2D = {"MPM": "mpm_pbd", "SPH": "sph_pbd", "FEM": "pbd_fem"}
+
+
+def check_2d(e, scene) -> list[tuple[tuple, str]]:
+    """What a 2D scene refuses of a PBD entity (path below the entity, message): the 3D-only materials and
+    morphs; with ``scene``, the sinks and the coupling with other families (3D only in this version)."""
+    t = e.material.type
+    if t not in MATERIALS_2D:
+        return [
+            (
+                ("material", "type"),
+                f"{t} is 3D only (sim.dim: 3); in 2D, PBD runs {' and '.join(MATERIALS_2D)} "
+                "(cloth, rods and soft bodies are 3D only)",
+            )
+        ]
+    if e.morph.type not in MORPHS_2D:
+        return [
+            (
+                ("morph", "type"),
+                f"{t} in 2D takes {' or '.join(MORPHS_2D)} morphs (a Sphere is a disk); got {e.morph.type}",
+            )
+        ]
+    out: list[tuple[tuple, str]] = []
+    if scene is None:
+        return out
+    if getattr(scene, "sinks", None):
+        out.append(
+            (
+                ("material", "type"),
+                f"{t}: sinks with PBD entities are 3D only; remove the sinks or use sim.dim: 3",
+            )
+        )
+    cfg = getattr(scene, "coupling", None)
+    fams = sorted({x.family for x in scene.entities} & set(COUPLED_2D))
+    for fam in fams:
+        key = COUPLED_2D[fam]
+        if cfg is None or bool(getattr(cfg, key)):
+            out.append(
+                (
+                    ("material", "type"),
+                    f"{t}: coupling PBD with {fam} is 3D only; this 2D scene has {fam} entities: use "
+                    f"sim.dim: 3, or set coupling.{key}: false (they then do not interact)",
+                )
+            )
+    return out
+
+
+def check_entity(e, dim: int, scene_dir, lo, hi, opts=None, scene=None) -> list[tuple[tuple, str]]:
+    """Semantic checks of a PBD entity: (path below the entity, message) per problem. ``scene``: the whole
+    scene (2D: sinks and coupling are 3D only)."""
     out: list[tuple[tuple, str]] = []
     m = e.morph
-    if dim != 3:
-        return [(("material", "type"), f"{e.material.type} entities need a 3D scene (sim.dim: 3)")]
+    if dim not in (2, 3):
+        return [(("material", "type"), f"{e.material.type} entities need sim.dim 2 or 3")]
+    if dim == 2:
+        found = check_2d(e, scene)
+        if found:
+            return found
     allowed = MORPHS.get(e.material.type, ())
     if m.type not in allowed:
         what = {
@@ -227,14 +284,14 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
         rpath = ("fixed",) + ((j,) if isinstance(e.fixed, list) else ())
         for f in ("lower", "upper", "center", "size"):
             v = getattr(r, f, None)
-            if v is not None and len(v) != 3:
-                out.append((rpath + (f,), f"expected 3 components for dim 3 (got {len(v)})"))
+            if v is not None and len(v) != dim:
+                out.append((rpath + (f,), f"expected {dim} components for dim {dim} (got {len(v)})"))
     for f in ("lower", "upper", "size") if m.type == "Box" else ():
         v = getattr(m, f, None)
-        if v is not None and len(v) != 3:
-            out.append((("morph", f), f"expected 3 components for dim 3 (got {len(v)})"))
-    if m.type in ("Rectangle", "Sphere", "Cylinder") and len(m.center) != 3:
-        out.append((("morph", "center"), f"expected 3 components for dim 3 (got {len(m.center)})"))
+        if v is not None and len(v) != dim:
+            out.append((("morph", f), f"expected {dim} components for dim {dim} (got {len(v)})"))
+    if m.type in ("Rectangle", "Sphere", "Cylinder") and len(m.center) != dim:
+        out.append((("morph", "center"), f"expected {dim} components for dim {dim} (got {len(m.center)})"))
     if m.type == "Line":
         if len(m.points[0]) != 3:
             out.append(
@@ -259,16 +316,16 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None) -> list[tuple[tuple,
         from simcli.solvers.pbd.resources import pbd_entity_counts
 
         opts = opts or PBDOptions()
-        if pbd_entity_counts(e, opts, scene_dir)[0] > VALIDATE_BUILD_LIMIT:
+        if pbd_entity_counts(e, opts, scene_dir, dim)[0] > VALIDATE_BUILD_LIMIT:
             x = _morph_extent(m, scene_dir)
         else:
             from simcli.solvers.pbd.topology import mesh_for_entity
 
-            x = mesh_for_entity(e, scene_dir, opts).x
+            x = mesh_for_entity(e, scene_dir, opts, dim).x
     except Exception as ex:  # noqa: BLE001 - unreadable mesh file, no triangles, no tetgen: all reported
         return [(("morph",) + (("file",) if m.type == "Mesh" else ()), str(ex))]
     if lo is not None:
-        bad = [a for a in range(3) if x[:, a].min() < lo[a] - 1e-9 or x[:, a].max() > hi[a] + 1e-9]
+        bad = [a for a in range(dim) if x[:, a].min() < lo[a] - 1e-9 or x[:, a].max() > hi[a] + 1e-9]
         if bad:
             out.append(
                 (

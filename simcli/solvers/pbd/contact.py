@@ -28,10 +28,15 @@ class ParticleContact:
         """``count``: a func giving the active count (emitters, sinks; ``n`` is then the capacity)."""
         self.n, self.cell = n, float(cell)
         self.grid = grid = HashGrid(x, 0, n, self.cell, count)
-        self.dpos = dpos = ti.Vector.field(3, f, shape=n)
+        D = x.n  # 3, or 2 in a 2D scene
+        self.dpos = dpos = ti.Vector.field(D, f, shape=n)
         start, srt = grid.start, grid.sorted
         inv_cell = 1.0 / self.cell
-        around = grid.slots_around([(t // 4, (t // 2) % 2, t % 2) for t in range(8)])
+        if D == 3:
+            near = [(t // 4, (t // 2) % 2, t % 2) for t in range(8)]
+        else:
+            near = [(t // 2, t % 2) for t in range(4)]
+        around = grid.slots_around(near)
         active = count is not None
 
         @ti.func
@@ -48,10 +53,10 @@ class ParticleContact:
         @ti.kernel
         def collide():
             for i in range(npoints()):
-                dp = ti.Vector.zero(float, 3)
+                dp = ti.Vector.zero(float, D)
                 if w[i] > 0:
-                    sl = around(ti.floor(x[i] * inv_cell - 0.5, ti.i32))  # the 2 x 2 x 2 cells within reach
-                    for t in ti.static(range(8)):
+                    sl = around(ti.floor(x[i] * inv_cell - 0.5, ti.i32))  # the 2 x 2 (x 2) cells within reach
+                    for t in ti.static(range(len(near))):
                         s = sl[t]
                         for q in range(start[ti.max(s, 0)], start[s + 1]):  # empty for s = -1
                             j = srt[q]

@@ -39,6 +39,7 @@ class HashGrid:
         self.cursor = cursor = ti.field(ti.i32, shape=slots)
         self.sorted = srt = ti.field(ti.i32, shape=n)
         inv_cell = 1.0 / float(cell)
+        dim = x.n  # the points' components: 3, or 2 in a 2D scene
         active = n_now is not None
         self.mask = mask = ti.field(ti.i32, shape=()) if active else None
         if active:
@@ -60,7 +61,9 @@ class HashGrid:
 
         @ti.func
         def slot_of(c):
-            hsh = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791)
+            hsh = (c[0] * 73856093) ^ (c[1] * 19349663)
+            if ti.static(dim == 3):
+                hsh = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791)
             out = hsh & (slots - 1)
             if ti.static(active):
                 out = hsh & mask[None]
@@ -92,7 +95,7 @@ class HashGrid:
         if self.mask is not None:
             self.mask[None] = min(self.slots, table_size(n_now)) - 1
 
-    def slots_around(self, offsets: list[tuple[int, int, int]]):
+    def slots_around(self, offsets: list[tuple[int, ...]]):
         """A func c0 -> the slots of the cells c0 + offsets[t], in order, with -1 where a slot was listed
         before (two of the cells hashed to one slot: visit it once)."""
         k = len(offsets)

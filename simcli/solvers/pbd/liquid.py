@@ -37,36 +37,63 @@ CAPACITY = 64  # neighbours kept per particle (26 on the rest lattice at h = 2 x
 S_CORR_K, S_CORR_DQ, S_CORR_N = 0.1, 0.2, 4
 
 
-def poly6(r: np.ndarray, h: float) -> np.ndarray:
-    return np.where(r < h, 315.0 / (64.0 * math.pi * h**9) * (h * h - r * r) ** 3, 0.0)
+def poly6_const(h: float, dim: int = 3) -> float:
+    """The poly6 kernel's normalisation: W(r) = c (h^2 - r^2)^3 integrates to 1 over the ball (3D) or the
+    disk (2D) of radius h: 315 / (64 pi h^9) in 3D, 4 / (pi h^8) in 2D."""
+    return 315.0 / (64.0 * math.pi * h**9) if dim == 3 else 4.0 / (math.pi * h**8)
 
 
-def spiky_grad_mag(r: np.ndarray, h: float) -> np.ndarray:
-    return np.where((r < h) & (r > 0), -45.0 / (math.pi * h**6) * (h - r) ** 2, 0.0)
+def spiky_const(h: float, dim: int = 3) -> float:
+    """dW/dr = c (h - r)^2 of the spiky kernel W = 15 / (pi h^6) (h - r)^3 (3D), 10 / (pi h^5) (h - r)^3
+    (2D): -45 / (pi h^6), -30 / (pi h^5)."""
+    return -45.0 / (math.pi * h**6) if dim == 3 else -30.0 / (math.pi * h**5)
+
+
+def poly6(r: np.ndarray, h: float, dim: int = 3) -> np.ndarray:
+    return np.where(r < h, poly6_const(h, dim) * (h * h - r * r) ** 3, 0.0)
+
+
+def spiky_grad_mag(r: np.ndarray, h: float, dim: int = 3) -> np.ndarray:
+    return np.where((r < h) & (r > 0), spiky_const(h, dim) * (h - r) ** 2, 0.0)
 
 
 WALL_SAMPLES = 49  # 4k + 1: the rest lattice's distances ps/2 + k ps fall on samples (h = 2 ps)
 
 
-def wall_tables(spacing: float, h: float, mass: float):
+def wall_tables(spacing: float, h: float, mass: float, dim: int = 3):
     """Density [kg/m^3] a particle at distance d (0..h, WALL_SAMPLES samples) from a domain wall gets from
     virtual particles behind it: the fluid lattice mirrored (layers ps/2 + k ps behind the wall), so a
     particle of the rest lattice next to a wall sees exactly the neighbours it misses. Where two walls
     meet, both half-spaces hold the quarter-space behind the edge: its density (a table over the two
     distances) is subtracted once (inclusion-exclusion; the octants behind the 8 corners are left
     subtracted, a slight undercount on the safe side). Returns (d, rho_wall(d), d rho_wall/dd,
-    rho_edge(d1, d2), its derivatives along d1 and d2)."""
+    rho_edge(d1, d2), its derivatives along d1 and d2). 2D (``dim`` 2): the lattice along the wall is a row,
+    the "edge" a corner (the quadrant behind two walls), the 2D kernel's normalisation."""
     k = math.ceil(h / spacing)
     g = np.arange(-k, k + 1) * spacing
     d = np.linspace(0.0, h, WALL_SAMPLES)
     behind = spacing / 2 + np.arange(k + 1) * spacing
+    A = d[:, None] + behind[None, :]  # distance behind a wall of each layer, (d, k)
+    if dim == 2:
+        # half-plane: the row along the wall x layers behind; quadrant behind a corner: layers behind both
+        r = np.sqrt(g[None, None, :] ** 2 + A[:, :, None] ** 2)
+        half = mass * poly6(r, h, 2).sum(axis=(1, 2))
+        r2 = A[:, None, :, None] ** 2 + A[None, :, None, :] ** 2
+        quarter = mass * poly6(np.sqrt(r2), h, 2).sum(axis=(2, 3))  # (d1, d2)
+        return (
+            d,
+            half,
+            np.gradient(half, d),
+            quarter,
+            np.gradient(quarter, d, axis=0),
+            np.gradient(quarter, d, axis=1),
+        )
     # half-space: lateral lattice (2D) x layers behind
     lat = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
     dz = d[:, None, None] + behind[None, :, None]
     r = np.sqrt((lat**2).sum(axis=1)[None, None, :] + dz**2)
     half = mass * poly6(r, h).sum(axis=(1, 2))
     # quarter-space behind an edge: layers behind both walls x the lattice along the edge
-    A = d[:, None] + behind[None, :]  # distance behind a wall of each layer, (d, k)
     r2 = A[:, None, :, None, None] ** 2 + A[None, :, None, :, None] ** 2 + g[None, None, None, None, :] ** 2
     quarter = mass * poly6(np.sqrt(r2), h).sum(axis=(2, 3, 4))  # (d1, d2)
     return (
@@ -79,15 +106,15 @@ def wall_tables(spacing: float, h: float, mass: float):
     )
 
 
-def lattice_constants(spacing: float, h: float) -> tuple[float, float]:
-    """(sum_j W, S0 / V^2) of an interior particle of a cubic lattice: sum W (self included) and
+def lattice_constants(spacing: float, h: float, dim: int = 3) -> tuple[float, float]:
+    """(sum_j W, S0 / V^2) of an interior particle of a cubic (2D: square) lattice: sum W (self included) and
     |sum grad W|^2 + sum |grad W|^2 (the first is 0 by symmetry)."""
     k = math.ceil(h / spacing)
     g = np.arange(-k, k + 1)
-    off = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) * spacing
+    off = np.stack(np.meshgrid(*([g] * dim), indexing="ij"), -1).reshape(-1, dim) * spacing
     r = np.linalg.norm(off, axis=1)
-    gm = spiky_grad_mag(r, h)
-    return float(poly6(r, h).sum()), float((gm * gm).sum())
+    gm = spiky_grad_mag(r, h, dim)
+    return float(poly6(r, h, dim).sum()), float((gm * gm).sum())
 
 
 class PBFLiquid:
@@ -113,7 +140,8 @@ class PBFLiquid:
         n = hi - lo
         h = 2.0 * spacing
         self.h = h
-        wsum, gsum = lattice_constants(spacing, h)
+        D = solver.dim  # 3, or 2 in a 2D scene (masses per metre of depth, the 2D kernels)
+        wsum, gsum = lattice_constants(spacing, h, D)
         rho0 = mass * wsum
         vol = mass / rho0
         count = mass_f = lid = par = None  # (closure cells of the funcs below, unused without active)
@@ -125,10 +153,10 @@ class PBFLiquid:
         self.rho0, self.s0 = rho0, s0
         relax, visc, self.vort = materials
         eps = relax * s0
-        wdq = float(poly6(np.array([S_CORR_DQ * h]), h)[0])
+        wdq = float(poly6(np.array([S_CORR_DQ * h]), h, D)[0])
         self.iterations = opts.density_iterations
         # active mode: tables per unit mass, scaled by each particle's mass
-        _, half, dhalf, quarter, dq1, dq2 = wall_tables(spacing, h, 1.0 if act else mass)
+        _, half, dhalf, quarter, dq1, dq2 = wall_tables(spacing, h, 1.0 if act else mass, D)
         rho0_div = wsum if act else rho0  # a wall gradient's density over rho0
         npf = solver.npf
         w_half = ti.field(f, shape=WALL_SAMPLES)
@@ -166,18 +194,22 @@ class PBFLiquid:
 
         self.grid = grid = HashGrid(x, lo, n, h, npts if act else None)
         start, srt, cell_of = grid.start, grid.sorted, grid.cell_of
-        around = grid.slots_around([(t // 9 - 1, (t // 3) % 3 - 1, t % 3 - 1) for t in range(27)])
+        if D == 3:
+            cells = [(t // 9 - 1, (t // 3) % 3 - 1, t % 3 - 1) for t in range(27)]
+        else:
+            cells = [(t // 3 - 1, t % 3 - 1) for t in range(9)]
+        around = grid.slots_around(cells)
         nb = ti.field(ti.i32, shape=(n, CAPACITY))
         nnb = ti.field(ti.i32, shape=n)
         lam = ti.field(f, shape=n)
         rho = ti.field(f, shape=n)
-        dpos = ti.Vector.field(3, f, shape=n)
-        dvel = ti.Vector.field(3, f, shape=n)
+        dpos = ti.Vector.field(D, f, shape=n)
+        dvel = ti.Vector.field(D, f, shape=n)
         self.rho = rho
         self.overflow = ti.field(ti.i32, shape=())
         overflow = self.overflow
-        c6 = 315.0 / (64.0 * math.pi * h**9)
-        cs = -45.0 / (math.pi * h**6)
+        c6 = poly6_const(h, D)
+        cs = spiky_const(h, D)
 
         @ti.func
         def W(r):
@@ -188,7 +220,7 @@ class PBFLiquid:
 
         @ti.func
         def gradW(d, r):
-            out = ti.Vector.zero(float, 3)
+            out = ti.Vector.zero(float, D)
             if r < h and r > 1e-9:
                 out = cs * (h - r) ** 2 * d / r
             return out
@@ -203,19 +235,19 @@ class PBFLiquid:
         def walls(xi):
             """Density of the walls' virtual particles at xi and its gradient in C units (1/m)."""
             rw = 0.0
-            gw = ti.Vector.zero(float, 3)
-            dist = ti.Vector.zero(float, 6)
-            sgn = ti.Vector([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # d dist / dx along its axis
-            for ax in ti.static(range(3)):
+            gw = ti.Vector.zero(float, D)
+            dist = ti.Vector.zero(float, 2 * D)
+            sgn = ti.Vector([1.0, -1.0] * D)  # d dist / dx along its axis
+            for ax in ti.static(range(D)):
                 dist[2 * ax] = xi[ax] - dom_lo[None][ax]
                 dist[2 * ax + 1] = dom_hi[None][ax] - xi[ax]
-            for q in ti.static(range(6)):
+            for q in ti.static(range(2 * D)):
                 if dist[q] < h:
                     i0, t = coord(dist[q])
                     rw += (1 - t) * w_half[i0] + t * w_half[i0 + 1]
                     gw[q // 2] += sgn[q] * ((1 - t) * w_dhalf[i0] + t * w_dhalf[i0 + 1]) / rho0_div
-            for q1 in ti.static(range(6)):
-                for q2 in ti.static(range(6)):
+            for q1 in ti.static(range(2 * D)):
+                for q2 in ti.static(range(2 * D)):
                     if ti.static(q1 // 2 < q2 // 2):  # noqa: SIM102 - two walls of different axes: an edge
                         if dist[q1] < h and dist[q2] < h:
                             i, t = coord(dist[q1])
@@ -286,15 +318,15 @@ class PBFLiquid:
             its density map (density_map.py: the kernel's share of the solid, as a wall's table)."""
             xq = poses.to_body(k, xi, 1)
             rw = 0.0
-            gb = ti.Vector.zero(float, 3)  # in the body frame
+            gb = ti.Vector.zero(float, D)  # in the body frame
             if ti.static(cols[k].kind == "Box"):
                 lo_, hi_ = col_a[k], col_b[k]
                 o = ti.Vector.zero(
-                    float, 3
+                    float, D
                 )  # distance outside along each axis (< 0: inside, to the nearer face)
-                sd = ti.Vector.zero(float, 3)  # the outward direction of that face along its axis
+                sd = ti.Vector.zero(float, D)  # the outward direction of that face along its axis
                 nout = 0
-                for ax in ti.static(range(3)):
+                for ax in ti.static(range(D)):
                     s_lo = lo_[ax] - xq[ax]
                     s_hi = xq[ax] - hi_[ax]
                     if s_lo > s_hi:
@@ -305,16 +337,16 @@ class PBFLiquid:
                         nout += 1
                 if nout <= 1:
                     asel = 0  # the axis it is outside (or nearest to the surface, inside)
-                    for ax in ti.static(range(1, 3)):
+                    for ax in ti.static(range(1, D)):
                         if o[ax] > o[asel]:
                             asel = ax
-                    for A in ti.static(range(3)):
+                    for A in ti.static(range(D)):
                         dA = ti.max(o[A], 0.0)
                         if A == asel and dA < h:
                             i0, t = coord(dA)
                             rw = (1 - t) * w_half[i0] + t * w_half[i0 + 1]
                             gb[A] += sd[A] * ((1 - t) * w_dhalf[i0] + t * w_dhalf[i0 + 1])
-                            for B in ti.static(range(3)):
+                            for B in ti.static(range(D)):
                                 if ti.static(B != A):
                                     if -o[B] < h:
                                         wq, g1, g2 = quarter(dA, -o[B])
@@ -322,8 +354,8 @@ class PBFLiquid:
                                         gb[A] -= sd[A] * g1
                                         gb[B] += sd[B] * g2  # d(-o_B)/dx = -sd_B along B
                 elif nout == 2:
-                    for A in ti.static(range(3)):
-                        for B in ti.static(range(A + 1, 3)):
+                    for A in ti.static(range(D)):
+                        for B in ti.static(range(A + 1, D)):
                             if o[A] > 0 and o[B] > 0 and o[A] < h and o[B] < h:
                                 wq, g1, g2 = quarter(o[A], o[B])
                                 rw = wq
@@ -331,12 +363,12 @@ class PBFLiquid:
                                 gb[B] += sd[B] * g2
             else:
                 phi = 1.0
-                nrm = ti.Vector.zero(float, 3)
+                nrm = ti.Vector.zero(float, D)
                 if ti.static(cols[k].kind == "Sphere"):
                     phi, nrm = sdf_sphere(xq, col_a[k], col_r[k])
-                elif ti.static(cols[k].kind == "Cylinder"):
+                elif ti.static(cols[k].kind == "Cylinder" and D == 3):
                     phi, nrm = sdf_cylinder(xq, col_a[k], col_r[k], col_hh[k], cols[k].axis)
-                if ti.static(cols[k].kind == "Mesh"):
+                if ti.static(cols[k].kind == "Mesh" and D == 3):
                     rw, gb = dmaps[k].sample(xq)
                 elif phi < h:
                     i0, t = coord(phi)
@@ -348,9 +380,9 @@ class PBFLiquid:
         def neighbours():
             grid.build()
             for a in range(npts()):
-                sl = around(cell_of(x[lo + a]))  # the 3 x 3 x 3 cells around a's
+                sl = around(cell_of(x[lo + a]))  # the 3 x 3 (x 3) cells around a's
                 m = 0
-                for t in ti.static(range(27)):
+                for t in ti.static(range(len(cells))):
                     s = sl[t]
                     if not liquid(a):
                         s = -1
@@ -371,7 +403,7 @@ class PBFLiquid:
                 r_i = mass * W(0.0)
                 if ti.static(act):
                     r_i = m_of(a) * W(0.0)
-                gi = ti.Vector.zero(float, 3)
+                gi = ti.Vector.zero(float, D)
                 g2 = 0.0
                 for m in range(nnb[a]):
                     d = xi - x[lo + nb[a, m]]
@@ -406,7 +438,7 @@ class PBFLiquid:
                     lam[a] = -C / (gi.norm_sqr() + g2 + eps)
             for a in range(npts()):
                 xi = x[lo + a]
-                dp = ti.Vector.zero(float, 3)
+                dp = ti.Vector.zero(float, D)
                 kc = k_corr
                 if ti.static(act):
                     kc = par[ti.max(lid[lo + a], 0)][1]
@@ -434,7 +466,7 @@ class PBFLiquid:
         @ti.kernel
         def viscosity(c: float):
             for a in range(npts()):
-                dv = ti.Vector.zero(float, 3)
+                dv = ti.Vector.zero(float, D)
                 for m in range(nnb[a]):
                     b = nb[a, m]
                     d = x[lo + a] - x[lo + b]
@@ -450,34 +482,69 @@ class PBFLiquid:
                 if w[lo + a] > 0:
                     v[lo + a] += dvel[a]
 
-        omega = ti.Vector.field(3, f, shape=n)
+        # 3D: omega a vector; 2D: the curl's z component, a scalar (N x omega = omega (N_y, -N_x))
+        omega = ti.Vector.field(3, f, shape=n) if D == 3 else ti.field(f, shape=n)
+
+        @ti.func
+        def curl(g, dv):  # g x dv (2D: its z component)
+            if ti.static(D == 3):
+                return g.cross(dv)
+            else:
+                return g[0] * dv[1] - g[1] * dv[0]
+
+        @ti.func
+        def omega_abs(a):
+            out = 0.0
+            if ti.static(D == 3):
+                out = omega[a].norm()
+            else:
+                out = ti.abs(omega[a])
+            return out
+
+        @ti.func
+        def n_cross_omega(nv, a):  # N x omega (2D: omega along z)
+            out = ti.Vector.zero(float, D)
+            if ti.static(D == 3):
+                out = nv.cross(omega[a])
+            else:
+                out = omega[a] * ti.Vector([nv[1], -nv[0]])
+            return out
 
         @ti.kernel
         def vorticity(eps_v: float, dt: float):
             """Vorticity confinement (Macklin and Mueller 2013 eqs. 15-16; Fedkiw et al. 2001): curl
             omega_i = sum_j V grad W_ij x (v_j - v_i), eta = grad |omega|, N = eta / |eta|, and the
-            acceleration eps_v (N x omega) puts back the swirl the position projection damps."""
+            acceleration eps_v (N x omega) puts back the swirl the position projection damps. In 2D omega
+            is the scalar curl (about z) and N x omega = omega (N_y, -N_x)."""
             for a in range(npts()):
-                cw = ti.Vector.zero(float, 3)
+                if ti.static(D == 3):
+                    cw = ti.Vector.zero(float, 3)
+                    for m in range(nnb[a]):
+                        b = nb[a, m]
+                        d = x[lo + a] - x[lo + b]
+                        cw += vol * curl(gradW(d, d.norm()), v[lo + b] - v[lo + a])
+                    omega[a] = cw
+                else:
+                    cz = 0.0
+                    for m in range(nnb[a]):
+                        b = nb[a, m]
+                        d = x[lo + a] - x[lo + b]
+                        cz += vol * curl(gradW(d, d.norm()), v[lo + b] - v[lo + a])
+                    omega[a] = cz
+            for a in range(npts()):
+                eta = ti.Vector.zero(float, D)
+                wa = omega_abs(a)
                 for m in range(nnb[a]):
                     b = nb[a, m]
                     d = x[lo + a] - x[lo + b]
-                    cw += vol * gradW(d, d.norm()).cross(v[lo + b] - v[lo + a])
-                omega[a] = cw
-            for a in range(npts()):
-                eta = ti.Vector.zero(float, 3)
-                wa = omega[a].norm()
-                for m in range(nnb[a]):
-                    b = nb[a, m]
-                    d = x[lo + a] - x[lo + b]
-                    eta += vol * (omega[b].norm() - wa) * gradW(d, d.norm())
+                    eta += vol * (omega_abs(b) - wa) * gradW(d, d.norm())
                 le = eta.norm()
-                dv = ti.Vector.zero(float, 3)
+                dv = ti.Vector.zero(float, D)
                 if le > 1e-9:
                     if ti.static(act):
-                        dv = dt * par[ti.max(lid[lo + a], 0)][3] * (eta / le).cross(omega[a])
+                        dv = dt * par[ti.max(lid[lo + a], 0)][3] * n_cross_omega(eta / le, a)
                     else:
-                        dv = dt * eps_v * (eta / le).cross(omega[a])
+                        dv = dt * eps_v * n_cross_omega(eta / le, a)
                 dvel[a] = dv
             for a in range(npts()):
                 if w[lo + a] > 0:

@@ -36,13 +36,13 @@ PBD_HOST_FACTOR = 1.7  # meshes: vertices and constraints
 PBD_PARTICLE_HOST_FACTOR = 1.24  # free particles (PBD.Particle, PBD.Liquid)
 
 
-def pbd_entity_counts(e, opts, scene_dir=None) -> tuple[int, int, str]:
+def pbd_entity_counts(e, opts, scene_dir=None, dim: int = 3) -> tuple[int, int, str]:
     """(vertices, constraints, kind) of a PBD entity, from its morph alone (no mesh built). Mesh files are
     read (memory proportional to the file); every other morph is counted analytically."""
     m = e.morph
     mat = e.material.type
     if mat in ("PBD.Particle", "PBD.Liquid"):
-        n = particle_count(m, opts.particle_size, 3, scene_dir)
+        n = particle_count(m, opts.particle_size, dim, scene_dir)
         return n, 0, "particles"
     if mat == "PBD.Elastic" and m.type != "Line":
         from simcli.geometry.tetmesh import estimate_counts
@@ -76,7 +76,7 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
     for i, e in enumerate(scene.entities):
         if e.family != "PBD":
             continue
-        v, c, kind = pbd_entity_counts(e, opts, scene_dir)
+        v, c, kind = pbd_entity_counts(e, opts, scene_dir, int(scene.sim.dim))
         nv, nc = nv + v, nc + c
         if kind == "particles":
             n_free += v
@@ -121,6 +121,8 @@ def estimate(scene, scene_dir, lo, hi) -> Part | None:
         b,
         key,
         advice,
-        out_bytes=nv * out_floats(scene, DEFAULT_FIELDS, 3) * 4,  # output is float32 at either precision
-        state_bytes=nv * 4 * fp * 6,  # x, v
+        out_bytes=nv
+        * out_floats(scene, DEFAULT_FIELDS, int(scene.sim.dim))
+        * 4,  # output is float32 at either precision
+        state_bytes=nv * 4 * fp * 2 * int(scene.sim.dim),  # x, v
     )

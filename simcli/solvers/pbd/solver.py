@@ -99,12 +99,19 @@ class PBDSolver(Solver):
 
     def __init__(self, scene: Any, bodies: list[Body], scene_dir=None) -> None:
         super().__init__(scene, bodies)
-        if scene.sim.dim != 3:
-            raise ValueError("PBD entities need a 3D scene (sim.dim: 3)")
+        self.dim = D = int(scene.sim.dim)
         self.opts = scene.solvers.pbd
         self.entities = [e for e in scene.entities if e.family == "PBD"]
+        if D == 2:  # free particles only (config.check_2d refuses the rest first, with its location)
+            from simcli.solvers.pbd.config import check_2d
+
+            for e in self.entities:
+                for _, msg in check_2d(e, scene):
+                    raise ValueError(f"entity '{e.name}': {msg}")
+        elif D != 3:
+            raise ValueError("PBD entities need sim.dim 2 or 3")
         self.scene_dir = scene_dir  # collider motion files are relative to it
-        self.meshes = [mesh_for_entity(e, scene_dir, self.opts) for e in self.entities]
+        self.meshes = [mesh_for_entity(e, scene_dir, self.opts, D) for e in self.entities]
         # emitters and sinks (simcli/solvers/sources.py): an active count; None in scenes without them
         self.sources = None
         if has_sources(scene, "PBD"):
@@ -156,10 +163,10 @@ class PBDSolver(Solver):
 
     # ---------------------------------------------------------------- host side
     def _prepare_host(self) -> None:
-        n = self.n
-        x0 = np.zeros((n, 3))
-        xs = np.zeros((n, 3))
-        v = np.zeros((n, 3))
+        n, D = self.n, self.dim
+        x0 = np.zeros((n, D))
+        xs = np.zeros((n, D))
+        v = np.zeros((n, D))
         mass = np.zeros(n)
         fixed = np.zeros(n, bool)
         radius = np.zeros(n)
@@ -170,7 +177,7 @@ class PBDSolver(Solver):
         st, st_r, st_c, bd, bd_r, bd_c, dh, dh_r, dh_c, tv, tv_r, tv_c = ([] for _ in range(12))
         meshed = np.zeros(n, np.int32)
         lid = np.full(n, -1, np.int32)  # active mode: the liquid (parameters) of each particle, -1 none
-        vfix = np.zeros((n, 3))
+        vfix = np.zeros((n, D))
         self.warnings = []
         for k, (e, m) in enumerate(zip(self.entities, self.meshes)):
             lo, hi = self.offsets[k], self.offsets[k + 1]
@@ -232,10 +239,10 @@ class PBDSolver(Solver):
             "volume", 4, cat(tv).astype(np.int64).reshape(-1, 4), cat(tv_r), cat(tv_c), n
         )
         self.edge = float(np.mean(self.stretch.rest)) if self.stretch.k else self.opts.particle_size
-        # small bodies: every sweep of a substep in one single-threaded launch (see project_serial)
-        self.serial = (
-            self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k <= SERIAL_CONSTRAINTS
-        )
+        # small bodies: every sweep of a substep in one single-threaded launch (see project_serial); free
+        # particles only (no constraints): nothing to project
+        n_cons = self.stretch.k + self.bend_dist.k + self.dihedral.k + self.volume.k
+        self.serial = 0 < n_cons <= SERIAL_CONSTRAINTS
 
     # --------------------------------------------------------------------- build
     def build(self) -> None:
@@ -246,22 +253,22 @@ class PBDSolver(Solver):
         f = ti.f64 if self.scene.sim.precision == "f64" else ti.f32
         self.f = f
         npf = self.npf = np.float64 if f == ti.f64 else np.float32
-        n = self.n
-        V3 = lambda k: ti.Vector.field(3, f, shape=k)
+        n, D = self.n, self.dim
+        V3 = lambda k: ti.Vector.field(D, f, shape=k)  # (D components: 3, or 2 in a 2D scene)
         self.x, self.v, self.xp, self.x0_f, self.reaction = V3(n), V3(n), V3(n), V3(n), V3(n)
         self.w = ti.field(f, shape=n)
         self.vfix_f = V3(n)
         self.vfix_f.from_numpy(self.vfix.astype(npf))
         self.rad = ti.field(f, shape=n)
         self.drag_f = ti.field(f, shape=n)
-        self.gravity = ti.Vector.field(3, f, shape=())
+        self.gravity = ti.Vector.field(D, f, shape=())
         self.x.from_numpy(self.xstart.astype(npf))
         self.v.from_numpy(self.v0.astype(npf))
         self.x0_f.from_numpy(self.x0.astype(npf))
         self.w.from_numpy(self.inv_mass.astype(npf))
         self.rad.from_numpy(self.radius.astype(npf))
         self.drag_f.from_numpy(self.drag.astype(npf))
-        self.gravity[None] = [float(c) for c in self.scene.sim.gravity_vec]
+        self.gravity[None] = [float(c) for c in self.scene.sim.gravity_vec[:D]]
         self.count = self._count_func()
         if self.sources is not None:  # per-particle identity, mass and liquid (active mode)
             self.pid = ti.field(ti.i32, shape=n)
@@ -273,16 +280,16 @@ class PBDSolver(Solver):
         for cs in (self.stretch, self.bend_dist, self.dihedral, self.volume):
             cs.allocate(f, npf)
         # walls and colliders: kinds compile-time, numbers in fields
-        self.walls = wall_specs(self.scene, 3)
-        self.cols = collider_specs(self.scene, 3, self.scene_dir)
+        self.walls = wall_specs(self.scene, D)
+        self.cols = collider_specs(self.scene, D, self.scene_dir)
         # moving and named colliders: pose per substep, loads (compiled only when a collider needs them)
-        self.poses = ColliderPoses(self.cols, collider_motions(self.scene, 3, self.scene_dir), 3, f)
+        self.poses = ColliderPoses(self.cols, collider_motions(self.scene, D, self.scene_dir), D, f)
         self.poses.allocate()
         from simcli.collider_mesh_kernels import PBDRestitution, mesh_fields
 
         self.mesh_fields = mesh_fields(self.cols, f)  # Mesh colliders' signed-distance grids
         self.restitution = PBDRestitution(  # compiled only when a collider has restitution
-            self.cols, n, f, self.v, float(np.linalg.norm(self.scene.sim.gravity_vec))
+            self.cols, n, f, self.v, float(np.linalg.norm(self.scene.sim.gravity_vec)), D
         )
         nc = max(1, len(self.cols))
         self.col_a, self.col_b = V3(nc), V3(nc)
@@ -290,10 +297,10 @@ class PBDSolver(Solver):
         for k, c in enumerate(self.cols):
             self.col_a[k], self.col_b[k] = c.a, c.b
             self.col_r[k], self.col_hh[k], self.col_mu[k] = c.radius, c.half_height, c.friction
-        lo, hi = self.scene.domain.bounds(3)
+        lo, hi = self.scene.domain.bounds(D)
         self.dom_lo, self.dom_hi = V3(()), V3(())
         self.dom_lo[None], self.dom_hi[None] = lo, hi
-        self.wall_mu = ti.field(f, shape=6)
+        self.wall_mu = ti.field(f, shape=2 * D)
         self.wall_mu.from_numpy(np.array([w.friction for w in self.walls], npf))
         nb = len(self.entities)
         self.body_off = ti.field(ti.i32, shape=nb + 1)
@@ -492,6 +499,7 @@ class PBDSolver(Solver):
         x, v, xp, w, rad, drag, gravity = self.x, self.v, self.xp, self.w, self.rad, self.drag_f, self.gravity
         vfix = self.vfix_f
         eps = 1e-12 if self.f == ti.f64 else 1e-9
+        D = self.dim
 
         @ti.kernel
         def predict(dt: float):
@@ -700,9 +708,9 @@ class PBDSolver(Solver):
             for i in range(N()):
                 if w[i] > 0:
                     xi, xpi, r = x[i], xp[i], rad[i]
-                    for fc in ti.static(range(6)):
+                    for fc in ti.static(range(2 * D)):
                         ax = walls[fc].axis
-                        nrm = ti.Vector.zero(float, 3)
+                        nrm = ti.Vector.zero(float, D)
                         phi = 0.0
                         if ti.static(walls[fc].side < 0):
                             nrm[ax] = 1.0
@@ -713,7 +721,7 @@ class PBDSolver(Solver):
                         xi = push(xi, xpi, phi, nrm, r, wall_mu[fc], walls[fc].contact == "sticky", friction)
                     for k in ti.static(range(nc)):
                         phi = 1.0
-                        nrm = ti.Vector.zero(float, 3)
+                        nrm = ti.Vector.zero(float, D)
                         xq = xi
                         if ti.static(cols[k].moving):  # the body-frame SDF at the substep's end pose
                             xq = poses.to_body(k, xi, 1)
@@ -723,14 +731,14 @@ class PBDSolver(Solver):
                             phi, nrm = sdf_sphere(xq, col_a[k], col_r[k])
                         elif ti.static(cols[k].kind == "Box"):
                             phi, nrm = sdf_box(xq, col_a[k], col_b[k])
-                        elif ti.static(cols[k].kind == "Cylinder"):
+                        elif ti.static(cols[k].kind == "Cylinder" and D == 3):
                             phi, nrm = sdf_cylinder(xq, col_a[k], col_r[k], col_hh[k], cols[k].axis)
-                        elif ti.static(cols[k].kind == "Mesh"):
+                        elif ti.static(cols[k].kind == "Mesh" and D == 3):
                             phi, nrm = mesh_f[k].sample(xq)
                         if ti.static(cols[k].moving):
                             nrm = poses.normal_to_world(k, nrm, 1)
                         if ti.static(friction and cols[k].restitution > 0):
-                            vw = ti.Vector.zero(float, 3)
+                            vw = ti.Vector.zero(float, D)
                             if ti.static(cols[k].moving):
                                 vw = poses.velocity(k, xi, 1)
                             rest.record(i, k, phi - r, nrm, v[i] - vw, vw)
@@ -780,7 +788,7 @@ class PBDSolver(Solver):
             forces lambda grad C / dt^2 of the last substep acting on it."""
             inv_dt2 = 1.0 / (dt * dt)
             for i in range(n):
-                reaction[i] = ti.Vector.zero(float, 3)
+                reaction[i] = ti.Vector.zero(float, D)
             for cs in ti.static((self.stretch, self.bend_dist)):
                 for k in range(cs.k):
                     i, j = cs.f_idx[k][0], cs.f_idx[k][1]
@@ -904,11 +912,12 @@ class PBDSolver(Solver):
         return ["position", "velocity", "displacement"] if tets else ["position", "velocity"]
 
     def output_fields(self) -> dict[str, tuple[int, str]]:
+        D = self.dim  # 2D: two components (masses and forces per metre of depth)
         return {
-            "position": (3, "m"),
-            "velocity": (3, "m/s"),
-            "reaction": (3, "N"),
-            "displacement": (3, "m"),
+            "position": (D, "m"),
+            "velocity": (D, "m/s"),
+            "reaction": (D, "N"),
+            "displacement": (D, "m"),
             "density": (1, "kg/m^3"),
         }
 
@@ -949,7 +958,7 @@ class PBDSolver(Solver):
                     self._reactions(self.last_dt)
                     a = self.reaction.to_numpy()
                 else:
-                    a = np.zeros((self.n, 3))
+                    a = np.zeros((self.n, self.dim))
             else:
                 raise KeyError(f"unknown PBD output field {fld!r}; known: {', '.join(OUTPUT_FIELDS)}")
             out[fld] = np.array(a[lo:hi])
@@ -973,7 +982,7 @@ class PBDSolver(Solver):
                     self._reactions(self.last_dt)
                     a = self.reaction.to_numpy()
                 else:
-                    a = np.zeros((self.n, 3))
+                    a = np.zeros((self.n, self.dim))
             else:
                 raise KeyError(f"unknown PBD output field {fld!r}; known: {', '.join(OUTPUT_FIELDS)}")
             out[fld] = np.array(a[slots])
@@ -1004,7 +1013,7 @@ class PBDSolver(Solver):
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         for key, fld in (("x", self.x), ("v", self.v)):
-            upload_state_array(fld, state, key, (self.n, 3), self.npf, "PBD")
+            upload_state_array(fld, state, key, (self.n, self.dim), self.npf, "PBD")
         self.time = float(np.asarray(state.get("time", [0.0])).reshape(-1)[0])
         self.last_dt = float(np.asarray(state.get("last_dt", [0.0])).reshape(-1)[0])
         if self.sources is not None:

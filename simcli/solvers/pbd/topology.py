@@ -120,17 +120,17 @@ def tet_volumes(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", np.cross(x[tets[:, 1]] - a, x[tets[:, 2]] - a), x[tets[:, 3]] - a) / 6.0
 
 
-def mesh_for_entity(e, scene_dir, opts) -> PBDMesh:
+def mesh_for_entity(e, scene_dir, opts, dim: int = 3) -> PBDMesh:
     """The PBD mesh of an entity: a cloth sheet (Rectangle, open or closed triangle Mesh), a rod (Line),
     a tetrahedral soft body (PBD.Elastic solids, meshed as FEM does) or free particles (PBD.Particle).
     opts: the scene's solvers.pbd (the caller passes it: this module does not import config.py, which
-    imports it)."""
+    imports it). ``dim``: 2 for free particles in a 2D scene (mass per metre of depth: rho x area / count)."""
     m = e.morph
     mat = e.material
     if mat.type in ("PBD.Particle", "PBD.Liquid"):
         from simcli.geometry.sampling import sample_morph
 
-        x, volume, _ = sample_morph(m, opts.particle_size, 3, scene_dir)
+        x, volume, _ = sample_morph(m, opts.particle_size, dim, scene_dir)
         n = len(x)
         if n == 0:
             raise ValueError(
