@@ -213,3 +213,23 @@ def test_a_moving_sphere_or_cylinder_moves_as_its_triangles(tmp_path, kind):
     Rz = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]])
     c0 = np.array([0, 0, 0.2 if sphere else 0.15])
     np.testing.assert_allclose(s.vobs, (V0 - c0) @ Rz.T + c0 + [0, 0, -0.2 * s.tau], atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "collider, kw, what",
+    [  # every cloth vertex outside the exact shape and farther than contact_distance from it (so the
+        # per-vertex check passed these and the run started intersecting), but a face goes through it:
+        # a 6 cm cell whose face passes 1 mm under the sphere's top
+        (SPHERE, dict(size="[0.12, 0.12]", res=2, center="[0.03, 0.01, 0.299]"), "colliders.0 (Sphere)"),
+        # one 0.5 m cell 1 mm under the cylinder's top: its side cuts the face
+        (CYLINDER, dict(size="[0.5, 0.5]", res=1, center="[0.0, 0.0, 0.249]"), "colliders.0 (Cylinder)"),
+    ],
+)
+def test_a_sheet_starting_through_a_sphere_or_cylinder_is_a_located_error(tmp_path, collider, kw, what):
+    from simcli.errors import SceneError
+    from simcli.scene.loader import load_scene
+
+    with pytest.raises(SceneError) as ei:
+        load_scene(_scene(tmp_path, collider=collider, **kw))
+    msg = str(ei.value)
+    assert f"intersects {what} at the start" in msg and "cloth.yaml:" in msg and "near [" in msg, msg
