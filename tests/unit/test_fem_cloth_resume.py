@@ -60,12 +60,7 @@ def test_resume_equals_the_uninterrupted_run_bit_for_bit(tmp_path):
     info = json.loads((out / "run.json").read_text())["solvers"]["fem_cloth"]
     assert info["max_contacts"] > 0
     x = full["entities/a/position"]
-    from simcli.collider_mesh import mesh_distance
-
-    with h5py.File(out / "sim.h5", "r") as f:
-        cells = f["entities/a/cells"][()].astype(np.int64)
-    # the sheet's nearest point (a face of this coarse sheet, 5 cm edges on a 5 cm sphere) within 3 mm of it
-    assert mesh_distance(x[-1].astype(np.float64), cells, np.array([[0.0, 0.0, 0.1]]))[0] < 0.05 + 0.003
+    assert np.linalg.norm(x[-1] - [0, 0, 0.1], axis=1).min() < 0.05 + 0.003
     ckpts = sorted((out / "checkpoints").glob("ckpt_*.npz"))
     assert len(ckpts) >= 3
     for p in ckpts[2:]:  # resume from the checkpoint at step 4

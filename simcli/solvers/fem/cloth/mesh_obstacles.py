@@ -17,13 +17,13 @@ signed-distance grid).
 * A `type: Box` collider enters as its 12 exact triangles (8 corners, outward faces; pivot its centre, as
   simcli.motion takes it): a convex signed distance per cloth vertex kept the vertices out of the box but
   not the box's edges out of the cloth's triangles (a sheet draped over a box edge was cut by it).
-* `type: Sphere` and `type: Cylinder` colliders enter as circumscribed triangulations (:func:`sphere_mesh`,
-  :func:`cylinder_mesh` with ``circumscribed=True``: every facet outside the exact surface or on it, within
-  contact_distance / 2 of it): a signed distance per cloth vertex kept the vertices out but not the edges
-  and triangles (a Cylinder's rims cut a sheet draped over them; a coarse sheet's edges dipped into a
-  Sphere by their sagitta). Outside the triangles is outside the exact shape, so IPC's guarantee covers
-  the exact Sphere and Cylinder too; the sheet rests up to contact_distance / 2 farther out than on the
-  exact surface. Pivot: their centre (simcli.motion).
+* A `type: Cylinder` collider enters as a circumscribed prism (:func:`cylinder_mesh` with
+  ``circumscribed=True``: every facet outside the exact surface or on it, within contact_distance / 2 of
+  it): a signed distance per cloth vertex kept the vertices out but not the edges and triangles (its rims
+  cut a sheet draped over them). Outside the triangles is outside the exact cylinder, so IPC's guarantee
+  covers it too; the sheet rests up to contact_distance / 2 farther out than on the exact surface. Pivot:
+  its centre (simcli.motion). :func:`sphere_mesh` (a circumscribed icosphere) is not used for Sphere
+  colliders yet (docs/FEM.md, "Remaining gaps").
 * Free rigid bodies (simcli.rigid, ``rigid_bodies``) enter the same way, after the colliders: a Box body its
   12 triangles, a Mesh body its file's triangles, a Sphere an inscribed icosphere and a Cylinder an inscribed
   prism (:func:`body_mesh`, fine enough that the facets lie within contact_distance / 2 of the true
@@ -39,10 +39,11 @@ import numpy as np
 
 from simcli.motion import collider_centre, collider_motion
 
-# collider types whose triangles join the cloth's collision mesh (Box and Mesh exact; Sphere and Cylinder
-# circumscribed within contact_distance / 2); only Plane colliders and the walls stay signed distances
-MESH_TYPES = ("Mesh", "Box", "Sphere", "Cylinder")
-ROUND_TYPES = ("Sphere", "Cylinder")  # triangulated: the scene checks keep their exact signed distance too
+# collider types whose triangles join the cloth's collision mesh (Box and Mesh exact; Cylinder circumscribed
+# within contact_distance / 2); Plane and Sphere colliders and the walls stay exact signed distances (a
+# circumscribed Sphere, sphere_mesh, jammed the fast-sphere hard case: docs/FEM.md, "Remaining gaps")
+MESH_TYPES = ("Mesh", "Box", "Cylinder")
+ROUND_TYPES = ("Cylinder",)  # triangulated: the scene checks keep their exact signed distance too
 
 # the 12 outward triangles of a box from its corners numbered by bits (x: 1, y: 2, z: 4 set = upper side)
 _BOX_TRIS = np.array(
@@ -193,13 +194,13 @@ def body_mesh(rb, scene, scene_dir, dhat: float) -> tuple[np.ndarray, np.ndarray
 
 
 class MeshObstacles:
-    """Every `type: Mesh`, `Box`, `Sphere` and `Cylinder` collider of a scene, then (given the rigid world)
+    """Every `type: Mesh`, `Box` and `Cylinder` collider of a scene, then (given the rigid world)
     every rigid body: obstacle vertices and triangles (numbered 0 .. m-1)."""
 
     def __init__(self, scene, scene_dir=None, world=None, dhat: float | None = None):
         from simcli.geometry.mesh import load_mesh_morph
 
-        if dhat is None:  # the scene's: Sphere and Cylinder triangulations (and bodies') depend on it
+        if dhat is None:  # the scene's: Cylinder triangulations (and bodies') depend on it
             dhat = float(scene.solvers.fem.contact_distance)
         self.index, self.names, self.friction, self.motions, self.centres = [], [], [], [], []
         vs, ts, off = [], [], [0]
@@ -208,8 +209,6 @@ class MeshObstacles:
                 continue
             if c.type == "Box":
                 bv, bt = box_mesh(c.lower, c.upper)
-            elif c.type == "Sphere":
-                bv, bt = sphere_mesh(c.center, float(c.radius), dhat)
             elif c.type == "Cylinder":
                 bv, bt = cylinder_mesh(
                     c.center, float(c.radius), float(c.height), "xyz".index(c.axis), dhat, circumscribed=True
@@ -316,7 +315,7 @@ def blend_mu(a: float, b: float) -> float:
 
 def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float) -> list[str]:
     """Messages for a cloth (vertices x, triangles t) that starts intersecting, inside or within dhat of a
-    Mesh or Box collider (a Sphere's or Cylinder's triangles: intersecting or inside) at its pose at t = 0,
+    Mesh or Box collider (a Cylinder's triangles: intersecting or inside) at its pose at t = 0,
     or of a rigid body (located: the collider's or body's index and the first point)."""
     out = []
     if any(c.type in MESH_TYPES for c in scene.colliders):
@@ -326,7 +325,7 @@ def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float
             lo, hi = mo.offsets[k], mo.offsets[k + 1]
             Tk = mo.T[(mo.T >= lo).all(axis=1) & (mo.T < hi).all(axis=1)] - lo
             typ = scene.colliders[ci].type
-            # a Sphere's or Cylinder's facets lie up to dhat / 2 outside its exact surface, whose own signed
+            # a Cylinder's facets lie up to dhat / 2 outside its exact surface, whose own signed
             # distance the scene checks hold to dhat (checks.py): only crossing and inside are asked here
             msg = _initial_problem(
                 x, t, V[lo:hi], Tk, f"colliders.{ci} ({typ})", dhat, near=typ not in ROUND_TYPES

@@ -109,11 +109,6 @@ class ClothSolver(Solver):
 
         from simcli.geometry.regions import points_in_regions
 
-        # ipctk in one thread: its parallel collision builds and reductions sum the contact gradient and
-        # Hessian in a run-dependent order (two runs differed by 1e-16 m after 8 substeps of a sheet on a
-        # Sphere, growing from there), so a resumed run would not repeat the uninterrupted one bit for bit
-        ipctk.set_num_threads(1)
-
         xs, ts, mu, lam, h, D, mass, fixed, offs = [], [], [], [], [], [], [], [], [0]
         so = []
         self.cells = {}
