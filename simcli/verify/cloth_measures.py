@@ -22,11 +22,9 @@ def cloth_intersections(
 ):
     """Per frame: the number of the sheet's edges crossing one of its non-adjacent triangles (an independent
     segment-triangle test, simcli.solvers.fem.cloth.geometry; with ``others``, the sheets of those entities
-    too, as one mesh) plus the vertices inside any of ``spheres`` ([[cx, cy, cz, r], ...]; and the triangles
-    without a vertex inside that reach into it: the exact distance from its centre) or ``boxes``
-    ([[lower, upper], ...]) or below ``floor`` (z) [-]. With ``mesh_colliders``, the scene's `type: Mesh`,
-    `Box`, `Sphere` and `Cylinder` colliders' triangles (a Box's 12; a Sphere's and Cylinder's circumscribed
-    ones, as the solver meets them) at their prescribed pose at the frame's time join the
+    too, as one mesh) plus the vertices inside any of ``spheres`` ([[cx, cy, cz, r], ...]) or ``boxes``
+    ([[lower, upper], ...]) or below ``floor`` (z) [-]. With ``mesh_colliders``, the scene's `type: Mesh`
+    and `type: Box` colliders' triangles (a Box's 12) at their prescribed pose at the frame's time join the
     mesh tested (a cloth edge through a collider triangle or a collider edge through a cloth triangle
     counts), plus the cloth vertices inside them (ray parity). With ``rigid_bodies``, every rigid body's
     triangles (the ones FEM.Cloth meets: simcli.solvers.fem.cloth.mesh_obstacles.body_mesh) at the pose
@@ -88,29 +86,13 @@ def cloth_intersections(
         else:
             n = len(edge_triangle_intersections(x[k], tris))
         for s in spheres:
-            inside = np.linalg.norm(x[k] - np.asarray(s[:3]), axis=1) < s[3]
-            n += int(inside.sum()) + _triangles_dipping_into_sphere(x[k], tris, s, inside)
+            n += int((np.linalg.norm(x[k] - np.asarray(s[:3]), axis=1) < s[3]).sum())
         for lo, hi in boxes:
             n += int(np.all((x[k] > np.asarray(lo)) & (x[k] < np.asarray(hi)), axis=1).sum())
         if floor is not None:
             n += int((x[k][:, 2] < floor).sum())
         out.append(n + n_body)
     return f["time"][: len(out)], np.asarray(out, dtype=np.float64)
-
-
-def _triangles_dipping_into_sphere(x, tris, s, inside) -> int:
-    """The triangles with no vertex inside the exact sphere s = [cx, cy, cz, r] that still reach into it (an
-    edge or the face closer to its centre than r: what a per-vertex test misses)."""
-    from simcli.collider_mesh import point_triangle_distance
-
-    c = np.asarray(s[:3], float)
-    lo, hi = x[tris].min(axis=1), x[tris].max(axis=1)
-    cand = np.nonzero(np.all((lo < c + s[3]) & (hi > c - s[3]), axis=1) & ~inside[tris].any(axis=1))[0]
-    if not len(cand):
-        return 0
-    tt = tris[cand]
-    d = point_triangle_distance(np.repeat(c[None], len(cand), axis=0), x[tt[:, 0]], x[tt[:, 1]], x[tt[:, 2]])
-    return int((d < s[3]).sum())
 
 
 def _rigid_body_meshes(f):
