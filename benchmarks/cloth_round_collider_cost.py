@@ -1,8 +1,9 @@
 """FEM.Cloth: cost per substep and crossings of a sheet draped over a `type: Cylinder` collider's top rim and
-over a `type: Sphere` collider (issue 21). Since 2026-11-27 both are circumscribed triangulations in the IPC
+over a `type: Sphere` collider (issue 21). Since 2026-11-27 the Cylinder is a circumscribed prism in the IPC
 contact (simcli.solvers.fem.cloth.mesh_obstacles); before, an exact signed distance per cloth vertex, which
-let the Cylinder's rim and the Sphere's surface through the sheet's edges and triangles. Run it with
-PYTHONPATH at another checkout to measure that one (the script needs nothing of this one).
+let its rim through the sheet's edges and triangles. The Sphere is still such a signed distance (its faces
+dip in: docs/FEM.md, "Remaining gaps"). Run it with PYTHONPATH at another checkout to measure that one (the
+script needs nothing of this one).
 
     PYTHONPATH=. python benchmarks/cloth_round_collider_cost.py [--size 0.4] [--res 16] [--substeps 30]
         [--repeats 2]
