@@ -98,9 +98,11 @@ def _driven(res: dict) -> bool:
 
 def _check_cloth(f, out: Path, n: int, scene_dir: Path | None = None) -> None:
     """FEM.Cloth (IPC contact): at every frame written, no edge of any sheet crosses a triangle of any sheet
-    or of a Box or Mesh collider at its pose of that frame, nor an edge of such a collider a sheet's triangle
-    (an independent segment-triangle test over all sheets and those colliders as one mesh), and no vertex is
-    inside or on a collider at its pose of that frame (moving colliders through simcli.motion)."""
+    or of a Box, Mesh or Cylinder collider (the triangles the solver meets: a Cylinder's circumscribed,
+    containing the exact shape) at its pose of that frame, nor an edge of such a collider a
+    sheet's triangle (an independent segment-triangle test over all sheets and those colliders as one mesh),
+    and no vertex is inside or on a collider's exact shape at its pose of that frame (moving colliders
+    through simcli.motion)."""
     from simcli.motion import collider_motion
     from simcli.scene.loader import load_scene
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
@@ -119,7 +121,7 @@ def _check_cloth(f, out: Path, n: int, scene_dir: Path | None = None) -> None:
     mo = MeshObstacles(scene, scene_dir)
     for k in range(n):
         xk, tk = x[k], tris
-        if mo.m:  # Box and Mesh colliders' triangles at their pose of the frame
+        if mo.m:  # Box, Mesh and Cylinder colliders' triangles at their pose of the frame
             xk = np.concatenate([xk, mo.positions(float(times[k]))])
             tk = np.concatenate([tris, mo.T + n0])
         assert edge_triangle_intersections(xk, tk) == [], ("intersection", float(times[k]))

@@ -96,7 +96,7 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
     if len(lo) != 3 or len(hi) != 3:  # reported by the domain checks
         return out
     try:  # the colliders at their pose at t = 0 (a bad motion is reported by the collider checks)
-        obst = Obstacles(scene, scene_dir, mesh_boxes=False)  # Box: its exact signed distance here too
+        obst = Obstacles(scene, scene_dir, mesh_boxes=False)  # Box, Cylinder: exact here
         d, _, _ = obst.distances(x, 0.0)
     except (MotionError, ValueError, IndexError):  # a collider with other than 3 components: collider checks
         return out

@@ -17,6 +17,13 @@ signed-distance grid).
 * A `type: Box` collider enters as its 12 exact triangles (8 corners, outward faces; pivot its centre, as
   simcli.motion takes it): a convex signed distance per cloth vertex kept the vertices out of the box but
   not the box's edges out of the cloth's triangles (a sheet draped over a box edge was cut by it).
+* A `type: Cylinder` collider enters as a circumscribed prism (:func:`cylinder_mesh` with
+  ``circumscribed=True``: every facet outside the exact surface or on it, within contact_distance / 2 of
+  it): a signed distance per cloth vertex kept the vertices out but not the edges and triangles (its rims
+  cut a sheet draped over them). Outside the triangles is outside the exact cylinder, so IPC's guarantee
+  covers it too; the sheet rests up to contact_distance / 2 farther out than on the exact surface. Pivot:
+  its centre (simcli.motion). :func:`sphere_mesh` (a circumscribed icosphere) is not used for Sphere
+  colliders yet (docs/FEM.md, "Remaining gaps").
 * Free rigid bodies (simcli.rigid, ``rigid_bodies``) enter the same way, after the colliders: a Box body its
   12 triangles, a Mesh body its file's triangles, a Sphere an inscribed icosphere and a Cylinder an inscribed
   prism (:func:`body_mesh`, fine enough that the facets lie within contact_distance / 2 of the true
@@ -32,7 +39,11 @@ import numpy as np
 
 from simcli.motion import collider_centre, collider_motion
 
-MESH_TYPES = ("Mesh", "Box")  # collider types whose exact triangles join the cloth's collision mesh
+# collider types whose triangles join the cloth's collision mesh (Box and Mesh exact; Cylinder circumscribed
+# within contact_distance / 2); Plane and Sphere colliders and the walls stay exact signed distances (a
+# circumscribed Sphere, sphere_mesh, jammed the fast-sphere hard case: docs/FEM.md, "Remaining gaps")
+MESH_TYPES = ("Mesh", "Box", "Cylinder")
+ROUND_TYPES = ("Cylinder",)  # triangulated: the scene checks keep their exact signed distance too
 
 # the 12 outward triangles of a box from its corners numbered by bits (x: 1, y: 2, z: 4 set = upper side)
 _BOX_TRIS = np.array(
@@ -91,16 +102,57 @@ def _sag_level(radius: float, dhat: float) -> int:
     return lev
 
 
-def cylinder_mesh(center, radius, height, axis: int, dhat: float) -> tuple[np.ndarray, np.ndarray]:
-    """An inscribed prism of the cylinder (segments so the flats lie within dhat / 2 of the round side; 12 to
-    256), its caps fans about their centres; outward triangles."""
-    n = 12
-    while n < 256 and radius * (1.0 - np.cos(np.pi / n)) > 0.5 * dhat:
+_FACE_DIST: dict[int, float] = {}
+
+
+def icosphere_face_distance(level: int) -> float:
+    """The smallest distance from the centre to a face plane of the unit icosphere of ``level`` (its
+    inscribed ball's radius, < 1)."""
+    if level not in _FACE_DIST:
+        V, T = icosphere(level)
+        a, b, c = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
+        nrm = np.cross(b - a, c - a)
+        _FACE_DIST[level] = float(np.min(np.einsum("ij,ij->i", nrm, a) / np.linalg.norm(nrm, axis=1)))
+    return _FACE_DIST[level]
+
+
+def _circumscribed_level(radius: float, dhat: float) -> int:
+    """The coarsest icosphere level (1..6) whose circumscribed copy (scaled by 1 / its inscribed radius) lies
+    within dhat / 2 of the sphere: its vertices, the farthest points, at R / d_min (level 6 holds that up to
+    R of about 1.3 10^4 dhat; beyond it the facets lie farther out: a larger gap, never an intersection)."""
+    lev = 1
+    while lev < 6 and radius * (1.0 / icosphere_face_distance(lev) - 1.0) > 0.5 * dhat:
+        lev += 1
+    return lev
+
+
+def sphere_mesh(center, radius: float, dhat: float) -> tuple[np.ndarray, np.ndarray]:
+    """A circumscribed icosphere of the sphere (every facet at distance >= radius from the centre, its
+    vertices within dhat / 2 of the sphere while level 6 suffices); outward triangles."""
+    lev = _circumscribed_level(float(radius), dhat)
+    V, T = icosphere(lev)
+    return V * (float(radius) / icosphere_face_distance(lev)) + np.asarray(center, float), T
+
+
+def cylinder_mesh(
+    center, radius, height, axis: int, dhat: float, circumscribed: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """A prism of the cylinder (segments so the flats lie within dhat / 2 of the round side; 12 to 256), its
+    caps fans about their centres; outward triangles. Inscribed (ring on the circle: a rigid body's) or
+    ``circumscribed`` (ring at radius / cos(pi / n): the flats touch the round side, so the exact cylinder,
+    rims included, lies inside the prism: a collider's)."""
+    n = 12  # the largest gap between flat and round side: R (1 - cos(pi / n)) inscribed, R (1 / cos - 1) out
+
+    def sag(k):
+        return radius * (1.0 / np.cos(np.pi / k) - 1.0 if circumscribed else 1.0 - np.cos(np.pi / k))
+
+    while n < 256 and sag(n) > 0.5 * dhat:
         n *= 2
     ang = 2 * np.pi * np.arange(n) / n
     u, w = [a for a in range(3) if a != axis]
     ring = np.zeros((n, 3))
-    ring[:, u], ring[:, w] = radius * np.cos(ang), radius * np.sin(ang)
+    rr = radius / np.cos(np.pi / n) if circumscribed else radius
+    ring[:, u], ring[:, w] = rr * np.cos(ang), rr * np.sin(ang)
     c = np.asarray(center, float)
     lo, hi = ring.copy(), ring.copy()
     lo[:, axis], hi[:, axis] = -0.5 * height, 0.5 * height
@@ -142,12 +194,14 @@ def body_mesh(rb, scene, scene_dir, dhat: float) -> tuple[np.ndarray, np.ndarray
 
 
 class MeshObstacles:
-    """Every `type: Mesh` and `type: Box` collider of a scene, then (given the rigid world) every rigid body:
-    obstacle vertices and triangles (numbered 0 .. m-1)."""
+    """Every `type: Mesh`, `Box` and `Cylinder` collider of a scene, then (given the rigid world)
+    every rigid body: obstacle vertices and triangles (numbered 0 .. m-1)."""
 
-    def __init__(self, scene, scene_dir=None, world=None, dhat: float = 1e-3):
+    def __init__(self, scene, scene_dir=None, world=None, dhat: float | None = None):
         from simcli.geometry.mesh import load_mesh_morph
 
+        if dhat is None:  # the scene's: Cylinder triangulations (and bodies') depend on it
+            dhat = float(scene.solvers.fem.contact_distance)
         self.index, self.names, self.friction, self.motions, self.centres = [], [], [], [], []
         vs, ts, off = [], [], [0]
         for i, c in enumerate(scene.colliders):
@@ -155,6 +209,10 @@ class MeshObstacles:
                 continue
             if c.type == "Box":
                 bv, bt = box_mesh(c.lower, c.upper)
+            elif c.type == "Cylinder":
+                bv, bt = cylinder_mesh(
+                    c.center, float(c.radius), float(c.height), "xyz".index(c.axis), dhat, circumscribed=True
+                )
             else:
                 mesh = load_mesh_morph(c, scene_dir)
                 bv, bt = mesh.vertices, mesh.triangles
@@ -257,8 +315,8 @@ def blend_mu(a: float, b: float) -> float:
 
 def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float) -> list[str]:
     """Messages for a cloth (vertices x, triangles t) that starts intersecting, inside or within dhat of a
-    Mesh or Box collider at its pose at t = 0, or of a rigid body (located: the collider's or body's index
-    and the first point)."""
+    Mesh or Box collider (a Cylinder's triangles: intersecting or inside) at its pose at t = 0,
+    or of a rigid body (located: the collider's or body's index and the first point)."""
     out = []
     if any(c.type in MESH_TYPES for c in scene.colliders):
         mo = MeshObstacles(scene, scene_dir)
@@ -266,7 +324,12 @@ def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float
         for k, ci in enumerate(mo.index):
             lo, hi = mo.offsets[k], mo.offsets[k + 1]
             Tk = mo.T[(mo.T >= lo).all(axis=1) & (mo.T < hi).all(axis=1)] - lo
-            msg = _initial_problem(x, t, V[lo:hi], Tk, f"colliders.{ci} ({scene.colliders[ci].type})", dhat)
+            typ = scene.colliders[ci].type
+            # a Cylinder's facets lie up to dhat / 2 outside its exact surface, whose own signed
+            # distance the scene checks hold to dhat (checks.py): only crossing and inside are asked here
+            msg = _initial_problem(
+                x, t, V[lo:hi], Tk, f"colliders.{ci} ({typ})", dhat, near=typ not in ROUND_TYPES
+            )
             if msg:
                 out.append(msg)
     for i, rb in enumerate(getattr(scene, "rigid_bodies", None) or []):
@@ -280,9 +343,9 @@ def initial_problems(x: np.ndarray, t: np.ndarray, scene, scene_dir, dhat: float
     return out
 
 
-def _initial_problem(x, t, Vk, Tk, what: str, dhat: float) -> str | None:
-    """The cloth (x, t) against one obstacle's triangles (Vk, Tk): crossing, a vertex inside, or closer
-    than dhat; None when clear."""
+def _initial_problem(x, t, Vk, Tk, what: str, dhat: float, near: bool = True) -> str | None:
+    """The cloth (x, t) against one obstacle's triangles (Vk, Tk): crossing, a vertex inside, or (with
+    ``near``) closer than dhat; None when clear."""
     from simcli.collider_mesh import mesh_distance
     from simcli.geometry.mesh import TriMesh, points_inside_mesh
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
@@ -305,6 +368,8 @@ def _initial_problem(x, t, Vk, Tk, what: str, dhat: float) -> str | None:
             f"{int(ins.sum())} cloth vertex(es) start inside {what} (first at "
             f"{np.round(x[np.argmax(ins)], 6).tolist()}); the cloth must start outside it: move it"
         )
+    if not near:
+        return None
     # cloth vertices to the obstacle's triangles and its vertices to the cloth's, each only where the
     # other's bounding box (grown by dhat) reaches (brute force within)
     near_x = np.all((x >= Vk.min(axis=0) - dhat) & (x <= Vk.max(axis=0) + dhat), axis=1)

@@ -1,8 +1,8 @@
-"""Colliders (Plane, Sphere, Cylinder; static or moving) and the domain walls as exact signed distances
-(Mesh and Box colliders: mesh_obstacles.py, their exact triangles in the IPC contact), in numpy (no Taichi:
-the scene checks use it too). Each obstacle is convex, so its signed distance is a convex function of
-position: ``first_contact`` relies on it. ``Obstacles(..., mesh_boxes=False)`` keeps Box colliders here
-too (the scene checks' vertex-inside / too-close test)."""
+"""Plane and Sphere colliders (static or moving) and the domain walls as exact signed distances (Mesh, Box
+and Cylinder colliders: mesh_obstacles.py, their triangles in the IPC contact), in numpy (no Taichi: the
+scene checks use it too). Each obstacle is convex, so its signed distance is a convex function of position:
+``first_contact`` relies on it. ``Obstacles(..., mesh_boxes=False)`` keeps Box and Cylinder colliders here
+too (the scene checks' vertex-inside / too-close test against their exact shapes)."""
 
 from __future__ import annotations
 
@@ -53,13 +53,13 @@ class Obstacles:
         from simcli.motion import collider_motion
         from simcli.solvers.fem.cloth.mesh_obstacles import MESH_TYPES
 
-        as_mesh = MESH_TYPES if mesh_boxes else ("Mesh",)
+        as_mesh = MESH_TYPES if mesh_boxes else ("Mesh",)  # (Box, Cylinder: exact signed distances)
         convex = [(i, c) for i, c in enumerate(scene.colliders) if c.type not in as_mesh]
         self.index = [i for i, _ in convex]  # scene.colliders index of each spec
         self.specs = [_spec(c) for _, c in convex]
         self.motions = [collider_motion(c, 3, scene_dir) for _, c in convex]
-        # Mesh (and Box) colliders are not signed distances here: their triangles join the cloth's ipctk
-        # collision mesh (mesh_obstacles.py); their motions count for `moving` and the keyframes of next_key
+        # Mesh, Box and Cylinder colliders are not signed distances here: their triangles join the
+        # cloth's ipctk collision mesh (mesh_obstacles.py); their motions count for `moving` and next_key
         self.mesh_motions = [collider_motion(c, 3, scene_dir) for c in scene.colliders if c.type in as_mesh]
         self.moving = any(m is not None for m in self.motions + self.mesh_motions)
         lo, hi = scene.domain.bounds(3)
