@@ -258,8 +258,13 @@ class MPMSand(_Solid):
                 ("" if given else "friction_angle is not set and its default is 45 deg: ")
                 + f"yield_surface: {self.yield_surface} with cone: simple_shear needs friction_angle < 45 (a "
                 f"flowing layer's friction tan(phi) = {math.tan(math.radians(self.friction_angle)):.3g} is "
-                f"{which}, so it must be below 1); lower friction_angle, or set "
-                "cone: plane_strain (friction_angle is then the Mohr-Coulomb angle itself)"
+                f"{which}, so it must be below 1); lower friction_angle, or set cone: plane_strain "
+                + (
+                    "(friction_angle is then the Mohr-Coulomb angle itself)"
+                    if self.yield_surface == "mohr_coulomb"
+                    else "(friction_angle is then the Mohr-Coulomb angle at b = 0.5) or cone: compression "
+                    "(at triaxial compression)"
+                )
             )
         if self.yield_surface == "mohr_coulomb" and self.mc_sin_phi > math.sin(math.radians(70.0)):
             # the edge returns solve a 2x2 system of determinant 4 - (1 + sin phi)^2: 0.014 at 85 deg
