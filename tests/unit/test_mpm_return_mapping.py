@@ -640,6 +640,37 @@ def test_matsuoka_nakai_k_follows_the_cone_fit():
     assert m.mn_k == pytest.approx((9 - 0.25) / 0.75)
 
 
+def test_matsuoka_nakai_inner_radius_is_the_smallest_at_any_lode_angle():
+    """The radius below which the return skips its cubic: the cone's radius at triaxial extension, the
+    smallest root over every Lode angle of (9 - K) + (K - 3) / 2 u^2 + K w u^3 = 0."""
+    w_max = 1.0 / (3.0 * math.sqrt(6.0))
+    for phi, cone in ((30.0, "simple_shear"), (44.0, "simple_shear"), (20.0, "compression")):
+        m = mat(type="MPM.Sand", friction_angle=phi, cone=cone, yield_surface="matsuoka_nakai")
+        k = m.mn_k
+        radii = []
+        for w in np.linspace(-w_max, w_max, 41):
+            r = np.roots([k * w, (k - 3) / 2, 0.0, 9 - k])
+            r = r[np.isreal(r)].real
+            radii.append(r[r > 0].min())
+        assert m.mn_inner_radius == pytest.approx(min(radii), rel=1e-9)
+        assert np.argmin(radii) == 40  # triaxial extension
+
+
+def test_matsuoka_nakai_beside_a_45_deg_cone_in_one_law(ti_f32):
+    """One compiled sand law for a Matsuoka-Nakai material and a cone of 45 deg sand (the default, for which
+    the simple_shear K would be infinite): the cone's parameters are not asked for K."""
+    import taichi as ti
+
+    from simcli.solvers.mpm.laws import LAWS
+
+    mn = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="matsuoka_nakai")
+    dp = mat(type="MPM.Sand")
+    law = LAWS["sand"](3, ti.f32)
+    law.allocate(4)
+    law.allocate_materials([dp, mn])
+    assert law.use_mn and law.mn_k.to_numpy().tolist() == [0.0, pytest.approx(12.0)]
+
+
 def test_matsuoka_nakai_bad_combinations_are_refused():
     from pydantic import ValidationError
 

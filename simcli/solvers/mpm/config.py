@@ -298,6 +298,23 @@ class MPMSand(_Solid):
         return 3.0 * (3.0 - x * x) / (1.0 - x * x)
 
     @property
+    def mn_inner_radius(self) -> float:
+        """The ``matsuoka_nakai`` cone's smallest deviatoric radius |dev c| / p' (at triaxial extension, w =
+        1 / (3 sqrt 6)): the root of (9 - K) + (K - 3) / 2 u^2 + K w u^3 = 0, which falls as w grows. Trial
+        states inside it are elastic at any Lode angle (the return skips its cubic for them)."""
+        k = self.mn_k
+        a, b, c = 9.0 - k, 0.5 * (k - 3.0), k / (3.0 * math.sqrt(6.0))
+        u = math.sqrt(
+            -a / b
+        )  # the root at w = 0, above the wanted one; h convex for w > 0: Newton from above
+        for _ in range(100):
+            step = (a + b * u * u + c * u**3) / (2.0 * b * u + 3.0 * c * u * u)
+            u -= step
+            if abs(step) <= 1e-15 * u:
+                break
+        return u
+
+    @property
     def grain_density(self) -> float:
         """rho_s [kg/m^3] of the mu(I) inertial number (0 without mu_i)."""
         if self.mu_i is None:

@@ -509,12 +509,20 @@ class SandLaw(_SVDPlasticLaw):
             for m in materials
         )
         if self.use_mn:
-            self.mn = self._param(materials, lambda m: 1.0 if m.yield_surface == "matsuoka_nakai" else 0.0)
-            self.mn_k = self._param(materials, lambda m: m.mn_k)
+
+            def mn(getter):  # only the Matsuoka-Nakai materials' (a cone of 45 deg sand has no finite K)
+                return self._param(
+                    materials, lambda m: getter(m) if m.yield_surface == "matsuoka_nakai" else 0.0
+                )
+
+            self.mn = mn(lambda m: 1.0)
+            self.mn_k = mn(lambda m: m.mn_k)
             # K - 9 (> 0) and (K - 3) / 2 from the host's float64: 9 - K loses digits in f32 near K = 9
-            self.mn_km9 = self._param(materials, lambda m: m.mn_k - 9.0)
-            self.mn_b = self._param(materials, lambda m: 0.5 * (m.mn_k - 3.0))
+            self.mn_km9 = mn(lambda m: m.mn_k - 9.0)
+            self.mn_b = mn(lambda m: 0.5 * (m.mn_k - 3.0))
             self.mn_tol = 4.0 * float(np.finfo(self._np()).eps)  # Newton's relative step to stop at
+            # the smallest radius (triaxial extension), a little inside: below it no cubic is solved
+            self.mn_inner = mn(lambda m: m.mn_inner_radius * (1.0 - 1.0e-5))
         # mu(I) rheology (Jop et al. 2006), compiled in only when a sand material asks for it
         self.use_mu_i = any(self.uses(m) and getattr(m, "mu_i", None) is not None for m in materials)
         if self.use_mu_i:
@@ -713,7 +721,7 @@ class SandLaw(_SVDPlasticLaw):
         new_eps = ehat + tr / 3.0
         flowed = False
         pp = bulk * (tr_apex - tr) / (6.0 * mu)
-        if norm > 0.0:
+        if norm > self.mn_inner[mid] * pp:  # inside the inscribed circle: elastic at every Lode angle
             n = ehat / norm
             w = ti.min(ti.max(n[0] * n[1] * n[2], -_MN_W_MAX), _MN_W_MAX)
             r = self.matsuoka_nakai_radius(mid, w) * pp
