@@ -1,18 +1,19 @@
-"""Cost per substep of MPM.Sand's two yield surfaces, drucker_prager and mohr_coulomb (issue 23), A/B.
+"""Cost per substep of MPM.Sand's yield surfaces (drucker_prager, mohr_coulomb, matsuoka_nakai; issue 23).
 
     PYTHONPATH=. python benchmarks/sand_yield_surface_cost.py [--stir 600] [--substeps 60] [--repeats 3]
                                                               [--grid 64] [--threads 1]
+                                                              [--surfaces drucker_prager,mohr_coulomb]
 
 The scene is mesh_collider_cost.py's sand bed (configs/validation/mpm_mesh_paddle_sand.yaml's bed at grid 64,
-16,000 particles, 30 deg sand, f32) with its Box paddle turning at 2 rev/s, built twice in one process, once
-per ``yield_surface``. The drucker_prager bed is stirred --stir substeps (plastic flow in about half the
-grains, see turning_paddle_cost.py census); that state is loaded into both solvers before each timing, so both
-laws step the same grains from the same state ("stirred"); the same with the bed at rest, before any stirring
-("at rest"). Timed --substeps substeps, interleaved --repeats times, with Taichi's kernel profiler: the CPU
-time of the process per substep and each substep task's fastest / median launch (task 4 is G2P with the return
-mapping; the profiler times wall clock, so on a loaded machine read the fastest). Also printed: the share of
-grains whose plastic volume J_p one substep changed (the apex or the volume correction; both laws' plastic
-flow keeps the volume, so this is not the share in plastic flow).
+16,000 particles, 30 deg sand, f32) with its Box paddle turning at 2 rev/s, built in one process once per
+``yield_surface`` of --surfaces (the first must be drucker_prager). The drucker_prager bed is stirred --stir
+substeps (plastic flow in about half the grains, see turning_paddle_cost.py census); that state is loaded into
+every solver before each timing, so all laws step the same grains from the same state ("stirred"); the same
+with the bed at rest, before any stirring ("at rest"). Timed --substeps substeps, interleaved --repeats times,
+with Taichi's kernel profiler: the CPU time of the process per substep and each substep task's fastest /
+median launch (task 4 is G2P with the return mapping; the profiler times wall clock, so on a loaded machine
+read the fastest). Also printed: the share of grains whose plastic volume J_p one substep changed (the apex or
+the volume correction; every law's plastic flow keeps the volume, so this is not the share in plastic flow).
 """
 
 import argparse
@@ -87,7 +88,13 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--grid", type=int, default=64)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument(
+        "--surfaces", default="drucker_prager,mohr_coulomb", help="comma-separated yield_surface values"
+    )
     a = ap.parse_args()
+    surfaces = a.surfaces.split(",")
+    if surfaces[0] != "drucker_prager":
+        ap.error("--surfaces: the first must be drucker_prager (its bed is the one stirred)")
     import simcli.backend as backend
     from simcli.backend import stdout_to_stderr
 
@@ -104,7 +111,7 @@ def main() -> None:
         random_seed=0,
     )
     backend._STATE.update({"arch": "x64", "threads": a.threads, "precision": "f32"})
-    sol = {name: build(name, a.grid) for name in ("drucker_prager", "mohr_coulomb")}
+    sol = {name: build(name, a.grid) for name in surfaces}
     dp = sol["drucker_prager"]
     rest = {k: f.to_numpy() for k, f in tpc.particle_fields(dp).items()}
     t0 = time.perf_counter()

@@ -372,6 +372,9 @@ def test_sand_without_volume_correction_forgets_the_separation(ti_f32):
         (2, "simple_shear", 30.0, 30.0, "mohr_coulomb"),  # sin(phi_mc) = tan(phi): the same as the cone
         (3, "simple_shear", 40.0, 40.0, "mohr_coulomb"),
         (2, "plane_strain", 30.0, math.degrees(math.atan(math.sin(math.radians(30.0)))), "mohr_coulomb"),
+        (2, "simple_shear", 30.0, 30.0, "matsuoka_nakai"),  # fitted at b = 0.5, where the flow puts it
+        (3, "simple_shear", 40.0, 40.0, "matsuoka_nakai"),
+        (2, "plane_strain", 30.0, math.degrees(math.atan(math.sin(math.radians(30.0)))), "matsuoka_nakai"),
     ],
 )
 def test_sand_in_steady_simple_shear_mobilises_the_cone_s_friction(
@@ -600,6 +603,203 @@ def test_mohr_coulomb_2d_is_the_3d_law_in_plane_strain(ti_f32):
         assert np.allclose(tzz, tau3[:, 2, 2], atol=2e-5 * scale)
         F2 = np.einsum("ij,njk->nik", np.array([[1.0, 0.004], [0.0, 0.999]]), Fo2)  # shear on
         F3 = Fo3.copy()  # its zz: the elastic out-of-plane stretch, as the 2D law's eps_zz
+        F3[:, :2, :2] = F2
+
+
+# ----------------------------------------------------------------------- sand, Matsuoka-Nakai
+
+
+def mn_ratio(tau, apex=0.0):
+    """I1 I2 / I3 of the principal stresses measured from the apex, compression positive (3x3 Kirchhoff);
+    inf where a principal stress is not compressive (outside the Matsuoka-Nakai cone)."""
+    c = apex - np.linalg.eigvalsh(tau)
+    i1 = c.sum(1)
+    i2 = c[:, 0] * c[:, 1] + c[:, 1] * c[:, 2] + c[:, 0] * c[:, 2]
+    i3 = c.prod(1)
+    return np.where(c.min(1) > 0, i1 * i2 / np.where(i3 > 0, i3, 1.0), np.inf)
+
+
+def mobilised_sin(tau):
+    """The Mohr circle's (sigma_1 - sigma_3) / -(sigma_1 + sigma_3) (cohesionless): sin of the Mohr-Coulomb
+    angle the stress mobilises."""
+    sig = np.linalg.eigvalsh(tau)
+    return (sig[:, 2] - sig[:, 0]) / -(sig[:, 2] + sig[:, 0])
+
+
+def test_matsuoka_nakai_k_follows_the_cone_fit():
+    """K = I1 I2 / I3: at b = 0.5 (the simple shear's stress) the Mohr circle mobilises sin = x, K = 3 (3 -
+    x^2) / (1 - x^2), x = tan(phi) (simple_shear) or sin(phi) (plane_strain); compression: Mohr-Coulomb
+    phi in triaxial compression, K = (9 - sin^2) / (1 - sin^2). simple_shear at 30 deg: K = 12, a
+    triaxial-compression angle of asin(sqrt(3 / 11)) = 31.48 deg."""
+    k = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="matsuoka_nakai").mn_k
+    assert k == pytest.approx(12.0)
+    assert math.degrees(math.asin(math.sqrt((k - 9) / (k - 1)))) == pytest.approx(31.482, abs=1e-3)
+    m = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="matsuoka_nakai", cone="plane_strain")
+    assert m.mn_k == pytest.approx(3 * (3 - 0.25) / 0.75)
+    m = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="matsuoka_nakai", cone="compression")
+    assert m.mn_k == pytest.approx((9 - 0.25) / 0.75)
+
+
+def test_matsuoka_nakai_inner_radius_is_the_smallest_at_any_lode_angle():
+    """The radius below which the return skips its cubic: the cone's radius at triaxial extension, the
+    smallest root over every Lode angle of (9 - K) + (K - 3) / 2 u^2 + K w u^3 = 0."""
+    w_max = 1.0 / (3.0 * math.sqrt(6.0))
+    for phi, cone in ((30.0, "simple_shear"), (44.0, "simple_shear"), (20.0, "compression")):
+        m = mat(type="MPM.Sand", friction_angle=phi, cone=cone, yield_surface="matsuoka_nakai")
+        k = m.mn_k
+        radii = []
+        for w in np.linspace(-w_max, w_max, 41):
+            r = np.roots([k * w, (k - 3) / 2, 0.0, 9 - k])
+            r = r[np.isreal(r)].real
+            radii.append(r[r > 0].min())
+        assert m.mn_inner_radius == pytest.approx(min(radii), rel=1e-9)
+        assert np.argmin(radii) == 40  # triaxial extension
+
+
+def test_matsuoka_nakai_beside_a_45_deg_cone_in_one_law(ti_f32):
+    """One compiled sand law for a Matsuoka-Nakai material and a cone of 45 deg sand (the default, for which
+    the simple_shear K would be infinite): the cone's parameters are not asked for K."""
+    import taichi as ti
+
+    from simcli.solvers.mpm.laws import LAWS
+
+    mn = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="matsuoka_nakai")
+    dp = mat(type="MPM.Sand")
+    law = LAWS["sand"](3, ti.f32)
+    law.allocate(4)
+    law.allocate_materials([dp, mn])
+    assert law.use_mn and law.mn_k.to_numpy().tolist() == [0.0, pytest.approx(12.0)]
+
+
+def test_matsuoka_nakai_bad_combinations_are_refused():
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match="friction_angle < 45"):
+        mat(type="MPM.Sand", friction_angle=45.0, yield_surface="matsuoka_nakai")
+    with pytest.raises(ValidationError, match="friction_angle is not set"):
+        mat(type="MPM.Sand", yield_surface="matsuoka_nakai")  # the default 45
+    with pytest.raises(ValidationError, match="drucker_prager"):
+        mat(type="MPM.Sand", friction_angle=30.0, yield_surface="matsuoka_nakai", mu_i={})
+    mat(type="MPM.Sand", friction_angle=44.0, yield_surface="matsuoka_nakai")  # no edge solve: fine
+    mat(type="MPM.Sand", friction_angle=60.0, yield_surface="matsuoka_nakai", cone="compression")
+
+
+@pytest.mark.parametrize("cohesion", [0.0, 2.0e3])
+def test_matsuoka_nakai_sand_ends_on_or_inside_the_cone(ti_f32, cohesion):
+    """Random trial F_E (compressive and tensile, large shear): the stress ends on or inside I1 I2 / I3 = K
+    (from the apex c cot(phi), as the other surfaces'), the return keeps the volume (no dilatancy) except
+    at the apex, J_p J_E = J, and a second return changes nothing (the returned state is admissible)."""
+    m = mat(type="MPM.Sand", friction_angle=30.0, cohesion=cohesion, yield_surface="matsuoka_nakai")
+    h = Harness(m, dim=3, n=256)
+    rng = np.random.default_rng(5)
+    F = np.stack(
+        [
+            random_rotation(rng) @ np.diag(rng.uniform(0.95, 1.03, 3)) @ random_rotation(rng)
+            for _ in range(h.n)
+        ]
+    )
+    Fo, tau = h.run(F)
+    apex = cohesion / math.tan(math.radians(30.0))
+    at_apex = np.isclose(np.linalg.svd(Fo, compute_uv=False).std(axis=1), 0.0, atol=1e-6)
+    r = mn_ratio(tau[~at_apex], apex)
+    assert np.isfinite(r).all() and r.max() <= m.mn_k * (1 + 1e-4)
+    on = np.zeros(h.n, bool)
+    on[~at_apex] = r > m.mn_k * (1 - 1e-4)
+    assert on.sum() > h.n // 4
+    assert (np.trace(tau, axis1=1, axis2=2) / 3).max() <= apex * (1 + 1e-4) + 1e-3
+    assert np.allclose(np.linalg.det(Fo[on]), np.linalg.det(F[on]), rtol=1e-5)
+    jp = h.jp.to_numpy().astype(np.float64)
+    assert np.allclose(jp * np.linalg.det(Fo), np.linalg.det(F), rtol=1e-5)
+    scale = np.abs(tau).max() + 1.0
+    Fo2, tau2 = h.run(Fo)
+    assert np.allclose(Fo2, Fo, atol=2e-6)
+    assert np.allclose(tau2, tau, atol=1e-4 * scale)
+
+
+def test_matsuoka_nakai_is_mohr_coulomb_at_compression_and_extension(ti_f32):
+    """Trials far outside at every Lode angle from triaxial compression (0 deg) to extension (60 deg):
+    each returns onto I1 I2 / I3 = K at the same mean stress, radially (the deviatoric strain scaled, its
+    Lode angle kept: the cone's volume-keeping flow). With cone: compression (K from phi = 30 in triaxial
+    compression) it mobilises exactly sin(30 deg) at 0 and 60 deg, the Mohr-Coulomb pyramid's triaxial
+    corners, and more between them (the smooth cone lies outside the pyramid there); at b = 0.5 (Lode 30
+    deg) sin = x with K = 3 (3 - x^2) / (1 - x^2)."""
+    m = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="matsuoka_nakai", cone="compression")
+    h = Harness(m, dim=3, n=61)
+    lode = np.linspace(0.0, 60.0, h.n)
+    F, eps = principal_trials(-0.004, lode, 0.02)
+    Fo, tau = h.run(F)
+    e_new = np.log(np.diagonal(Fo, axis1=1, axis2=2))
+    assert np.abs(Fo - np.stack([np.diag(np.diagonal(x)) for x in Fo])).max() < 1e-6  # coaxial
+    assert np.allclose(e_new.sum(1), eps.sum(1), atol=2e-6)  # the volume is kept
+    dev0 = eps - eps.mean(1, keepdims=True)
+    dev1 = e_new - e_new.mean(1, keepdims=True)
+    scale = (np.linalg.norm(dev1, axis=1) / np.linalg.norm(dev0, axis=1))[:, None]
+    assert (scale < 0.9).all()  # every trial was far outside
+    assert np.allclose(dev1, scale * dev0, atol=2e-6)  # radial: the Lode angle is kept
+    assert np.allclose(mn_ratio(tau), m.mn_k, rtol=1e-4)  # on the cone
+    sin_m = mobilised_sin(tau)
+    assert sin_m[0] == pytest.approx(0.5, rel=1e-4) and sin_m[-1] == pytest.approx(0.5, rel=1e-4)
+    assert (sin_m[1:-1] > 0.5).all()  # outside the pyramid of the same angle between its corners
+    x = sin_m[30]  # Lode 30 deg, b = 0.5
+    assert m.mn_k == pytest.approx(3 * (3 - x * x) / (1 - x * x), rel=1e-4)
+
+
+def test_matsuoka_nakai_lies_between_the_cone_and_the_pyramid_in_compression(ti_f32):
+    """Issue 23's point: all three fitted by the default simple_shear cone (a flowing layer, b = 0.5,
+    carries tan 30 deg), in triaxial compression (under an impacting ball, a conical heap's flank) the
+    cone is a Mohr-Coulomb material of 25.4 deg, the pyramid of 35.3 and Matsuoka-Nakai of 31.5; at b = 0.5
+    all three mobilise sin = tan 30 deg."""
+    got = {}
+    for surface in ("drucker_prager", "matsuoka_nakai", "mohr_coulomb"):
+        m = mat(type="MPM.Sand", friction_angle=30.0, yield_surface=surface)
+        h = Harness(m, dim=3, n=3)
+        F, _ = principal_trials(-0.004, np.array([0.0, 30.0, 60.0]), 0.02)
+        _, tau = h.run(F)
+        got[surface] = np.degrees(np.arcsin(mobilised_sin(tau)))
+    b05 = math.degrees(math.asin(math.tan(math.radians(30.0))))
+    for surface, tc in (("drucker_prager", 25.38), ("matsuoka_nakai", 31.48), ("mohr_coulomb", 35.26)):
+        assert got[surface][0] == pytest.approx(tc, abs=0.02), surface
+        assert got[surface][1] == pytest.approx(b05, abs=0.02), surface
+    assert got["matsuoka_nakai"][2] == pytest.approx(31.48, abs=0.02)  # extension: Mohr-Coulomb's again
+
+
+def test_matsuoka_nakai_is_elastic_inside(ti_f32):
+    """Trials inside the cone (a small deviator under compression, every Lode angle) are left alone."""
+    m = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="matsuoka_nakai")
+    h = Harness(m, dim=3, n=13)
+    F, eps = principal_trials(-0.004, np.linspace(0.0, 60.0, h.n), 0.002)
+    Fo, tau = h.run(F)
+    assert np.allclose(Fo, F, atol=1e-7)
+    assert (mn_ratio(tau) < m.mn_k * 0.99).all()
+
+
+def test_matsuoka_nakai_2d_is_the_3d_law_in_plane_strain(ti_f32):
+    """As the pyramid's: the same in-plane F_E (F_zz = 1) gives the same stress in 2D and 3D, sigma_zz
+    included, over a few steps of shear (the 2D law's eps_zz carries the out-of-plane flow)."""
+    m = mat(type="MPM.Sand", friction_angle=30.0, cohesion=500.0, yield_surface="matsuoka_nakai")
+    h2 = Harness(m, dim=2, n=128)
+    h3 = Harness(m, dim=3, n=128)
+    rng = np.random.default_rng(11)
+    F2 = np.stack(
+        [
+            random_rotation(rng, 2) @ np.diag(rng.uniform(0.96, 1.02, 2)) @ random_rotation(rng, 2)
+            for _ in range(128)
+        ]
+    )
+    F3 = np.zeros((128, 3, 3))
+    F3[:, :2, :2] = F2
+    F3[:, 2, 2] = 1.0
+    for k in range(3):
+        Fo2, tau2 = h2.run(F2)
+        if k == 0:
+            assert (np.abs(h2.state()["sand_ezz"]) > 1e-6).sum() > 5
+        tzz = h2.tzz.to_numpy().astype(np.float64)
+        Fo3, tau3 = h3.run(F3)
+        scale = np.abs(tau3).max()
+        assert np.allclose(tau2, tau3[:, :2, :2], atol=2e-5 * scale)
+        assert np.allclose(tzz, tau3[:, 2, 2], atol=2e-5 * scale)
+        F2 = np.einsum("ij,njk->nik", np.array([[1.0, 0.004], [0.0, 0.999]]), Fo2)
+        F3 = Fo3.copy()
         F3[:, :2, :2] = F2
 
 

@@ -159,7 +159,7 @@ class MuIRheology(_Options):
 
 
 class MPMSand(_Solid):
-    """Granular material: Drucker-Prager (Klar et al. 2016) or Mohr-Coulomb plasticity, Hencky strain."""
+    """Granular material: Drucker-Prager (Klar et al. 2016), Mohr-Coulomb or Matsuoka-Nakai, Hencky strain."""
 
     type: Literal["MPM.Sand"]
     E: float = Field(
@@ -195,7 +195,7 @@ class MPMSand(_Solid):
         "triaxial compression (alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi))); a flowing layer mobilises "
         "tan = 3 alpha / sqrt(2) (34.7 deg for 30).",
     )
-    yield_surface: Literal["drucker_prager", "mohr_coulomb"] = Field(
+    yield_surface: Literal["drucker_prager", "mohr_coulomb", "matsuoka_nakai"] = Field(
         "drucker_prager",
         description="The yield surface's shape in the deviatoric plane, with the same zero-dilatancy "
         "(volume-keeping) flow. drucker_prager: a circular cone, the same in every direction, fitted by "
@@ -208,7 +208,17 @@ class MPMSand(_Solid):
         "cone: simple_shear phi_mc = asin(tan(friction_angle)) (35.3 deg for 30), so a flowing layer "
         "carries tan(friction_angle) times its normal stress at any Lode angle: in 2D as the drucker_prager "
         "cone does, in 3D also where the flow spreads (phi_mc at most 70 deg: friction_angle <= 43.2); "
-        "with plane_strain or compression phi_mc = friction_angle.",
+        "with plane_strain or compression phi_mc = friction_angle. matsuoka_nakai: the smooth cone "
+        "I1 I2 / I3 = K of Matsuoka & Nakai 1974 (principal Kirchhoff stresses measured from the apex, "
+        "compression positive), equal to Mohr-Coulomb in triaxial compression and extension and outside "
+        "it between them; returned radially in the deviatoric plane (the cone's zero-dilatancy flow, a "
+        "scalar cubic per particle). K is fitted by `cone` at b = 0.5, where the steady simple shear of "
+        "the volume-keeping flow puts the stress: simple_shear: the Mohr circle there mobilises "
+        "sin = tan(friction_angle), so a flowing layer carries tan(friction_angle) as with the other "
+        "surfaces, and triaxial compression is then a Mohr-Coulomb material of 31.5 deg for 30 deg sand "
+        "(between the cone's 25.4 and the pyramid's 35.3; friction_angle < 45); plane_strain: sin = "
+        "sin(friction_angle) at b = 0.5; compression: exact Mohr-Coulomb friction_angle in triaxial "
+        "compression and extension.",
     )
     mu_i: MuIRheology | None = Field(
         None,
@@ -230,7 +240,7 @@ class MPMSand(_Solid):
 
     @model_validator(mode="after")
     def _mohr_coulomb_fit(self) -> MPMSand:
-        if self.yield_surface != "mohr_coulomb":
+        if self.yield_surface == "drucker_prager":
             return self
         if self.mu_i is not None:
             raise ValueError(
@@ -239,14 +249,24 @@ class MPMSand(_Solid):
             )
         if self.cone == "simple_shear" and self.friction_angle >= 45.0:
             given = "friction_angle" in self.model_fields_set
+            which = (
+                "the sine of the Mohr-Coulomb angle"
+                if self.yield_surface == "mohr_coulomb"
+                else "the sine of the angle the Matsuoka-Nakai cone mobilises at b = 0.5"
+            )
             raise ValueError(
                 ("" if given else "friction_angle is not set and its default is 45 deg: ")
-                + "yield_surface: mohr_coulomb with cone: simple_shear needs friction_angle < 45 (a "
+                + f"yield_surface: {self.yield_surface} with cone: simple_shear needs friction_angle < 45 (a "
                 f"flowing layer's friction tan(phi) = {math.tan(math.radians(self.friction_angle)):.3g} is "
-                "the sine of the Mohr-Coulomb angle, so it must be below 1); lower friction_angle, or set "
-                "cone: plane_strain (friction_angle is then the Mohr-Coulomb angle itself)"
+                f"{which}, so it must be below 1); lower friction_angle, or set cone: plane_strain "
+                + (
+                    "(friction_angle is then the Mohr-Coulomb angle itself)"
+                    if self.yield_surface == "mohr_coulomb"
+                    else "(friction_angle is then the Mohr-Coulomb angle at b = 0.5) or cone: compression "
+                    "(at triaxial compression)"
+                )
             )
-        if self.mc_sin_phi > math.sin(math.radians(70.0)):
+        if self.yield_surface == "mohr_coulomb" and self.mc_sin_phi > math.sin(math.radians(70.0)):
             # the edge returns solve a 2x2 system of determinant 4 - (1 + sin phi)^2: 0.014 at 85 deg
             raise ValueError(
                 f"yield_surface: mohr_coulomb: the Mohr-Coulomb angle is "
@@ -262,6 +282,37 @@ class MPMSand(_Solid):
         if self.cone == "simple_shear":
             return math.tan(math.radians(self.friction_angle))
         return math.sin(math.radians(self.friction_angle))
+
+    @property
+    def mn_k(self) -> float:
+        """K = I1 I2 / I3 of the ``matsuoka_nakai`` cone (see ``yield_surface``; Matsuoka & Nakai 1974).
+
+        In triaxial compression (sigma_2 = sigma_3, compression positive) at Mohr-Coulomb angle phi_c,
+        K = (9 - sin^2 phi_c) / (1 - sin^2 phi_c); at b = 0.5 (sigma_2 the mean of sigma_1 and sigma_3, the
+        Mohr circle's sin phi_b = (sigma_1 - sigma_3) / (sigma_1 + sigma_3) = x), I1 = 3 p, I2 = 3 p^2 - q^2,
+        I3 = p (p^2 - q^2), q = x p: K = 3 (3 - x^2) / (1 - x^2)."""
+        s = math.sin(math.radians(self.friction_angle))
+        if self.cone == "compression":
+            return (9.0 - s * s) / (1.0 - s * s)
+        x = math.tan(math.radians(self.friction_angle)) if self.cone == "simple_shear" else s
+        return 3.0 * (3.0 - x * x) / (1.0 - x * x)
+
+    @property
+    def mn_inner_radius(self) -> float:
+        """The ``matsuoka_nakai`` cone's smallest deviatoric radius |dev c| / p' (at triaxial extension, w =
+        1 / (3 sqrt 6)): the root of (9 - K) + (K - 3) / 2 u^2 + K w u^3 = 0, which falls as w grows. Trial
+        states inside it are elastic at any Lode angle (the return skips its cubic for them)."""
+        k = self.mn_k
+        a, b, c = 9.0 - k, 0.5 * (k - 3.0), k / (3.0 * math.sqrt(6.0))
+        u = math.sqrt(
+            -a / b
+        )  # the root at w = 0, above the wanted one; h convex for w > 0: Newton from above
+        for _ in range(100):
+            step = (a + b * u * u + c * u**3) / (2.0 * b * u + 3.0 * c * u * u)
+            u -= step
+            if abs(step) <= 1e-15 * u:
+                break
+        return u
 
     @property
     def grain_density(self) -> float:

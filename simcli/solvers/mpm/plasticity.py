@@ -28,6 +28,10 @@ last substep, ``svd3_via_b_warm``; 2D: ``ti.svd``), after the update F <- (I + d
   (sin(phi_mc) = tan(phi) for the simple_shear fit, so a flowing layer carries tan(phi) at any Lode
   angle, where the cone does only at b = 0.5), returned exactly in principal strain with the Tresca
   (zero-dilatancy) flow: main plane, edges, apex (``SandLaw.mohr_coulomb_return``).
+  ``yield_surface: matsuoka_nakai`` the smooth cone I1 I2 / I3 = K (Matsuoka & Nakai 1974, "Stress-deformation
+  and strength characteristics of soil under three different principal stresses", Proc. JSCE 232, 59-70),
+  Mohr-Coulomb at triaxial compression and extension, outside it between them, fitted at b = 0.5 as the
+  cone; returned radially in the deviatoric plane (the cone's flow; ``SandLaw.matsuoka_nakai_return``).
 
 Each law computes the Kirchhoff stress from the same decomposition and stores it per particle
 (``stores_stress``): p2g reads it, so F is decomposed once per substep. J_p, where tracked, obeys
@@ -58,6 +62,8 @@ from simcli.solvers.taichi_funcs import jacobi_rotation
 
 with stdout_to_stderr():
     import taichi as ti
+
+_MN_W_MAX = 1.0 / (3.0 * math.sqrt(6.0))  # |n_1 n_2 n_3| of a unit deviatoric vector: triaxial states
 
 
 @ti.func
@@ -465,7 +471,8 @@ class SnowLaw(ClampLaw):
 
 @ti.data_oriented
 class SandLaw(_SVDPlasticLaw):
-    """``MPM.Sand``: Drucker-Prager (Klar et al. 2016) or Mohr-Coulomb, cohesion, volume correction."""
+    """``MPM.Sand``: Drucker-Prager (Klar et al. 2016), Mohr-Coulomb or Matsuoka-Nakai, cohesion, volume
+    correction."""
 
     key = "sand"
     tracks_jp = True
@@ -496,6 +503,26 @@ class SandLaw(_SVDPlasticLaw):
         if self.use_mc:
             self.mc = self._param(materials, lambda m: 1.0 if m.yield_surface == "mohr_coulomb" else 0.0)
             self.mc_sin = self._param(materials, lambda m: m.mc_sin_phi)
+        # Matsuoka-Nakai (yield_surface: matsuoka_nakai), compiled in only when a sand material asks for it
+        self.use_mn = any(
+            self.uses(m) and getattr(m, "yield_surface", "drucker_prager") == "matsuoka_nakai"
+            for m in materials
+        )
+        if self.use_mn:
+
+            def mn(getter):  # only the Matsuoka-Nakai materials' (a cone of 45 deg sand has no finite K)
+                return self._param(
+                    materials, lambda m: getter(m) if m.yield_surface == "matsuoka_nakai" else 0.0
+                )
+
+            self.mn = mn(lambda m: 1.0)
+            self.mn_k = mn(lambda m: m.mn_k)
+            # K - 9 (> 0) and (K - 3) / 2 from the host's float64: 9 - K loses digits in f32 near K = 9
+            self.mn_km9 = mn(lambda m: m.mn_k - 9.0)
+            self.mn_b = mn(lambda m: 0.5 * (m.mn_k - 3.0))
+            self.mn_tol = 4.0 * float(np.finfo(self._np()).eps)  # Newton's relative step to stop at
+            # the smallest radius (triaxial extension), a little inside: below it no cubic is solved
+            self.mn_inner = mn(lambda m: m.mn_inner_radius * (1.0 - 1.0e-5))
         # mu(I) rheology (Jop et al. 2006), compiled in only when a sand material asks for it
         self.use_mu_i = any(self.uses(m) and getattr(m, "mu_i", None) is not None for m in materials)
         if self.use_mu_i:
@@ -637,6 +664,73 @@ class SandLaw(_SVDPlasticLaw):
         return new_eps, flowed
 
     @ti.func
+    def matsuoka_nakai_radius(self, mid, w):
+        """The deviatoric radius u = |dev c| / p' of the Matsuoka-Nakai cone at the Lode parameter w.
+
+        Principal stresses c_i = p' - u p' n_i (compression positive, from the apex; n the unit deviatoric
+        direction of the tension-positive strains, w = n_1 n_2 n_3 in [-1, 1] / (3 sqrt 6), -: triaxial
+        compression): I1 = 3 p', I2 = p'^2 (3 - u^2 / 2), I3 = p'^3 (1 - u^2 / 2 - w u^3), and
+        I1 I2 - K I3 = 0 is the cubic h(u) = (9 - K) + (K - 3) / 2 u^2 + K w u^3 = 0 (Matsuoka & Nakai 1974).
+        Its smallest positive root: h(0) = 9 - K < 0 and h rises on (0, u_m); for w >= 0 h is convex there
+        and the root lies in (0, u_0], u_0 = sqrt(2 (K - 9) / (K - 3)) the root at w = 0 (the cone's); for
+        w < 0 it lies in [u_0, u_m], u_m = (K - 3) / (3 K |w|) where h has its maximum (> 0: the cone lies
+        inside the octant of compressions, so the ray from the axis meets it before I3 = 0). Newton from
+        u_0, kept in the bracket by bisection; a handful of steps to round-off in f32 and f64 for K up to
+        about 50 (friction_angle 40, cone simple_shear), at most 16 (near-double root as K grows)."""
+        km9 = self.mn_km9[mid]
+        B = self.mn_b[mid]
+        C = self.mn_k[mid] * w
+        u0 = ti.sqrt(km9 / B)
+        lo = 0.0 * u0
+        hi = u0
+        if C < 0.0:
+            lo = u0
+            hi = 2.0 * B / (-3.0 * C)
+        x = u0
+        tol = ti.static(self.mn_tol)
+        for _ in range(16):
+            h = B * x * x + C * x * x * x - km9
+            if h < 0.0:
+                lo = x
+            else:
+                hi = x
+            dh = 2.0 * B * x + 3.0 * C * x * x
+            xn = 0.5 * (lo + hi)
+            if dh > 0.0:
+                xn = x - h / dh
+                if xn < lo or xn > hi:
+                    xn = 0.5 * (lo + hi)
+            done = ti.abs(xn - x) <= tol * x
+            x = xn
+            if done:
+                break
+        return x
+
+    @ti.func
+    def matsuoka_nakai_return(self, ehat, norm, tr, tr_apex, bulk, mu, mid):
+        """Return onto the Matsuoka-Nakai cone of the deviatoric Hencky strain ehat (norm |ehat|) at the
+        volumetric strain tr < tr_apex: (new strains, whether it flowed).
+
+        Principal Kirchhoff stresses from the apex, compression positive, in strain units (/ 2 mu):
+        c_i = p' - ehat_i, p' = bulk (tr_apex - tr) / (6 mu) > 0. The flow is the cone's: zero dilatancy,
+        along dev tau (the von Mises potential), so the return keeps tr and scales ehat at a fixed Lode
+        angle, exact for Hencky elasticity because the flow direction is the same at the trial and the
+        returned stress: ehat <- ehat u* p' / |ehat|, u* the cone's radius at that Lode angle
+        (``matsuoka_nakai_radius``). Non-associated as the cone's and the pyramid's returns: the surface is
+        Lode-dependent, the potential is not."""
+        new_eps = ehat + tr / 3.0
+        flowed = False
+        pp = bulk * (tr_apex - tr) / (6.0 * mu)
+        if norm > self.mn_inner[mid] * pp:  # inside the inscribed circle: elastic at every Lode angle
+            n = ehat / norm
+            w = ti.min(ti.max(n[0] * n[1] * n[2], -_MN_W_MAX), _MN_W_MAX)
+            r = self.matsuoka_nakai_radius(mid, w) * pp
+            if norm > r:
+                new_eps = ehat * (r / norm) + tr / 3.0
+                flowed = True
+        return new_eps, flowed
+
+    @ti.func
     def return_mapping(self, p, F, mid, mu, lam):
         U, s, V = self.decompose_warm(p, F)
         eps = self.log_strains(p, s, 1.0e-4)
@@ -661,9 +755,21 @@ class SandLaw(_SVDPlasticLaw):
             corrected = ehat + tr / 3.0
             returned = corrected
             flowed = False
-            if ti.static(self.use_mc):
+            if ti.static(self.use_mc and self.use_mn):
                 if self.mc[mid] > 0.5:
                     returned, flowed = self.mohr_coulomb_return(ehat, tr, tr_apex, bulk, mu, mid)
+                elif self.mn[mid] > 0.5:
+                    returned, flowed = self.matsuoka_nakai_return(ehat, norm, tr, tr_apex, bulk, mu, mid)
+                else:
+                    returned, flowed = self.drucker_prager_return(ehat, norm, tr, tr_apex, bulk, mu, mid)
+            elif ti.static(self.use_mc):
+                if self.mc[mid] > 0.5:
+                    returned, flowed = self.mohr_coulomb_return(ehat, tr, tr_apex, bulk, mu, mid)
+                else:
+                    returned, flowed = self.drucker_prager_return(ehat, norm, tr, tr_apex, bulk, mu, mid)
+            elif ti.static(self.use_mn):
+                if self.mn[mid] > 0.5:
+                    returned, flowed = self.matsuoka_nakai_return(ehat, norm, tr, tr_apex, bulk, mu, mid)
                 else:
                     returned, flowed = self.drucker_prager_return(ehat, norm, tr, tr_apex, bulk, mu, mid)
             else:
