@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from simcli.collider_mesh import FAR, MARGIN_CELLS
+from simcli.collider_mesh import MARGIN_CELLS, GridSDF
 
 MAX_NODES_2D = 4000**2
 
@@ -190,8 +190,9 @@ def polygon_mass_properties(P: np.ndarray, rho: float) -> tuple[float, np.ndarra
     return rho * A, C, rho * (J0 - A * float(C @ C))
 
 
-class PolygonSDF:
-    """A closed polygon (body frame = its placement at t = 0) and its signed-distance grid (2D)."""
+class PolygonSDF(GridSDF):
+    """A closed polygon (body frame = its placement at t = 0) and its signed-distance grid (2D; shape,
+    bounds, sample and normal: simcli.collider_mesh.GridSDF's, as a 3D Mesh's)."""
 
     def __init__(self, P: np.ndarray, h: float, source: str) -> None:
         t0 = time.perf_counter()
@@ -212,36 +213,6 @@ class PolygonSDF:
         self.source = source
         self.volume = signed_area(self.vertices)
         self.build_seconds = time.perf_counter() - t0
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return tuple(int(s) for s in self.phi.shape)
-
-    @property
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.vertices.min(axis=0), self.vertices.max(axis=0)
-
-    def sample(self, x: np.ndarray) -> np.ndarray:
-        """Bilinear phi at body-frame points x (k, 2), as the kernels sample it (FAR outside the grid)."""
-        from scipy.ndimage import map_coordinates
-
-        x = np.asarray(x, float).reshape(-1, 2)
-        g = (x - self.origin) / self.h
-        hi = np.asarray(self.shape) - 1
-        inside = np.all((g >= 0) & (g <= hi), axis=1)
-        out = np.full(len(x), FAR)
-        if np.any(inside):
-            out[inside] = map_coordinates(self.phi, g[inside].T, order=1, mode="nearest")
-        return out
-
-    def normal(self, x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, float).reshape(-1, 2)
-        g = np.zeros_like(x)
-        for ax in range(2):
-            d = np.zeros(2)
-            d[ax] = 0.5 * self.h
-            g[:, ax] = self.sample(x + d) - self.sample(x - d)
-        return g / np.maximum(np.linalg.norm(g, axis=1), 1e-300)[:, None]
 
 
 def signed_distance(P: np.ndarray, x: np.ndarray, chunk: int = 1 << 21) -> np.ndarray:
