@@ -195,7 +195,10 @@ def test_self_contact_finds_the_crossing_edges_and_passes_simple_outlines():
     th = np.linspace(0, 2 * math.pi, 41, endpoint=False)
     star = (1 + 0.6 * np.cos(7 * th))[:, None] * np.stack([np.cos(th), np.sin(th)], 1)
     ell = np.array([[0, 0], [3, 0], [3, 1], [1, 1], [1, 2], [0, 2]], float)
-    for P in (star, star[::-1], ell, ell[::-1], 1e-6 * star, 1e4 * ell + 7.0):
+    sub = np.array(
+        [[0, 0], [0.5, 0], [1, 0], [1, 0.5], [1, 1], [0, 1]], float
+    )  # extra vertices on straight sides
+    for P in (star, star[::-1], ell, ell[::-1], 1e-6 * star, 1e4 * ell + 7.0, sub, sub[::-1]):
         assert simple(P)
     # a comb whose teeth are 1e-6 of its size apart still passes (not touching), at 0 it is refused
     for gap, ok in ((1e-6, True), (0.0, False)):
