@@ -35,21 +35,19 @@ MAX_NODES = 200**3  # the grid is coarsened beyond this many nodes
 FAR = 1.0e3  # phi outside the grid [m]
 
 
-@dataclass(eq=False)
-class MeshSDF:
-    """A closed mesh (body frame = its pose at t = 0) and its signed-distance grid."""
+class GridSDF:
+    """A closed outline in its body frame (its pose at t = 0) and its signed-distance node grid, in 2D or 3D
+    alike (the dimension is ``phi.ndim``): the host side shared by :class:`MeshSDF` (a closed triangle
+    surface) and simcli.rigid.polygon.PolygonSDF (a closed polygon). A subclass sets ``vertices`` (n, d),
+    ``origin`` (d,) (position of node 0), ``h`` (the cell) and ``phi`` (the node values, < 0 inside)."""
 
-    vertices: np.ndarray  # (n, 3)
-    triangles: np.ndarray  # (m, 3), outward
-    origin: np.ndarray  # (3,) position of node (0, 0, 0) [m]
-    h: float  # grid cell [m]
-    phi: np.ndarray  # (nx, ny, nz) float64, < 0 inside
-    source: str
-    build_seconds: float
-    volume: float
+    vertices: np.ndarray
+    origin: np.ndarray
+    h: float
+    phi: np.ndarray
 
     @property
-    def shape(self) -> tuple[int, int, int]:
+    def shape(self) -> tuple[int, ...]:
         return tuple(int(s) for s in self.phi.shape)
 
     @property
@@ -57,10 +55,11 @@ class MeshSDF:
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
 
     def sample(self, x: np.ndarray) -> np.ndarray:
-        """Trilinear phi at body-frame points x (k, 3), as the kernels sample it (FAR outside the grid)."""
+        """Multilinear phi (bilinear in 2D, trilinear in 3D) at body-frame points x (k, d), as the kernels
+        sample it (FAR outside the grid)."""
         from scipy.ndimage import map_coordinates
 
-        x = np.asarray(x, float).reshape(-1, 3)
+        x = np.asarray(x, float).reshape(-1, self.phi.ndim)
         g = (x - self.origin) / self.h
         hi = np.asarray(self.shape) - 1
         inside = np.all((g >= 0) & (g <= hi), axis=1)
@@ -70,15 +69,30 @@ class MeshSDF:
         return out
 
     def normal(self, x: np.ndarray) -> np.ndarray:
-        """Unit outward normals (k, 3) at body-frame points x: the trilinear phi's central differences over
+        """Unit outward normals (k, d) at body-frame points x: the multilinear phi's central differences over
         half a cell (zero where the grid gives no gradient, e.g. outside it)."""
-        x = np.asarray(x, float).reshape(-1, 3)
+        dim = self.phi.ndim
+        x = np.asarray(x, float).reshape(-1, dim)
         g = np.zeros_like(x)
-        for ax in range(3):
-            d = np.zeros(3)
+        for ax in range(dim):
+            d = np.zeros(dim)
             d[ax] = 0.5 * self.h
             g[:, ax] = self.sample(x + d) - self.sample(x - d)
         return g / np.maximum(np.linalg.norm(g, axis=1), 1e-300)[:, None]
+
+
+@dataclass(eq=False)
+class MeshSDF(GridSDF):
+    """A closed mesh (body frame = its pose at t = 0) and its signed-distance grid (3D)."""
+
+    vertices: np.ndarray  # (n, 3)
+    triangles: np.ndarray  # (m, 3), outward
+    origin: np.ndarray  # (3,) position of node (0, 0, 0) [m]
+    h: float  # grid cell [m]
+    phi: np.ndarray  # (nx, ny, nz) float64, < 0 inside
+    source: str
+    build_seconds: float
+    volume: float
 
 
 # ------------------------------------------------------------------ exact distances

@@ -6,7 +6,7 @@ from typing import Any
 import numpy as np
 
 from simcli.backend import stdout_to_stderr
-from simcli.collider_mesh import FAR, MeshSDF
+from simcli.collider_mesh import FAR, GridSDF
 
 with stdout_to_stderr():
     import taichi as ti
@@ -42,11 +42,11 @@ def mesh_fields(specs: list, dtype: Any, normal_below: float | None = None) -> l
 
 @ti.data_oriented
 class MeshSDFField:
-    """The grid of a MeshSDF in a Taichi field; :meth:`sample` gives (phi, unit outward normal) at a
-    body-frame point by trilinear interpolation (the normal is the interpolant's gradient); a 2D grid
-    (simcli.rigid.polygon.PolygonSDF, a 2D Mesh rigid body) bilinearly."""
+    """The grid of a simcli.collider_mesh.GridSDF in a Taichi field; :meth:`sample` gives (phi, unit outward
+    normal) at a body-frame point by trilinear interpolation of a MeshSDF (the normal is the interpolant's
+    gradient); a 2D grid (simcli.rigid.polygon.PolygonSDF, a 2D Mesh rigid body) bilinearly."""
 
-    def __init__(self, sdf: MeshSDF, dtype: Any, normal_below: float | None = None) -> None:
+    def __init__(self, sdf: GridSDF, dtype: Any, normal_below: float | None = None) -> None:
         """``normal_below``: the normal is computed only where phi is below it [m] (None: everywhere);
         callers that use it only inside (phi < 0) skip the gradient elsewhere."""
         self.dtype = dtype

@@ -5,7 +5,9 @@ File: a Wavefront OBJ whose ``v`` lines give the vertices (x y, a z if present m
 ``f`` line (the polygon, its vertices in order) or ``l`` lines chaining the vertices into one closed loop;
 other formats through meshio with one ``polygon``/``triangle``/``quad`` cell or ``line`` cells forming one
 loop. The morph's ``scale`` (scalar or per axis, x and y used), ``rotate`` (the z angle [deg]; x and y must
-be 0) and ``translate`` (x, y; a z must be 0) are applied in that order, as for a 3D Mesh morph.
+be 0) and ``translate`` (x, y; a z must be 0) are applied in that order, as for a 3D Mesh morph. The
+outline must be simple (:func:`self_contact`): an edge that crosses or touches another than its neighbours,
+a vertex given twice or a spike of no width is refused with the two edges' file vertices.
 
 Mass properties (:func:`polygon_mass_properties`): the exact area, centroid and polar moment of the
 polygon by the shoelace sums (Green's theorem; e.g. Bourke, "Calculating the area and centroid of a
@@ -29,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from simcli.collider_mesh import FAR, MARGIN_CELLS
+from simcli.collider_mesh import MARGIN_CELLS, GridSDF
 
 MAX_NODES_2D = 4000**2
 
@@ -108,6 +110,13 @@ def _loop(edges: list, name: str) -> list[int]:
 
 def read_polygon(path: Path) -> np.ndarray:
     """The polygon's vertices (n, 3) in order, from an OBJ file or any file meshio reads."""
+    V, order = read_polygon_indexed(path)
+    return V[order]
+
+
+def read_polygon_indexed(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(every vertex of the file (m, 3), the polygon's vertex indices in order (n,)): the indices name the
+    file's vertices in messages (an OBJ's v lines from 1, meshio's points from 0)."""
     if path.suffix.lower() == ".obj":
         V, order = _read_obj(path)
     else:
@@ -131,7 +140,7 @@ def read_polygon(path: Path) -> np.ndarray:
         raise PolygonError(f"'{path.name}': a polygon needs at least 3 vertices")
     if np.any(np.abs(V[:, 2]) > 1e-12 * max(1.0, float(np.abs(V).max()))):
         raise PolygonError(f"'{path.name}': a 2D outline lies in the x-y plane (its z must be 0)")
-    return V[order]
+    return V, np.asarray(order, dtype=np.int64)
 
 
 def transform_polygon(V: np.ndarray, scale, rotate, translate) -> np.ndarray:
@@ -152,10 +161,36 @@ def signed_area(P: np.ndarray) -> float:
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
-def simple(P: np.ndarray) -> bool:
-    """No two non-adjacent edges of the closed polygon P intersect (O(n^2); outlines are small)."""
+TOUCH_TOL = 1e-9  # edges closer than this fraction of the polygon's extent touch
+
+
+def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    t = np.clip(((p - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300), 0.0, 1.0)
+    return np.sqrt(((a + t[..., None] * ab - p) ** 2).sum(-1))
+
+
+def self_contact(P: np.ndarray) -> tuple[str, int, int] | None:
+    """The first place where the closed polygon P (n, 2) meets itself, or None for a simple polygon:
+    ("short", i, i) an edge i (P[i] -> P[i+1]) of no length (its two vertices coincide); ("fold", i, i+1)
+    two neighbouring edges that run back over each other; ("cross", i, j) or ("touch", i, j) two edges
+    that are not neighbours and cross, or touch (a vertex on the other edge, or two coinciding vertices).
+    Touching: closer than TOUCH_TOL times the polygon's extent. O(n^2) (outlines are small). A polygon
+    that meets itself has no well-defined inside: the shoelace area, centroid and moment count a part
+    twice or negatively."""
+    P = np.asarray(P, float)
     n = len(P)
     A, B = P, np.roll(P, -1, axis=0)
+    tol = TOUCH_TOL * max(float(np.max(P.max(axis=0) - P.min(axis=0))), 1e-300)
+    short = np.nonzero(np.sqrt(((B - A) ** 2).sum(1)) <= tol)[0]
+    if len(short):
+        return ("short", int(short[0]), int(short[0]))
+    # neighbours i, i+1 share B[i]; they overlap iff the far end of one lies on the other
+    C = np.roll(B, -1, axis=0)
+    fold = (_point_segment_distance(C, A, B) <= tol) | (_point_segment_distance(A, B, C) <= tol)
+    if np.any(fold):
+        i = int(np.nonzero(fold)[0][0])
+        return ("fold", i, (i + 1) % n)
 
     def orient(p, q, r):
         return (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (
@@ -169,11 +204,60 @@ def simple(P: np.ndarray) -> bool:
         if not len(j):
             continue
         a, b, c, d = A[i], B[i], A[j], B[j]
-        o1, o2 = orient(a, b, c), orient(a, b, d)
-        o3, o4 = orient(c, d, a[None]), orient(c, d, b[None])
-        if np.any((o1 * o2 < 0) & (o3 * o4 < 0)):
-            return False
-    return True
+        cross = (orient(a, b, c) * orient(a, b, d) < 0) & (orient(c, d, a[None]) * orient(c, d, b[None]) < 0)
+        gap = np.minimum(
+            np.minimum(_point_segment_distance(a[None], c, d), _point_segment_distance(b[None], c, d)),
+            np.minimum(
+                _point_segment_distance(c, a[None], b[None]), _point_segment_distance(d, a[None], b[None])
+            ),
+        )
+        hit = np.nonzero(cross | (gap <= tol))[0]
+        if len(hit):
+            return ("cross" if cross[hit[0]] else "touch", i, int(j[hit[0]]))
+    return None
+
+
+def simple(P: np.ndarray) -> bool:
+    """No edge of the closed polygon P meets another except its two neighbours at their shared vertices."""
+    return self_contact(P) is None
+
+
+def self_contact_message(name: str, V: np.ndarray, order: np.ndarray, P: np.ndarray, obj: bool) -> str | None:
+    """The scene error for a polygon P (placed, (n, 2)) that meets itself (``self_contact``), or None for a
+    simple one. It names the file's vertices with their coordinates in the file: ``V`` the file's vertices,
+    ``order`` the file's index of each vertex of P; ``obj``: OBJ v lines numbered from 1, else meshio's
+    points from 0."""
+    found = self_contact(P)
+    if found is None:
+        return None
+    kind, i, j = found
+    n = len(P)
+    base, word = (1, "v line") if obj else (0, "point")
+
+    def vert(k: int) -> str:
+        x, y = V[order[k % n], :2]
+        return f"{word} {int(order[k % n]) + base} ({x:.6g}, {y:.6g})"
+
+    def edge(k: int) -> str:
+        return f"the edge from {vert(k)} to {vert(k + 1)}"
+
+    if kind == "short":
+        return (
+            f"'{name}': the polygon meets itself: {vert(i)} and {vert(i + 1)} coincide ({edge(i)} has no "
+            "length): remove one of them from the outline"
+        )
+    if kind == "fold":
+        return (
+            f"'{name}': the polygon meets itself: {edge(i)} and {edge(j)} run back over each other (a "
+            f"spike of no width at {vert(j)}): remove {vert(j)} or move it off the line"
+        )
+    verb = "crosses" if kind == "cross" else "touches"
+    how = "cross" if kind == "cross" else "touch (a vertex on the other edge, or two vertices at one point)"
+    return (
+        f"'{name}': the polygon {verb} itself: {edge(i)} and {edge(j)} {how}; give a simple closed "
+        "outline (each edge meets only its two neighbours, at their shared vertices): move or reorder those "
+        "vertices, or split the outline into separate bodies"
+    )
 
 
 def polygon_mass_properties(P: np.ndarray, rho: float) -> tuple[float, np.ndarray, float]:
@@ -190,8 +274,9 @@ def polygon_mass_properties(P: np.ndarray, rho: float) -> tuple[float, np.ndarra
     return rho * A, C, rho * (J0 - A * float(C @ C))
 
 
-class PolygonSDF:
-    """A closed polygon (body frame = its placement at t = 0) and its signed-distance grid (2D)."""
+class PolygonSDF(GridSDF):
+    """A closed polygon (body frame = its placement at t = 0) and its signed-distance grid (2D; shape,
+    bounds, sample and normal: simcli.collider_mesh.GridSDF's, as a 3D Mesh's)."""
 
     def __init__(self, P: np.ndarray, h: float, source: str) -> None:
         t0 = time.perf_counter()
@@ -212,36 +297,6 @@ class PolygonSDF:
         self.source = source
         self.volume = signed_area(self.vertices)
         self.build_seconds = time.perf_counter() - t0
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return tuple(int(s) for s in self.phi.shape)
-
-    @property
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.vertices.min(axis=0), self.vertices.max(axis=0)
-
-    def sample(self, x: np.ndarray) -> np.ndarray:
-        """Bilinear phi at body-frame points x (k, 2), as the kernels sample it (FAR outside the grid)."""
-        from scipy.ndimage import map_coordinates
-
-        x = np.asarray(x, float).reshape(-1, 2)
-        g = (x - self.origin) / self.h
-        hi = np.asarray(self.shape) - 1
-        inside = np.all((g >= 0) & (g <= hi), axis=1)
-        out = np.full(len(x), FAR)
-        if np.any(inside):
-            out[inside] = map_coordinates(self.phi, g[inside].T, order=1, mode="nearest")
-        return out
-
-    def normal(self, x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, float).reshape(-1, 2)
-        g = np.zeros_like(x)
-        for ax in range(2):
-            d = np.zeros(2)
-            d[ax] = 0.5 * self.h
-            g[:, ax] = self.sample(x + d) - self.sample(x - d)
-        return g / np.maximum(np.linalg.norm(g, axis=1), 1e-300)[:, None]
 
 
 def signed_distance(P: np.ndarray, x: np.ndarray, chunk: int = 1 << 21) -> np.ndarray:
@@ -267,10 +322,11 @@ def signed_distance(P: np.ndarray, x: np.ndarray, chunk: int = 1 << 21) -> np.nd
 
 @functools.lru_cache(maxsize=16)
 def _build_cached(path: str, mtime: int, size: int, scale, rotate: tuple, translate: tuple, h: float):
-    V = read_polygon(Path(path))
-    P = transform_polygon(V, scale, rotate, translate)
-    if not simple(P):
-        raise PolygonError(f"'{Path(path).name}': the polygon crosses itself: give a simple closed outline")
+    V, order = read_polygon_indexed(Path(path))
+    P = transform_polygon(V[order], scale, rotate, translate)
+    msg = self_contact_message(Path(path).name, V, order, P, Path(path).suffix.lower() == ".obj")
+    if msg is not None:
+        raise PolygonError(msg)
     if abs(signed_area(P)) <= 0:
         raise PolygonError(f"'{Path(path).name}': the polygon encloses no area")
     if signed_area(P) < 0:  # counter-clockwise: outward normals to the right of each edge

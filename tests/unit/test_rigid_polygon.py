@@ -139,3 +139,90 @@ def test_a_polygon_file_with_a_bad_vertex_index_is_refused_with_the_location(tmp
         p.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n" + face + "\n")
         rc, out = _validate(tmp_path, SCENE2 % (MPM, p))
         assert rc == 65 and "s.yaml:10:" in out and what in out and "Traceback" not in out, (name, out)
+
+
+# outlines that meet themselves without a proper crossing: each passed validate before 2026-11-27 (review:
+# "a self-touching polygon passes"), and each gives a wrong area, centroid and moment or a sliver of no width
+SELF_TOUCHING = [
+    # a vertex (v 4) on a non-neighbouring edge (v 1 -> v 2): two triangles joined at a point
+    (
+        "touch.obj",
+        "v 0 0 0\nv 2 0 0\nv 2 2 0\nv 1 0 0\nv 0 2 0\nf 1 2 3 4 5\n",
+        "v line 1 (0, 0) to v line 2 (2, 0)",
+    ),
+    # the edge v 5 -> v 6 runs along the edge v 1 -> v 2 (collinear overlap: no sign change to see)
+    (
+        "overlap.obj",
+        "v 0 0 0\nv 3 0 0\nv 3 1 0\nv 2 1 0\nv 2 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4 5 6 7 8\n",
+        "v line 1 (0, 0) to v line 2 (3, 0)",
+    ),
+    # a figure eight: two squares through one point given twice (v 3 and v 7)
+    (
+        "eight.obj",
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 2 1 0\nv 2 2 0\nv 1 2 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4 5 6 7 8\n",
+        "v line 7 (1, 1)",
+    ),
+    # a spike of no width: v 4 and back along the same line
+    (
+        "spike.obj",
+        "v 0 0 0\nv 2 0 0\nv 2 1 0\nv 3 1 0\nv 1.5 1 0\nv 0 1 0\nf 1 2 3 4 5 6\n",
+        "at v line 4 (3, 1)",
+    ),
+    # one vertex twice in a row (an edge of no length)
+    (
+        "dup.obj",
+        "v 0 0 0\nv 1 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4 5\n",
+        "v line 2 (1, 0) and v line 3 (1, 0)",
+    ),
+]
+
+
+@pytest.mark.parametrize("name,text,where", SELF_TOUCHING, ids=[c[0] for c in SELF_TOUCHING])
+def test_a_self_touching_polygon_is_refused_at_validate_naming_the_edges(tmp_path, name, text, where):
+    p = tmp_path / name
+    p.write_text(text)
+    rc, out = _validate(tmp_path, SCENE2 % (MPM, p))
+    assert rc == 65 and "s.yaml:10:" in out and "rigid_bodies.0.morph.file" in out, out
+    assert "itself" in out and where in out and "Traceback" not in out, out
+
+
+def test_self_contact_finds_the_crossing_edges_and_passes_simple_outlines():
+    from simcli.rigid.polygon import self_contact, simple
+
+    bow = np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]])
+    assert self_contact(bow) == ("cross", 0, 2)
+    # simple outlines, either orientation, scaled far down and far up: no false contact
+    th = np.linspace(0, 2 * math.pi, 41, endpoint=False)
+    star = (1 + 0.6 * np.cos(7 * th))[:, None] * np.stack([np.cos(th), np.sin(th)], 1)
+    ell = np.array([[0, 0], [3, 0], [3, 1], [1, 1], [1, 2], [0, 2]], float)
+    sub = np.array(
+        [[0, 0], [0.5, 0], [1, 0], [1, 0.5], [1, 1], [0, 1]], float
+    )  # extra vertices on straight sides
+    for P in (star, star[::-1], ell, ell[::-1], 1e-6 * star, 1e4 * ell + 7.0, sub, sub[::-1]):
+        assert simple(P)
+    # a comb whose teeth are 1e-6 of its size apart still passes (not touching), at 0 it is refused
+    for gap, ok in ((1e-6, True), (0.0, False)):
+        comb = np.array([[0, 0], [2, 0], [2, 1], [1 + gap, 1], [1 + gap, 0.5], [1, 0.5], [1, 1], [0, 1]])
+        assert simple(comb) is ok
+
+
+def test_run_refuses_a_self_touching_polygon_as_validate_does(tmp_path):
+    """validate and run agree: run exits 65 with validate's message at the same location, before any
+    output is written."""
+    name, text, where = SELF_TOUCHING[0]
+    p = tmp_path / name
+    p.write_text(text)
+    rc, vout = _validate(tmp_path, SCENE2 % (MPM, p))
+    out = tmp_path / "out"
+    r = subprocess.run(
+        [sys.executable, "-m", "simcli", "run", str(tmp_path / "s.yaml"), "-o", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
+    rout = r.stdout + r.stderr
+    assert rc == 65 and r.returncode == 65, (vout, rout)
+    line = next(ln for ln in vout.splitlines() if where in ln)
+    assert line in rout and "Traceback" not in rout, (vout, rout)
+    assert not (out / "sim.h5").exists()

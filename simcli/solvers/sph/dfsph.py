@@ -130,11 +130,30 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
         return s
 
     @ti.func
-    def density_change(i, dt, mode: ti.template(), first: ti.template()):
+    def set_increment(i, ki):
+        """Particle i's stiffness increment k_i (and k_i c_i beside it with the scalar correction)."""
+        kk[i] = ki
+        if ti.static(fast_kc):
+            kc[i] = ki * Lc[i]
+
+    @ti.func
+    def warm_increment(i, dt, mode: ti.template()):
+        """The first increment of a warm-started solve: the previous substep's total stiffness of the same
+        solve, WARM of the divergence solve's (kept dt independent: kappav = k dt) and DENSITY_WARM of the
+        density solve's."""
+        ki = ti.cast(0.0, f)
+        if ti.static(mode == DIV):
+            ki = WARM * kappav[i] / dt
+        else:
+            ki = DENSITY_WARM * kappa[i]
+        return ki
+
+    @ti.func
+    def density_change(i, dt, mode: ti.template()):
         """Residual s_i of particle i (added to the error sum where it is a compression) and its stiffness
         increment k_i. With a free surface (clamp_pressure) the total stiffness of a solve is projected onto
         k >= 0 (projected Jacobi): a residual expansion lowers a particle's stiffness down to zero but never
-        pulls. On the first pass of a warm-started solve, k_i is the warm-start stiffness instead."""
+        pulls. (A warm-started solve's first increment is warm_increment's, without this residual.)"""
         s = density_rate(i) * dt  # per substep: the density change this substep, in units of rho0
         if ti.static(mode == DENS):
             s += rho[i] / mat_rho0[mid[i]] - 1.0
@@ -148,14 +167,7 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
         ki = RELAX * s * alpha[i] / (dt * dt)
         if ti.static(clamp):
             ki = ti.max(ki, -kacc[i])  # total stiffness kacc + k stays >= 0
-        if ti.static(first and warm):
-            if ti.static(mode == DIV):
-                ki = WARM * kappav[i] / dt
-            else:
-                ki = DENSITY_WARM * kappa[i]
-        kk[i] = ki
-        if ti.static(fast_kc):
-            kc[i] = ki * Lc[i]
+        set_increment(i, ki)
 
     @ti.func
     def pressure_gradient(i, k_: ti.template(), g):
@@ -299,7 +311,7 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             velocity_update(i, dt)
         err_acc[None] = 0
         for i in range(N()):
-            density_change(i, dt, mode, False)
+            density_change(i, dt, mode)
 
     @ti.func
     def solve_begin(dt, mode: ti.template(), copy_v: ti.template()):
@@ -318,16 +330,9 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
                 # the warm start's stiffness only: the first residual would be discarded (relax below
                 # resets the error sum and computes the residual after the warm start), so its pass over
                 # the neighbours is skipped
-                ki = ti.cast(0.0, f)
-                if ti.static(mode == DIV):
-                    ki = WARM * kappav[i] / dt
-                else:
-                    ki = DENSITY_WARM * kappa[i]
-                kk[i] = ki
-                if ti.static(fast_kc):
-                    kc[i] = ki * Lc[i]
+                set_increment(i, warm_increment(i, dt, mode))
             else:
-                density_change(i, dt, mode, True)
+                density_change(i, dt, mode)
         if ti.static(warm):
             relax(dt, mode)
         if ti.static(use_cg):
