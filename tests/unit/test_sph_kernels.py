@@ -214,3 +214,39 @@ def test_gradient_factor_rebuilds_the_gradient(ti_f32, dim):
     s = out_s.to_numpy()
     r = np.linalg.norm(pts.astype(np.float64), axis=1)
     assert s[0] == 0.0 and np.all(s[r > 1.0001 * h] == 0.0) and np.all(s[(r > 0) & (r < 0.999 * h)] < 0)
+
+
+def test_cohesion_over_r_is_the_cohesion_kernel_over_r(ti_f32):
+    """make_cohesion_over_r (the force pass's C(r) / r with the division folded in) against make_kernels'
+    C(r) / r on both branches of Akinci's kernel (r <= h / 2 and beyond), to f32 round-off; 0 at r = 0 and
+    r >= h."""
+    import taichi as ti
+
+    from simcli.solvers.sph.kernels import make_cohesion_over_r, make_kernels
+
+    h = 0.04
+    _, _, C, _ = make_kernels(h, 3, ti.f32)
+    C_over_r = make_cohesion_over_r(h, ti.f32)
+    r_np = np.concatenate([[0.0, h, 1.2 * h, 0.5 * h], np.linspace(1e-3 * h, 0.999 * h, 997)]).astype(
+        np.float32
+    )
+    n = len(r_np)
+    rs = ti.field(ti.f32, shape=n)
+    ref = ti.field(ti.f32, shape=n)
+    got = ti.field(ti.f32, shape=n)
+    rs.from_numpy(r_np)
+
+    @ti.kernel
+    def run():
+        for i in rs:
+            r = rs[i]
+            c = C(r)
+            ref[i] = c / r if r > 0 else 0.0
+            got[i] = C_over_r(r)
+
+    run()
+    a, b = ref.to_numpy(), got.to_numpy()
+    assert b[0] == 0.0 and b[1] == 0.0 and b[2] == 0.0
+    scale = np.abs(a).max()
+    assert np.abs(a).min() < 0.1 * scale  # both signs and a zero crossing are covered (C < 0 near r = 0)
+    np.testing.assert_allclose(b, a, rtol=2e-6, atol=2e-6 * scale)

@@ -144,6 +144,7 @@ class SPHFields:
     drho: Any = None  # WCSPH, density: continuity: d rho / dt of the substep (delta_sph.py)
     grad_rho: Any = None  # ... density_diffusion antuono: the renormalised density gradient
     pr2: Any = None  # WCSPH, one material: p_i / rho_i^2, written with the pressure (the force pass's pairs)
+    m_rho: Any = None  # WCSPH, one material: m_i / rho_i, written with the pressure (the viscosity's pairs)
 
 
 @dataclass

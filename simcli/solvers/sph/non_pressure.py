@@ -11,7 +11,7 @@ neighbour list; WCSPH adds its symmetric pressure force in the same pass (wcsph.
 
 from simcli.backend import stdout_to_stderr
 from simcli.solvers.sph.bundle import SPHFields, SPHFuncs, SPHParams
-from simcli.solvers.sph.kernels import VISC_EPS, morris_laplacian_constant
+from simcli.solvers.sph.kernels import VISC_EPS, make_cohesion_over_r, morris_laplacian_constant
 
 with stdout_to_stderr():
     import taichi as ti
@@ -23,7 +23,8 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     h = P.h
     h2 = h * h
     eps_visc = VISC_EPS * h2
-    gradW, Ckern = fn.gradW, fn.Ckern
+    gradW = fn.gradW
+    C_over_r = make_cohesion_over_r(h, f)  # Akinci's C(r) / r without the division (kernels.py)
     store_grad = F.nb_s is not None  # the list keeps grad W's factor (DFSPH; WCSPH on the CPU)
     x, v, mid, rho = F.x, F.v, F.mid, F.rho
     nb_cnt, nb_j, nb_s = F.nb_cnt, F.nb_j, F.nb_s
@@ -38,6 +39,8 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     p = F.p
     pr2 = F.pr2
     has_pr2 = pr2 is not None
+    m_rho = F.m_rho  # WCSPH, one material: m_j / rho_j per particle, written with the pressure (wcsph.py)
+    has_m_rho = m_rho is not None
 
     @ti.func
     def non_pressure(i, with_pressure: ti.template()):
@@ -90,7 +93,11 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                         ap -= (mi * dpi + (mj * mj / mi) * p[j] / (rj * rj)) * g
                 if ti.static(has_visc or has_tension):
                     if ti.static(has_visc):
-                        vis = mj / rj  # one material: times nu_i below
+                        vis = ti.cast(0.0, f)
+                        if ti.static(uniform and has_m_rho):
+                            vis = m_rho[j]  # m_j / rho_j, once per particle instead of per pair
+                        else:
+                            vis = mj / rj  # one material: times nu_i below
                         if ti.static(not uniform):
                             # several materials: the pair's mean dynamic viscosity over rho_i rho_j,
                             # symmetric in i and j so that momentum is conserved (Morris et al. 1997)
@@ -104,7 +111,7 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                             r = ti.sqrt(r2)
                             if ti.static(uniform):
                                 kij = 2.0 * rho0 / (ri + rj)
-                                at -= kij * (mj * Ckern(r) / r * d + (ni - nrm[j]))
+                                at -= kij * (mj * C_over_r(r) * d + (ni - nrm[j]))
                             else:
                                 # several materials: Akinci's pair term with symmetric coefficients (the
                                 # pair's mean gamma, (rho0_i + rho0_j) / (rho_i + rho_j), the curvature
@@ -114,7 +121,7 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                                 kij = (
                                     (0.5 * (gam + mat_gamma[mid[j]])) * (rho0 + mat_rho0[mid[j]]) / (ri + rj)
                                 )
-                                at -= kij * (mj * Ckern(r) / r * d + (2.0 * mj / (mi + mj)) * (ni - nrm[j]))
+                                at -= kij * (mj * C_over_r(r) * d + (2.0 * mj / (mi + mj)) * (ni - nrm[j]))
             if ti.static(uniform):
                 if ti.static(has_noslip):
                     av += Mv[i] @ vi - mw[i]

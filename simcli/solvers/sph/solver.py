@@ -314,6 +314,8 @@ class SPHSolver(Solver):
         # WCSPH, one material: p / rho^2 per particle, written with the pressure, so that the force pass's
         # pairs read it instead of dividing p_j by rho_j^2 each
         self.pr2 = scal() if (not dfsph and len(self.materials) == 1) else None
+        # ... and m / rho, the viscosity's pair coefficient (a division per pair less)
+        self.m_rho = scal() if (self.pr2 is not None and self.has_viscosity) else None
         self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
         self.bflag = ti.field(ti.i32, shape=max(1, self.nbp)) if self.ext_walls else None
         # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves

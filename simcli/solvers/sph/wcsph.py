@@ -55,6 +55,9 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     drho = F.drho
     pr2 = F.pr2
     has_pr2 = pr2 is not None
+    m_rho = F.m_rho
+    has_m_rho = m_rho is not None
+    mass_of = fn.mass_of
 
     @ti.func
     def equation_of_state(i):
@@ -66,6 +69,8 @@ def make_wcsph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         p[i] = pi + p_bg
         if ti.static(has_pr2):
             pr2[i] = p[i] / (rho[i] * rho[i])  # the force pass's p_j / rho_j^2 (non_pressure.py)
+        if ti.static(has_m_rho):
+            m_rho[i] = mass_of(i) / rho[i]  # ... and its viscosity's m_j / rho_j
 
     wp = fn.wall_pressure  # extrapolated wall pressure (wall_pressure.py), or None: Akinci's term alone
     ext = wp is not None
