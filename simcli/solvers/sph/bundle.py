@@ -66,6 +66,9 @@ class SPHParams:
     diffusion_model: str = ""  # "" (off), "molteni_colagrossi", "antuono" or "fourtakis"
     diffusion_delta: float = 0.0
     artificial_viscosity: float = 0.0
+    # WCSPH, one material whose Tait exponent is a whole number (7 for water): the exponent, so that the
+    # equation of state takes (rho / rho0)^n by multiplications instead of pow (wcsph.py); 0: pow
+    int_exponent: int = 0
 
     @property
     def h2(self) -> float:

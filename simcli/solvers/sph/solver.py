@@ -716,7 +716,14 @@ class SPHSolver(Solver):
             diffusion_model=self.diffusion_model,
             diffusion_delta=float(o.density_diffusion.delta) if self.diffusion_model else 0.0,
             artificial_viscosity=float(o.artificial_viscosity) if o.pressure_solver == "WCSPH" else 0.0,
+            int_exponent=self._int_exponent(),
         )
+
+    def _int_exponent(self) -> int:
+        """The one material's Tait exponent where it is a whole number from 1 to 16 (wcsph.py's
+        equation of state multiplies then), else 0."""
+        e = float(self.materials[0].exponent)
+        return int(e) if (self.uniform and e.is_integer() and 1 <= e <= 16) else 0
 
     def _fields(self) -> SPHFields:
         names = [fld.name for fld in dataclasses.fields(SPHFields)]
