@@ -128,6 +128,11 @@ class GridContact:
         eps = 1e-12
 
         @ti.func
+        def base_of(xp):
+            Xp = (xp - origin) * inv_dx
+            return ti.min(ti.max(ti.cast(Xp - 0.5, ti.i32), 0), base_max)
+
+        @ti.func
         def weights(xp):
             Xp = (xp - origin) * inv_dx
             base = ti.min(ti.max(ti.cast(Xp - 0.5, ti.i32), 0), base_max)
@@ -140,6 +145,15 @@ class GridContact:
             ok = True
             for d in ti.static(range(dim)):
                 ok = ok and lo[d] <= I[d] and I[d] < hi[d]
+            return ok
+
+        @ti.func
+        def touches_box(base, lo, hi):
+            """Whether any node of the 3^dim stencil at base lies in [lo, hi): the other set's particles far
+            from MPM's node box (most of a large liquid) skip the weights and the 3^dim node tests."""
+            ok = True
+            for d in ti.static(range(dim)):
+                ok = ok and base[d] + 2 >= lo[d] and base[d] < hi[d]
             return ok
 
         @ti.func
@@ -193,8 +207,9 @@ class GridContact:
             hi = bbox_all[1]
             for p in range(N()):  # the other set's P2G, only onto MPM's node box
                 mp = mass(p)
-                if mp > 0:
-                    base, w = weights(pos(p))
+                xp = pos(p)
+                if mp > 0 and touches_box(base_of(xp), lo, hi):
+                    base, w = weights(xp)
                     vp = vel[p]
                     mv = ti.Vector([vp[d] for d in ti.static(range(dim))]) * mp
                     for off in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):
@@ -225,8 +240,9 @@ class GridContact:
                     pm[I] = node(I, lo, hi)
             for p in range(N()):  # the velocity change back to the particles (G2P of du)
                 mp = mass(p)
-                if mp > 0:
-                    base, w = weights(pos(p))
+                xp = pos(p)
+                if mp > 0 and touches_box(base_of(xp), lo, hi):  # (elsewhere du and dx are zero)
+                    base, w = weights(xp)
                     du = ti.Vector.zero(f, dim)
                     dx = ti.Vector.zero(f, dim)
                     for off in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):

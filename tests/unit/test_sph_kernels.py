@@ -214,3 +214,68 @@ def test_gradient_factor_rebuilds_the_gradient(ti_f32, dim):
     s = out_s.to_numpy()
     r = np.linalg.norm(pts.astype(np.float64), axis=1)
     assert s[0] == 0.0 and np.all(s[r > 1.0001 * h] == 0.0) and np.all(s[(r > 0) & (r < 0.999 * h)] < 0)
+
+
+def test_cohesion_over_r_is_the_cohesion_kernel_over_r(ti_f32):
+    """make_cohesion_over_r (the force pass's C(r) / r with the division folded in) against make_kernels'
+    C(r) / r on both branches of Akinci's kernel (r <= h / 2 and beyond), to f32 round-off; 0 at r = 0 and
+    r >= h."""
+    import taichi as ti
+
+    from simcli.solvers.sph.kernels import make_cohesion_over_r, make_kernels
+
+    h = 0.04
+    _, _, C, _ = make_kernels(h, 3, ti.f32)
+    C_over_r = make_cohesion_over_r(h, ti.f32)
+    r_np = np.concatenate([[0.0, h, 1.2 * h, 0.5 * h], np.linspace(1e-3 * h, 0.999 * h, 997)]).astype(
+        np.float32
+    )
+    n = len(r_np)
+    rs = ti.field(ti.f32, shape=n)
+    ref = ti.field(ti.f32, shape=n)
+    got = ti.field(ti.f32, shape=n)
+    rs.from_numpy(r_np)
+
+    @ti.kernel
+    def run():
+        for i in rs:
+            r = rs[i]
+            c = C(r)
+            ref[i] = c / r if r > 0 else 0.0
+            got[i] = C_over_r(r)
+
+    run()
+    a, b = ref.to_numpy(), got.to_numpy()
+    assert b[0] == 0.0 and b[1] == 0.0 and b[2] == 0.0
+    scale = np.abs(a).max()
+    assert np.abs(a).min() < 0.1 * scale  # both signs and a zero crossing are covered (C < 0 near r = 0)
+    np.testing.assert_allclose(b, a, rtol=2e-6, atol=2e-6 * scale)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7, 8, 16])
+def test_tait_power_by_squaring_is_pow(ti_f32, n):
+    """WCSPH's equation of state with a whole exponent (make_tait_power, SPHParams.int_exponent) multiplies
+    instead of calling pow: the same (rho / rho0)^n to f32 round-off, over compressions and expansions."""
+    import taichi as ti
+
+    from simcli.solvers.sph.wcsph import make_tait_power
+
+    mat_n = ti.field(ti.f32, shape=1)
+    mat_n[0] = float(n)
+    by_squares = make_tait_power(n, ti.f32, mat_n)
+    by_pow = make_tait_power(0, ti.f32, mat_n)
+    ratios = np.linspace(0.5, 1.5, 1001).astype(np.float32)
+    rs = ti.field(ti.f32, shape=len(ratios))
+    out = [ti.field(ti.f32, shape=len(ratios)) for _ in range(2)]
+    rs.from_numpy(ratios)
+
+    @ti.kernel
+    def run():
+        for i in rs:
+            out[0][i] = by_squares(rs[i], 0)
+            out[1][i] = by_pow(rs[i], 0)
+
+    run()
+    ref = ratios.astype(np.float64) ** n
+    np.testing.assert_allclose(out[0].to_numpy(), ref, rtol=(n.bit_length() + bin(n).count("1")) * 1.2e-7)
+    np.testing.assert_allclose(out[1].to_numpy(), ref, rtol=3e-7)

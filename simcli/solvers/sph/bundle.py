@@ -66,6 +66,9 @@ class SPHParams:
     diffusion_model: str = ""  # "" (off), "molteni_colagrossi", "antuono" or "fourtakis"
     diffusion_delta: float = 0.0
     artificial_viscosity: float = 0.0
+    # WCSPH, one material whose Tait exponent is a whole number (7 for water): the exponent, so that the
+    # equation of state takes (rho / rho0)^n by multiplications instead of pow (wcsph.py); 0: pow
+    int_exponent: int = 0
 
     @property
     def h2(self) -> float:
@@ -144,6 +147,7 @@ class SPHFields:
     drho: Any = None  # WCSPH, density: continuity: d rho / dt of the substep (delta_sph.py)
     grad_rho: Any = None  # ... density_diffusion antuono: the renormalised density gradient
     pr2: Any = None  # WCSPH, one material: p_i / rho_i^2, written with the pressure (the force pass's pairs)
+    m_rho: Any = None  # WCSPH, one material: m_i / rho_i, written with the pressure (the viscosity's pairs)
 
 
 @dataclass

@@ -94,7 +94,10 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                         Mtr -= Vg.dot(d)
                     elif ti.static(kgc):
                         Mom -= Vg.outer_product(d)
-                    G += Vg
+                    if ti.static(dfsph):
+                        G += Vg
+                    else:  # (WCSPH needs no Vg: V_j s_ij (x_i - x_j), three multiplications fewer)
+                        G += (volume_of(j) * s) * d
                     if cnt < K:
                         nb_j[i, cnt] = j
                         if ti.static(store_grad):

@@ -140,6 +140,35 @@ def make_kernels(h: float, dim: int, f):
     return W, gradW, C, W_gradW
 
 
+def make_cohesion_over_r(h: float, f):
+    """Taichi func ``C_over_r(r) = C(r) / r``, Akinci et al.'s cohesion kernel over the distance (the force
+    pass's pair term, C(r) / r (x_i - x_j)), with the division folded in: C = c a^3 with a = (h - r) r, so
+    for r > h / 2 C / r = c (h - r)^3 r^2 (no division), and for r <= h / 2 C / r = c (2 (h - r)^3 r^2 -
+    h^6 / (64 r)) (one, on an eighth of the pairs). The same value as make_kernels' C(r) / r to round-off
+    (tests/unit/test_sph_kernels.py); 0 at r = 0 and beyond h."""
+    from simcli.backend import stdout_to_stderr
+
+    with stdout_to_stderr():
+        import taichi as ti
+
+    c_coh = 32.0 / (math.pi * h**9)  # as make_kernels
+    h6_64 = h**6 / 64.0
+
+    @ti.func
+    def C_over_r(r):
+        res = ti.cast(0.0, f)
+        if r < h and r > 0:
+            t = h - r
+            b = t * t * t * (r * r)  # a^3 / r
+            if 2.0 * r > h:
+                res = c_coh * b
+            else:
+                res = c_coh * (2.0 * b - h6_64 / r)
+        return res
+
+    return C_over_r
+
+
 def make_kernel_factor(h: float, dim: int, f):
     """Taichi func ``W_gradW_s(x, r) -> (W, grad W, s)`` with ``grad W = x s`` (s = W'(r) / r, 0 at r = 0 or
     beyond h): the neighbour lists store s instead of the vector (grad W_ij = (x_i - x_j) s_ij, rebuilt from

@@ -314,6 +314,8 @@ class SPHSolver(Solver):
         # WCSPH, one material: p / rho^2 per particle, written with the pressure, so that the force pass's
         # pairs read it instead of dividing p_j by rho_j^2 each
         self.pr2 = scal() if (not dfsph and len(self.materials) == 1) else None
+        # ... and m / rho, the viscosity's pair coefficient (a division per pair less)
+        self.m_rho = scal() if (self.pr2 is not None and self.has_viscosity) else None
         self.nbw_end = ti.field(ti.i32, shape=n) if self.ext_walls else None
         self.bflag = ti.field(ti.i32, shape=max(1, self.nbp)) if self.ext_walls else None
         # kernel gradient correction L_i (Bonet & Lok 1999) of the DFSPH pressure solves
@@ -714,7 +716,14 @@ class SPHSolver(Solver):
             diffusion_model=self.diffusion_model,
             diffusion_delta=float(o.density_diffusion.delta) if self.diffusion_model else 0.0,
             artificial_viscosity=float(o.artificial_viscosity) if o.pressure_solver == "WCSPH" else 0.0,
+            int_exponent=self._int_exponent(),
         )
+
+    def _int_exponent(self) -> int:
+        """The one material's Tait exponent where it is a whole number from 1 to 16 (wcsph.py's
+        equation of state multiplies then), else 0."""
+        e = float(self.materials[0].exponent)
+        return int(e) if (self.uniform and e.is_integer() and 1 <= e <= 16) else 0
 
     def _fields(self) -> SPHFields:
         names = [fld.name for fld in dataclasses.fields(SPHFields)]
