@@ -44,7 +44,7 @@ class ParticleSet:
     pos: Any  # ti.func (i) -> position, MPM's dim components, at the substep's start
     mass: Any  # ti.func (i) -> mass [kg] (0: not coupled, e.g. a pinned vertex)
     vel: Any  # vector field of the velocity the coupling edits (the substep's end velocity)
-    vel_dim: int  # its components (PBD keeps 3 in 2D)
+    vel_dim: int  # its components (the scene's dim)
     rho: Any  # float or None: density for the volume fraction in the normal [kg/m^dim]; None: MPM's normal
     move_x: Any = None  # positions already advanced by vel over dt (PBD): moved by dt du too
     shift_x: Any = None  # positions the overlap correction moves (SPH's before advect, PBD's after)

@@ -72,7 +72,7 @@ def _grid(mpm: Any, pbd: Any) -> GridContact:
         pos=pos,
         mass=m,
         vel=pbd.v,
-        vel_dim=3,
+        vel_dim=pbd.dim,
         rho=rho,
         move_x=pbd.x,
         shift_x=pbd.x,

@@ -34,7 +34,9 @@ def pbd_particle_set(pbd: Any) -> ParticleSet:
     # particles and soft bodies (tet meshes: lumped vertex masses, as FEM's) fill space; cloth and rods do not
     volumetric = all(m.kind in ("particles", "tets") for m in pbd.meshes)
     rho = min(float(e.material.rho) for e in ents) if volumetric else None
-    return ParticleSet(n=pbd.n, pos=pos, mass=m, vel=pbd.v, vel_dim=3, rho=rho, move_x=pbd.x, shift_x=pbd.x)
+    return ParticleSet(
+        n=pbd.n, pos=pos, mass=m, vel=pbd.v, vel_dim=pbd.dim, rho=rho, move_x=pbd.x, shift_x=pbd.x
+    )
 
 
 def _spacing(solver: Any) -> float:

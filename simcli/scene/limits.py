@@ -480,4 +480,13 @@ def scene_warnings(loaded) -> list[str]:
         )
     out += check_overlaps(loaded)[1]
     out += coupling_warnings(loaded)  # coupling keys of pairs not in the scene
+    if s.sim.dim == 2 and any(e.material.type == "PBD.Liquid" for e in s.entities):
+        for i, rb in enumerate(getattr(s, "rigid_bodies", None) or []):
+            if rb.morph.type == "Sphere":
+                out.append(
+                    f"{loc.where(('rigid_bodies', i, 'morph', 'type'))}: rigid_bodies.{i}: warning: a 2D "
+                    "Sphere (disk) body counts in PBD.Liquid's density as the half-plane behind its tangent, "
+                    "which over-counts a disk a few particles across (its buoyancy is too large; docs/PBD.md, "
+                    "Gaps); only Box bodies are validated in 2D PBF"
+                )
     return out

@@ -212,8 +212,20 @@ entities:
             ":6:",
             "sinks with PBD entities are 3D only",
         ),
+        (
+            "emitters:\n  - name: jet\n    material: {type: SPH.Liquid, rho: 1000}\n"
+            "    shape: {type: Rectangle, center: [0.1, 0.15], size: [0.02], normal: [0, -1]}\n"
+            "    speed: 1.0\n    max_particles: 100\n",
+            ":6:",
+            "coupling PBD with SPH is 3D only",
+        ),
+        (
+            "    fixed: {type: Cylinder, center: [0.05, 0.0, 0.0], radius: 0.01, height: 0.01}\n",
+            ":8:",
+            "Cylinder regions need dim 3",
+        ),
     ],
-    ids=["cloth", "elastic", "coupling", "sinks"],
+    ids=["cloth", "elastic", "coupling", "sinks", "coupling_by_emitter", "cylinder_region"],
 )
 def test_3d_only_pbd_in_2d_is_refused_with_its_location(tmp_path, extra, where, words):
     scene = tmp_path / "bad.yaml"
@@ -243,3 +255,18 @@ def test_2d_pbd_with_coupling_off_and_a_cylinder_morph(tmp_path):
     )
     r = _run(["validate", str(scene)])
     assert r.returncode == 65 and "Box or Sphere morphs" in r.stderr, r.stderr
+
+
+def test_a_disk_body_on_2d_pbf_is_warned_about(tmp_path):
+    """A 2D Sphere body over-counts in PBD.Liquid's density (docs/PBD.md, Gaps): validate says so, at its
+    morph's type, and still accepts the scene."""
+    scene = tmp_path / "disk.yaml"
+    scene.write_text(
+        BASE_2D
+        + "rigid_bodies:\n  - name: disk\n    rho: 400\n"
+        + "    morph: {type: Sphere, center: [0.1, 0.12], radius: 0.02}\n"
+    )
+    r = _run(["validate", str(scene)])
+    assert r.returncode == 0, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if "warning" in ln and "Sphere (disk)" in ln]
+    assert lines and ":11:" in lines[0], r.stderr

@@ -241,14 +241,14 @@ def check_2d(e, scene) -> list[tuple[tuple, str]]:
             )
         )
     cfg = getattr(scene, "coupling", None)
-    fams = sorted({x.family for x in scene.entities} & set(COUPLED_2D))
+    fams = sorted(set(scene.families) & set(COUPLED_2D))  # entities and emitters alike
     for fam in fams:
         key = COUPLED_2D[fam]
         if cfg is None or bool(getattr(cfg, key)):
             out.append(
                 (
                     ("material", "type"),
-                    f"{t}: coupling PBD with {fam} is 3D only; this 2D scene has {fam} entities: use "
+                    f"{t}: coupling PBD with {fam} is 3D only; this 2D scene has {fam} entities or emitters: use "
                     f"sim.dim: 3, or set coupling.{key}: false (they then do not interact)",
                 )
             )
@@ -282,6 +282,9 @@ def check_entity(e, dim: int, scene_dir, lo, hi, opts=None, scene=None) -> list[
         ]
     for j, r in enumerate(e.fixed_regions):
         rpath = ("fixed",) + ((j,) if isinstance(e.fixed, list) else ())
+        if dim == 2 and r.type == "Cylinder":
+            out.append((rpath + ("type",), "Cylinder regions need dim 3 (use a Box or Sphere in 2D)"))
+            continue
         for f in ("lower", "upper", "center", "size"):
             v = getattr(r, f, None)
             if v is not None and len(v) != dim:
