@@ -485,8 +485,8 @@ def scene_warnings(loaded) -> list[str]:
             if rb.morph.type == "Sphere":
                 out.append(
                     f"{loc.where(('rigid_bodies', i, 'morph', 'type'))}: rigid_bodies.{i}: warning: a 2D "
-                    "Sphere (disk) body counts in PBD.Liquid's density as the half-plane behind its tangent, "
-                    "which over-counts a disk a few particles across (its buoyancy is too large; docs/PBD.md, "
-                    "Gaps); only Box bodies are validated in 2D PBF"
+                    "Sphere (disk) body counts in PBD.Liquid's density as the half-plane behind its "
+                    "tangent, which over-counts a disk a few particles across (its buoyancy is too large; "
+                    "docs/PBD.md, Gaps); only Box bodies are validated in 2D PBF"
                 )
     return out

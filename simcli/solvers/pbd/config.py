@@ -248,8 +248,8 @@ def check_2d(e, scene) -> list[tuple[tuple, str]]:
             out.append(
                 (
                     ("material", "type"),
-                    f"{t}: coupling PBD with {fam} is 3D only; this 2D scene has {fam} entities or emitters: use "
-                    f"sim.dim: 3, or set coupling.{key}: false (they then do not interact)",
+                    f"{t}: coupling PBD with {fam} is 3D only; this 2D scene has {fam} entities or "
+                    f"emitters: use sim.dim: 3, or set coupling.{key}: false (they then do not interact)",
                 )
             )
     return out
