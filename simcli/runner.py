@@ -1049,6 +1049,11 @@ class Runner:
                         f"; substeps >= {int(math.ceil(subs * cfl / 0.5))} would keep the CFL number "
                         "below 0.5"
                     )
+                if subs == "auto" and sim.auto_check == "frame":
+                    advice += (
+                        "; or set sim.auto_check: substep (the substep is chosen once per output frame now, "
+                        "so a collision or splash within a frame can outrun it)"
+                    )
                 raise NumericalError(
                     f"numerical failure in entity '{name}' before frame {frame} (step {step}, "
                     f"t = {step * sim.dt:.6g} s): {what}. Every earlier frame is kept. "
