@@ -80,22 +80,19 @@ def wall_tables(spacing: float, h: float, mass: float, dim: int = 3):
         half = mass * poly6(r, h, 2).sum(axis=(1, 2))
         r2 = A[:, None, :, None] ** 2 + A[None, :, None, :] ** 2
         quarter = mass * poly6(np.sqrt(r2), h, 2).sum(axis=(2, 3))  # (d1, d2)
-        return (
-            d,
-            half,
-            np.gradient(half, d),
-            quarter,
-            np.gradient(quarter, d, axis=0),
-            np.gradient(quarter, d, axis=1),
+    else:
+        # half-space: lateral lattice (2D) x layers behind
+        lat = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+        dz = d[:, None, None] + behind[None, :, None]
+        r = np.sqrt((lat**2).sum(axis=1)[None, None, :] + dz**2)
+        half = mass * poly6(r, h).sum(axis=(1, 2))
+        # quarter-space behind an edge: layers behind both walls x the lattice along the edge
+        r2 = (
+            A[:, None, :, None, None] ** 2
+            + A[None, :, None, :, None] ** 2
+            + g[None, None, None, None, :] ** 2
         )
-    # half-space: lateral lattice (2D) x layers behind
-    lat = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
-    dz = d[:, None, None] + behind[None, :, None]
-    r = np.sqrt((lat**2).sum(axis=1)[None, None, :] + dz**2)
-    half = mass * poly6(r, h).sum(axis=(1, 2))
-    # quarter-space behind an edge: layers behind both walls x the lattice along the edge
-    r2 = A[:, None, :, None, None] ** 2 + A[None, :, None, :, None] ** 2 + g[None, None, None, None, :] ** 2
-    quarter = mass * poly6(np.sqrt(r2), h).sum(axis=(2, 3, 4))  # (d1, d2)
+        quarter = mass * poly6(np.sqrt(r2), h).sum(axis=(2, 3, 4))  # (d1, d2)
     return (
         d,
         half,
