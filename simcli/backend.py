@@ -189,6 +189,48 @@ def init_taichi(
     return dict(_STATE)
 
 
+#: Taichi's ``taichi_max_num_snodes``: its LLVM runtime's per-SNode arrays (indexed by the process-wide SNode
+#: id) have this many entries; a sparse tree must be numbered below it (``reset_taichi``)
+MAX_SNODES = 1024
+
+
+def next_snode_id() -> int:
+    """The id Taichi gives the next SNode in this process (0 before any field is materialised)."""
+    from taichi.lang import impl
+
+    prog = impl.get_runtime().prog
+    if prog is None:
+        return 0
+    top = -1
+    stack = [prog.get_snode_root(i) for i in range(prog.get_snode_tree_size())]
+    pending = getattr(getattr(impl, "_root_fb", None), "ptr", None)  # fields declared, not yet materialised
+    if pending is not None:
+        stack.append(pending)
+    while stack:
+        s = stack.pop()
+        top = max(top, s.id)
+        stack.extend(s.get_ch(i) for i in range(s.get_num_ch()))
+    return top + 1
+
+
+def reset_taichi() -> dict:
+    """End this process's Taichi runtime (every field and compiled kernel; the offline cache is written)
+    and return the facts it was started with ({} if it was not): ``init_taichi`` starts a fresh one.
+
+    One `simcli run` is one process and never needs this. A process that builds scene after scene does
+    (the test suite, one worker for hundreds of tests): Taichi numbers its SNodes with a counter that only
+    a reset clears, and its LLVM runtime keeps per-SNode state in fixed arrays of 1024 entries
+    (``taichi_max_num_snodes``) written without a bounds check; a sparse (pointer) tree built past that,
+    as the particle contact's grid is, writes beyond them."""
+    prev = dict(_STATE)
+    if _STATE:
+        import taichi as ti
+
+        ti.reset()
+        _STATE.clear()
+    return prev
+
+
 # ---------------------------------------------------------------------------------------------
 # `simcli info`: what this machine offers, without risking the process that asks
 # ---------------------------------------------------------------------------------------------

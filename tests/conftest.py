@@ -23,6 +23,25 @@ os.environ.setdefault("SIMCLI_KERNEL_CACHE", os.path.join(_cache_home, "simcli",
 os.environ.setdefault("TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES", str(1 << 30))  # 1 GiB (a C int; default 100 MB)
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _fresh_taichi_per_module():
+    """Each test module starts on a fresh Taichi runtime, as each `simcli run` does (one process): a worker
+    process runs hundreds of tests, and Taichi's SNode numbering only restarts at a reset. Past 1024
+    SNodes a sparse tree (the particle contact's grid) writes beyond the LLVM runtime's per-SNode arrays
+    (simcli.backend.reset_taichi); in CI a worker later died with SIGSEGV in an unrelated test. The
+    runtime is started again with the same settings (CPU, precision, threads); kernels come back from the
+    offline cache."""
+    from simcli import backend
+
+    if backend._STATE:
+        prev = backend.reset_taichi()
+        arch = prev.get("arch")
+        backend.init_taichi(
+            "cpu" if arch in ("x64", "arm64") else "auto", prev.get("precision", "f32"), prev.get("threads")
+        )
+    yield
+
+
 @pytest.fixture(scope="session")
 def ti_f32():
     """Initialise Taichi on the CPU with f32 (once per session) and return its facts."""

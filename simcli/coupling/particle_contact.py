@@ -31,6 +31,22 @@ import math
 import taichi as ti
 
 from simcli.coupling.grid_contact import OVERLAP_TOL, SEPARATION, ParticleSet
+from simcli.errors import SimcliError
+
+
+def _check_snode_room(name: str) -> None:
+    """A sparse tree numbered past Taichi's SNode limit would write beyond its runtime's per-SNode arrays
+    (silent memory corruption, simcli.backend.reset_taichi): refused with a message instead."""
+    from simcli.backend import MAX_SNODES, next_snode_id
+
+    first = next_snode_id()
+    if first + 16 > MAX_SNODES:  # (the tree itself: root, pointer, dense, up to 5 fields of <= 3 components)
+        raise SimcliError(
+            f"coupling {name}: the scene's fields already use {first} of Taichi's {MAX_SNODES} SNodes and "
+            "the contact grid would be numbered past them (Taichi would write beyond its runtime's arrays). "
+            "Run fewer entities, probes or emitters in one scene"
+        )
+
 
 BLOCK = 4  # nodes per side of the sparse grid's blocks
 
@@ -64,6 +80,7 @@ class ParticleContact:
         # bodies costs nothing), every loop over the grid runs over the active blocks only
         nblk = [int(math.ceil(s / BLOCK)) for s in shape]
         axes = ti.ij if dim == 2 else ti.ijk
+        _check_snode_room(self.name)
         self.blocks = ti.root.pointer(axes, nblk)
         cells = self.blocks.dense(axes, BLOCK)
         self.ma, self.mb = ti.field(f), ti.field(f)

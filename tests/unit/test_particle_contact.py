@@ -110,3 +110,21 @@ def test_particle_contact_leaves_separating_sets_alone(ti_f32):
     b.pc.couple(DT)
     assert np.allclose(b.va.to_numpy(), va.astype(np.float32))
     assert np.allclose(b.vb.to_numpy(), vb.astype(np.float32))
+
+
+def test_a_contact_grid_numbered_past_taichis_snode_limit_is_refused(ti_f32):
+    """Taichi's LLVM runtime keeps per-SNode state in arrays of 1024 entries and writes a sparse tree's
+    entries without a bounds check: a contact grid numbered past them is refused with a message, never built
+    (in CI such a grid, built late in a long-lived test worker, left it to die of SIGSEGV in a later test)."""
+    import taichi as ti
+
+    from simcli.backend import MAX_SNODES, next_snode_id
+    from simcli.errors import SimcliError
+
+    keep = []
+    while next_snode_id() < MAX_SNODES - 8:  # one small tree each (the module's runtime is fresh: conftest)
+        f = ti.Vector.field(3, ti.f32, shape=2)
+        f[0] = [0.0, 0.0, 0.0]
+        keep.append(f)
+    with pytest.raises(SimcliError, match="SNodes"):
+        _build(ti)
