@@ -246,12 +246,6 @@ def check_sources(scene, err) -> None:
                 f"{t} cannot be emitted in this version of simcli; emitters take {EMITTABLE} materials",
             )
             continue
-        if em.family == "PBD" and dim != 3:
-            err(
-                base + ("material", "type"),
-                f"{t}: PBD emitters are 3D only; use sim.dim: 3, or an SPH.Liquid / MPM material in 2D",
-            )
-            continue
         if em.stop is not None and em.stop <= em.start:
             err(base + ("stop",), f"stop {em.stop:g} s is not after start {em.start:g} s; make stop > start")
         sh = em.shape

@@ -6,8 +6,10 @@
 * a 2D liquid column at rest keeps its density (within 1 %), its mass (rho x area) and its height;
 * PBD.Particle grains fall onto a circle collider and the floor and come to rest inside the domain;
 * a rigid box (rho 500) dropped on 2D PBF water floats: the liquid carries its weight;
-* what stays 3D only (PBD.Cloth, PBD.Elastic, coupling with other families, sinks, Cylinder morphs) is
-  refused by ``validate`` with exit 65 and its file:line:col.
+* a sink drains a 2D pool and an emitter refills it: the mass in the scene is the start's plus what
+  entered minus what left;
+* what stays 3D only (PBD.Cloth, PBD.Elastic, coupling with other families, Cylinder morphs) is refused
+  by ``validate`` with exit 65 and its file:line:col.
 """
 
 from __future__ import annotations
@@ -208,11 +210,6 @@ entities:
             "coupling PBD with SPH is 3D only",
         ),
         (
-            "sinks:\n  - {name: drain, type: Box, lower: [0.0, 0.0], upper: [0.02, 0.02]}\n",
-            ":6:",
-            "sinks with PBD entities are 3D only",
-        ),
-        (
             "emitters:\n  - name: jet\n    material: {type: SPH.Liquid, rho: 1000}\n"
             "    shape: {type: Rectangle, center: [0.1, 0.15], size: [0.02], normal: [0, -1]}\n"
             "    speed: 1.0\n    max_particles: 100\n",
@@ -225,7 +222,7 @@ entities:
             "Cylinder regions need dim 3",
         ),
     ],
-    ids=["cloth", "elastic", "coupling", "sinks", "coupling_by_emitter", "cylinder_region"],
+    ids=["cloth", "elastic", "coupling", "coupling_by_emitter", "cylinder_region"],
 )
 def test_3d_only_pbd_in_2d_is_refused_with_its_location(tmp_path, extra, where, words):
     scene = tmp_path / "bad.yaml"
@@ -235,6 +232,53 @@ def test_3d_only_pbd_in_2d_is_refused_with_its_location(tmp_path, extra, where, 
     lines = [ln for ln in r.stderr.splitlines() if words in ln]
     assert lines and where in lines[0], r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_2d_pool_drained_by_a_sink_and_fed_by_an_emitter(tmp_path):
+    """A 2D PBF pool under gravity with a sink in one bottom corner and a PBD.Liquid jet above it: the sink
+    takes mass out, the jet brings rho A v t in (per metre of depth), and the scene's mass (a total probe)
+    is the start's plus what entered minus what left."""
+    import h5py
+
+    scene = tmp_path / "pool.yaml"
+    scene.write_text(
+        textwrap.dedent(
+            """\
+            version: 1
+            sim: {dim: 2, dt: 2.0e-3, steps: 40, substeps: 4}
+            domain: {lower: [0.0, 0.0], upper: [0.2, 0.2], boundary: {type: slip}}
+            solvers: {pbd: {particle_size: 0.005, density_iterations: 3}}
+            entities:
+              - name: pool
+                material: {type: PBD.Liquid, rho: 1000}
+                morph: {type: Box, lower: [0.0, 0.0], upper: [0.2, 0.04]}
+            emitters:
+              - name: jet
+                material: {type: PBD.Liquid, rho: 1000}
+                shape: {type: Rectangle, center: [0.15, 0.15], size: [0.02], normal: [0, -1]}
+                speed: 1.0
+                max_particles: 400
+            sinks:
+              - {name: drain, type: Box, lower: [0.0, 0.0], upper: [0.03, 0.02]}
+            probes:
+              - {name: mass, type: total, quantity: mass, entity: "*", every: 10}
+            output: {every: 10, formats: [hdf5]}
+            """
+        )
+    )
+    r = _run(["run", str(scene), "-o", str(tmp_path / "out"), "--quiet"])
+    assert r.returncode == 0, r.stderr
+    with h5py.File(tmp_path / "out" / "sim.h5", "r", swmr=True) as f:
+        t = f["time"][:]
+        emitted = f["emitters/jet/emitted_mass"][:]
+        removed = f["sinks/drain/removed_mass"][:]
+        pool = f["entities/pool/count"][:]
+        m = f["probes/mass/value"][:]
+    start = 1000.0 * 0.2 * 0.04  # kg per metre of depth
+    assert m[0] == pytest.approx(start, rel=1e-6)
+    assert emitted[-1] == pytest.approx(1000.0 * 0.02 * 1.0 * t[-1], rel=0.02)
+    assert removed[-1] > 0.2 and pool[-1] < pool[0]  # the corner's particles and those flowing into it
+    assert m[-1] == pytest.approx(start + emitted[-1] - removed[-1], rel=1e-5)
 
 
 def test_2d_pbd_with_coupling_off_and_a_cylinder_morph(tmp_path):

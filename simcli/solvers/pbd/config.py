@@ -203,8 +203,8 @@ MORPHS = {
 }
 
 
-# PBD materials that run in 2D scenes (free particles: the liquid and the granular crowd); the meshed bodies
-# (cloth, rods, soft bodies), emitters, sinks and coupling with other families are 3D only.
+# PBD materials that run in 2D scenes (free particles: the liquid and the granular crowd, entities or emitted,
+# and sinks); the meshed bodies (cloth, rods, soft bodies) and coupling with other families are 3D only.
 MATERIALS_2D = ("PBD.Liquid", "PBD.Particle")
 MORPHS_2D = ("Box", "Sphere")
 # coupling keys of the pairs with PBD: 3D only (a pair turned off may share a 2D scene)
@@ -213,7 +213,7 @@ COUPLED_2D = {"MPM": "mpm_pbd", "SPH": "sph_pbd", "FEM": "pbd_fem"}
 
 def check_2d(e, scene) -> list[tuple[tuple, str]]:
     """What a 2D scene refuses of a PBD entity (path below the entity, message): the 3D-only materials and
-    morphs; with ``scene``, the sinks and the coupling with other families (3D only in this version)."""
+    morphs; with ``scene``, the coupling with other families (3D only in this version)."""
     t = e.material.type
     if t not in MATERIALS_2D:
         return [
@@ -233,13 +233,6 @@ def check_2d(e, scene) -> list[tuple[tuple, str]]:
     out: list[tuple[tuple, str]] = []
     if scene is None:
         return out
-    if getattr(scene, "sinks", None):
-        out.append(
-            (
-                ("material", "type"),
-                f"{t}: sinks with PBD entities are 3D only; remove the sinks or use sim.dim: 3",
-            )
-        )
     cfg = getattr(scene, "coupling", None)
     fams = sorted(set(scene.families) & set(COUPLED_2D))  # entities and emitters alike
     for fam in fams:
@@ -257,7 +250,7 @@ def check_2d(e, scene) -> list[tuple[tuple, str]]:
 
 def check_entity(e, dim: int, scene_dir, lo, hi, opts=None, scene=None) -> list[tuple[tuple, str]]:
     """Semantic checks of a PBD entity: (path below the entity, message) per problem. ``scene``: the whole
-    scene (2D: sinks and coupling are 3D only)."""
+    scene (2D: coupling with other families is 3D only)."""
     out: list[tuple[tuple, str]] = []
     m = e.morph
     if dim not in (2, 3):
