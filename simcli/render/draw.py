@@ -47,19 +47,29 @@ def _speed(e: EntityFrame) -> np.ndarray | None:
     return np.sqrt((v * v).sum(axis=-1))
 
 
-def _spacing(run: Run, name: str, n_now: int) -> float:
-    """Particle spacing estimated from frame 0 (a compact block in almost every scene)."""
+def _spacing(run: Run, name: str, now: np.ndarray) -> float:
+    """Particle spacing estimated from frame 0 (a compact block in almost every scene); an entity with
+    fewer than 8 particles there (an emitter's, empty until it starts) from the drawn frame ``now``: the
+    median distance to the nearest neighbour (an emitted jet is not a compact block, but its particles leave
+    the nozzle one spacing apart)."""
     try:
         e0 = [e for e in read_frame(run, 0) if e.name == name][0]
         p = e0.position
     except (IndexError, RenderError):
         p = None
+    if p is not None:
+        p = p[np.isfinite(p).all(axis=1)]
     if p is None or len(p) < 8:
+        q = now[np.isfinite(now).all(axis=1)]
+        if len(q) >= 2:
+            from scipy.spatial import cKDTree
+
+            d, _ = cKDTree(q).query(q, k=2)
+            nn = d[:, 1][d[:, 1] > 0]
+            if nn.size:
+                return float(np.median(nn))
         ext = float(np.prod(run.upper - run.lower))
-        return (ext / max(n_now, 1)) ** (1 / run.dim) * 0.5
-    p = p[np.isfinite(p).all(axis=1)]
-    if len(p) < 8:
-        return (float(np.prod(run.upper - run.lower)) / max(n_now, 1)) ** (1 / run.dim) * 0.5
+        return (ext / max(len(q), 1)) ** (1 / run.dim) * 0.5
     ext = np.ptp(p, axis=0)
     ext = np.where(ext > 0, ext, ext[ext > 0].min() if (ext > 0).any() else 1.0)
     return float((np.prod(ext) / len(p)) ** (1 / run.dim))
@@ -120,7 +130,7 @@ class Painter:
         self.spacing = {}
         for e in ents0:
             if e.kind == "particles" and e.position is not None:
-                self.spacing[e.name] = _spacing(run, e.name, len(e.position))
+                self.spacing[e.name] = _spacing(run, e.name, np.asarray(e.position, float))
         self.lo, self.hi = self._view_box()
         ext = self.hi - self.lo
         if self.view3d:
