@@ -22,14 +22,17 @@ def cloth_intersections(
 ):
     """Per frame: the number of the sheet's edges crossing one of its non-adjacent triangles (an independent
     segment-triangle test, simcli.solvers.fem.cloth.geometry; with ``others``, the sheets of those entities
-    too, as one mesh) plus the vertices inside any of ``spheres`` ([[cx, cy, cz, r], ...]) or ``boxes``
-    ([[lower, upper], ...]) or below ``floor`` (z) [-]. With ``mesh_colliders``, the scene's `type: Mesh`
-    and `type: Box` colliders' triangles (a Box's 12) at their prescribed pose at the frame's time join the
-    mesh tested (a cloth edge through a collider triangle or a collider edge through a cloth triangle
-    counts), plus the cloth vertices inside them (ray parity). With ``rigid_bodies``, every rigid body's
-    triangles (the ones FEM.Cloth meets: simcli.solvers.fem.cloth.mesh_obstacles.body_mesh) at the pose
-    sim.h5 records for the frame (/rigid_bodies/<name>/position, orientation) are tested the same way, and
-    with ``solids`` (FEM entity names) their boundary triangles at the frame's recorded positions."""
+    too, as one mesh) plus the triangles reaching inside any of ``spheres`` ([[cx, cy, cz, r], ...]: the exact
+    distance from the centre to each triangle, so its edges and face count, not only its vertices), the
+    vertices inside any of ``boxes`` ([[lower, upper], ...]) and those below ``floor`` (z) [-]. With
+    ``mesh_colliders``, the scene's `type: Mesh` and `type: Box` colliders' triangles (a Box's 12) at their
+    prescribed pose at the frame's time join the mesh tested (a cloth edge through a collider triangle or a
+    collider edge through a cloth triangle counts), plus the cloth vertices inside them (ray parity). With
+    ``rigid_bodies``, every rigid body's triangles (the ones FEM.Cloth meets:
+    simcli.solvers.fem.cloth.mesh_obstacles.body_mesh) at the pose sim.h5 records for the frame
+    (/rigid_bodies/<name>/position, orientation) are tested the same way, and with ``solids`` (FEM entity
+    names) their boundary triangles at the frame's recorded positions."""
+    from simcli.collider_mesh import point_triangle_distance
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
 
     xs, ts, n0 = [], [], 0
@@ -85,8 +88,10 @@ def cloth_intersections(
                 n += int(points_inside_mesh(TriMesh(V[lo:hi], Tj, 1.0, "collider"), x[k]).sum())
         else:
             n = len(edge_triangle_intersections(x[k], tris))
-        for s in spheres:
-            n += int((np.linalg.norm(x[k] - np.asarray(s[:3]), axis=1) < s[3]).sum())
+        for s in spheres:  # the triangles reaching inside (a vertex inside is such a triangle's too)
+            c = np.broadcast_to(np.asarray(s[:3], dtype=np.float64), (len(tris), 3))
+            A, B, C = (x[k][tris[:, j]] for j in range(3))
+            n += int((point_triangle_distance(c, A, B, C) < s[3]).sum())
         for lo, hi in boxes:
             n += int(np.all((x[k] > np.asarray(lo)) & (x[k] < np.asarray(hi)), axis=1).sum())
         if floor is not None:

@@ -63,7 +63,7 @@ solvers:
 entities:
   - name: c
     material: {type: FEM.Cloth, E: 1.0e5, nu: 0.3, rho: 200, thickness: 1.0e-3, friction: 0.2}
-    morph: {type: Rectangle, center: [0, 0, 0.41], size: [0.4, 0.4], resolution: 6}
+    morph: {type: Rectangle, center: [0, 0, 0.42], size: [0.4, 0.4], resolution: 6}
 """
 
 

@@ -116,16 +116,30 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
             )
         )
     else:
+        out += _sphere_face_problems(x, t, obst)
+    if not out:  # what the solver keeps off: contact_distance, plus a Sphere's facet stand-off
+        obst.set_facets(x, t)
+        d, _, _ = obst.distances(x, 0.0)
         close = d < dhat
         if close.any():
             k, i = np.argwhere(close)[0]
-            out.append(
-                (
-                    ("morph",),
+            off = obst.offsets[k - 6] if k >= 6 else None
+            if off is None:
+                msg = (
                     f"vertex at {np.round(x[i], 6).tolist()} starts closer than solvers.fem.contact_distance "
-                    f"({dhat:g} m) to an obstacle (distance {float(d[k, i]):.3g} m): move the cloth away",
+                    f"({dhat:g} m) to an obstacle (distance {float(d[k, i]):.3g} m): move the cloth away"
                 )
-            )
+            else:
+                gap, need = float(d[k, i] + off[i]), float(dhat + off[i])
+                msg = (
+                    f"vertex at {np.round(x[i], 6).tolist()} starts {gap:.3g} m from colliders."
+                    f"{obst.index[k - 6]} (Sphere); a cloth vertex starts at least {need:.3g} m from a "
+                    "sphere: "
+                    f"solvers.fem.contact_distance ({dhat:g} m) plus the {float(off[i]):.3g} m its flat "
+                    "triangles stand off it (sqrt(R^2 + r^2) - R, r a triangle's enclosing radius; a finer "
+                    "mesh needs less): move the cloth away"
+                )
+            out.append((("morph",), msg))
     from simcli.solvers.fem.cloth.mesh_obstacles import MESH_TYPES
 
     if not out and (
@@ -152,6 +166,34 @@ def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
                 (
                     ("morph",),
                     f"the cloth intersects itself at the start{loc}: untangle the mesh",
+                )
+            )
+    return out
+
+
+def _sphere_face_problems(x, t, obst) -> list[tuple[tuple, str]]:
+    """A cloth triangle through a Sphere collider at t = 0 whose vertices all lie outside it (the vertex test
+    above passes it): the exact distance from the centre to the triangles."""
+    from simcli.collider_mesh import point_triangle_distance
+
+    out = []
+    for k, c in enumerate(obst.specs):
+        if c.kind != "Sphere":
+            continue
+        P = obst._pose(6 + k, 0.0)
+        ctr = np.asarray(c.a, float)
+        if P is not None:
+            ctr = P.to_world(ctr[None, :])[0]
+        A, B, C = (x[t[:, j]] for j in range(3))
+        dt = point_triangle_distance(np.broadcast_to(ctr, A.shape), A, B, C)
+        j = int(np.argmin(dt))
+        if dt[j] < c.radius:
+            near = np.round((A[j] + B[j] + C[j]) / 3.0, 6).tolist()
+            out.append(
+                (
+                    ("morph",),
+                    f"the cloth intersects colliders.{obst.index[k]} (Sphere) at the start (near {near}); "
+                    "move the cloth out of it",
                 )
             )
     return out

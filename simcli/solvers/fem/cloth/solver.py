@@ -170,6 +170,7 @@ class ClothSolver(Solver):
             self.v[self.pin_idx] = self._pin_velocity(0.0)
         self.g = np.asarray(self.scene.sim.gravity_vec, float)
         self.obst = Obstacles(self.scene, self.scene_dir)
+        self.obst.set_facets(X, T)  # Spheres: the vertices' stand-off that keeps the triangles out
         # free rigid bodies (simcli.rigid): moving obstacles whose pose the rigid world integrates
         self.world = None
         if getattr(self.scene, "rigid_bodies", None):
