@@ -17,8 +17,8 @@ FACET_STRETCH = 1.1
 
 def enclosing_radius(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """Radius of each triangle's smallest enclosing circle: its circumradius when acute, half its longest
-    edge otherwise (then the circle on that edge holds the third vertex). No point of a triangle lies
-    farther than this from its nearest vertex."""
+    edge otherwise (then the circle on that edge holds the third vertex): a point m with |v - m| <= r for
+    the three vertices v."""
     a, b, c = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
     la = np.einsum("ij,ij->i", b - c, b - c)  # squared edge lengths opposite each vertex
     lb = np.einsum("ij,ij->i", c - a, c - a)
@@ -92,9 +92,9 @@ class Obstacles:
     def set_facets(self, x: np.ndarray, tris: np.ndarray) -> None:
         """Keep the cloth's triangles, not only its vertices, out of every Sphere: a flat triangle whose
         vertices lie outside a sphere of radius R' = sqrt(R^2 + r^2), r its smallest enclosing circle's
-        radius, lies outside the sphere of radius R (in the triangle's plane the sphere of radius R' cuts a
-        disk; a point of the triangle inside it would lie within r of every vertex, so the disk's radius
-        sqrt(R'^2 - p^2) <= r and the plane's distance p from the centre >= R). So each vertex keeps
+        radius (centre m), lies outside the sphere of radius R (centre c): |y - c|^2 - |y - m|^2 is affine
+        in y and at each vertex >= R'^2 - r^2 = R^2, so it is >= R^2 over the triangle, and then
+        |y - c|^2 >= R^2 + |y - m|^2 >= R^2 at every point y of it. So each vertex keeps
         sqrt(R^2 + r_i^2) - R off the sphere (r_i: the largest r of the triangles around it, at their rest
         shape times FACET_STRETCH): about r_i^2 / (2 R), 0.25 mm for 1 cm triangles on a 0.2 m ball,
         6 mm for 5 cm ones on a 0.1 m ball (a flat facet cannot wrap a sphere closer). The offset distance
