@@ -185,13 +185,6 @@ def test_the_triangulation_is_circumscribed_within_half_the_contact_distance(kin
         assert (np.unique(e, axis=0, return_counts=True)[1] == 2).all()  # closed
 
 
-MOVING_SPHERE_GAP = (
-    "known gap (docs/FEM.md, Remaining gaps): a moving Sphere keeps the per-vertex distance without the "
-    "facet stand-off (with it the fast-sphere hard case's Dirichlet steps jammed; obstacles.set_facets)"
-)
-
-
-@pytest.mark.xfail(strict=True, reason=MOVING_SPHERE_GAP)
 def test_a_sheet_on_a_sinking_turning_sphere_is_never_cut(tmp_path):
     """A Sphere collider in prescribed motion (turning about its centre and sinking at 0.2 m/s) under a
     resting 16 cm sheet: no triangle of the sheet reaches inside the exact sphere at any substep, and the

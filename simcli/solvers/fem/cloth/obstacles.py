@@ -101,22 +101,16 @@ class Obstacles:
         |x - c| - R - off_i stays convex in x_i (first_contact relies on it). Planes, Boxes and Cylinders
         are exact already (their flat faces and edges: mesh_obstacles.py).
 
-        Still spheres only: a moving sphere keeps the vertex-only distance. With the stand-off, the hard
-        case fem_cloth_fast_sphere (a 7.5 m/s sphere through a pinned sheet) jammed its Dirichlet steps
-        (the CCD cut every Newton step to ~0 with a vertex 1e-12 m from the offset surface; 50 Newton
-        iterations, the sphere 1.1 ms behind its schedule at a written frame and the sheet inside the
-        scheduled sphere by 4.6 mm). The same jam happens one substep later without the stand-off (the
-        sphere lags 2.3 ms there, at a frame not written): the Dirichlet step's fragility, not the
-        stand-off's; until it is mended, moving spheres are not given one."""
-        still = [c.kind == "Sphere" and m is None for c, m in zip(self.specs, self.motions)]
-        if not any(still):
+        Still or moving alike. (A moving one first jammed the fast-sphere hard case's Dirichlet steps: the
+        inexact Newton direction let the vertices in the sphere's barrier lag it; ClothSolver.STALL_ALPHA.)"""
+        if not any(c.kind == "Sphere" for c in self.specs):
             return
         r = FACET_STRETCH * enclosing_radius(x, tris)
         ri = np.zeros(len(x))
         for j in range(3):
             np.maximum.at(ri, tris[:, j], r)
         for k, c in enumerate(self.specs):
-            if still[k]:
+            if c.kind == "Sphere":
                 self.offsets[k] = np.sqrt(c.radius**2 + ri**2) - c.radius
 
     def _offset(self, k: int, d: np.ndarray) -> np.ndarray:
