@@ -465,8 +465,15 @@ class PBDSolver(Solver):
         # a spacing behind the previous one wherever that one has got to: a layer slowed by a push is
         # overlapped, and PBD resolves the overlap within a substep (dv = overlap / substep), which grows
         # into a burst (a 2D jet at particle_size 0.005 m, 1 m/s, was 3 m/s sideways within 0.1 s)
-        buf = BUFFER_LAYERS
-        src.build(self, persistent, consts, self.f, buffer_layers=buf, first=self.n_meshed, mass=self.mass_f)
+        src.build(
+            self,
+            persistent,
+            consts,
+            self.f,
+            buffer_layers=BUFFER_LAYERS,
+            first=self.n_meshed,
+            mass=self.mass_f,
+        )
         x, x0, pid, lid = self.x, self.x0_f, self.pid, self.lid
         has_body = self.contact is not None
         body = self.body_f if has_body else self.lid  # (lid: a placeholder, never written)

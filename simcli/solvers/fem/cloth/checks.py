@@ -177,6 +177,7 @@ def _sphere_face_problems(x, t, obst) -> list[tuple[tuple, str]]:
     from simcli.collider_mesh import point_triangle_distance
 
     out = []
+    A, B, C = (x[t[:, j]] for j in range(3))
     for k, c in enumerate(obst.specs):
         if c.kind != "Sphere":
             continue
@@ -184,7 +185,6 @@ def _sphere_face_problems(x, t, obst) -> list[tuple[tuple, str]]:
         ctr = np.asarray(c.a, float)
         if P is not None:
             ctr = P.to_world(ctr[None, :])[0]
-        A, B, C = (x[t[:, j]] for j in range(3))
         dt = point_triangle_distance(np.broadcast_to(ctr, A.shape), A, B, C)
         j = int(np.argmin(dt))
         if dt[j] < c.radius:
