@@ -121,6 +121,50 @@ def boundary_faces(tets: np.ndarray, x: np.ndarray) -> np.ndarray:
     return faces
 
 
+def surface_points(x: np.ndarray, tris: np.ndarray, spacing: float) -> np.ndarray:
+    """Points on the triangles (x, tris) no farther than ``spacing`` apart along each triangle's edges (a
+    distance-to-surface reference: its error is below ``spacing``)."""
+    pts = [x[tris].reshape(-1, 3)]
+    for t in tris:
+        a, b, c = x[t]
+        longest = max(np.linalg.norm(b - a), np.linalg.norm(c - a), np.linalg.norm(c - b))
+        m = max(1, int(math.ceil(longest / spacing)))
+        i, j = np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij")
+        keep = i + j <= m
+        pts.append(a + np.outer(i[keep] / m, b - a) + np.outer(j[keep] / m, c - a))
+    return np.concatenate(pts)
+
+
+def points_in_tets(x: np.ndarray, tets: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(len(p),) bool: which points lie in one of the tetrahedra (x, tets) (3D; barycentric test against the
+    16 tetrahedra whose centroids are nearest, enough for meshes of shape-regular tetrahedra)."""
+    from scipy.spatial import cKDTree
+
+    inside = np.zeros(len(p), bool)
+    if not len(p) or not len(tets):
+        return inside
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    near = np.flatnonzero(np.all((p >= lo) & (p <= hi), axis=1))
+    if not len(near):
+        return inside
+    q = p[near]
+    X = x[tets]
+    D = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]], axis=2)
+    ok = np.abs(np.linalg.det(D)) > 1e-30
+    Binv = np.zeros_like(D)
+    Binv[ok] = np.linalg.inv(D[ok])
+    kq = min(len(tets), 16)
+    _, cand = cKDTree(X.mean(axis=1)).query(q, k=kq)
+    cand = np.asarray(cand).reshape(len(q), kq)
+    hit = np.zeros(len(q), bool)
+    for c in range(kq):
+        e = cand[:, c]
+        l3 = np.einsum("nij,nj->ni", Binv[e], q - X[e, 0])
+        hit |= ok[e] & np.all(l3 >= 0, axis=1) & (l3.sum(axis=1) <= 1)
+    inside[near] = hit
+    return inside
+
+
 # ------------------------------------------------------------------ tetrahedralisation
 
 

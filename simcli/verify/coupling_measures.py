@@ -20,11 +20,18 @@ def _lattice_spacing(x0: np.ndarray, axis: int) -> float:
     return float(np.median(np.diff(c))) if len(c) > 1 else 0.0
 
 
+def _is_mesh(f, name: str) -> bool:
+    """Whether the entity is written as a mesh (cells: FEM, PBD cloth and soft bodies), not as particles."""
+    _, g = entity_group(f, name)
+    return "cells" in g
+
+
 @measurement("draft_fraction")
 def draft_fraction(f, entity, liquid, axis=None, spacing=0.0, margin=0.05, level="top", **_):
     """How much of a floating body's height is below the liquid's free surface [-], per frame: (level -
     bottom) / (top - bottom). The body's bottom and top are its lowest and highest particles, extended by half
-    its particle spacing (from its initial lattice); the level is the median over the liquid's columns (bins
+    its particle spacing (from its initial lattice), or a mesh's (FEM, PBD soft body) lowest and highest
+    vertices; the level is the median over the liquid's columns (bins
     of ``spacing`` [m], the liquid's particle size) farther than ``margin`` [m] from the body of the highest
     particle, plus half the liquid's spacing.
 
@@ -39,7 +46,9 @@ def draft_fraction(f, entity, liquid, axis=None, spacing=0.0, margin=0.05, level
     w = _pos(f, liquid)
     ax = b.shape[2] - 1 if axis is None else int(axis)
     lat = [a for a in range(b.shape[2]) if a != ax]
-    hb = 0.5 * _lattice_spacing(b[0], ax)
+    # a particle body's outer particles sit half a spacing inside its surface; a mesh's (FEM, a PBD soft body:
+    # an entity with cells) vertices are its surface
+    hb = 0.0 if _is_mesh(f, entity) else 0.5 * _lattice_spacing(b[0], ax)
     if level not in ("top", "mass"):
         raise ValueError(f"draft_fraction: level must be top or mass, not {level!r}")
     if level == "mass" and not float(spacing) > 0:
@@ -102,9 +111,15 @@ def depth_inside(f, entity, other, spacing, **_):
     """Deepest penetration of ``other``'s particles into ``entity`` in units of ``spacing`` [-], per frame:
     for each particle of ``other`` inside the bounding box of ``entity``, its distance to the box's nearest
     face (0 when none is inside). For a convex, roughly box-shaped body (a block), an upper bound of how deep
-    the other material went in."""
+    the other material went in. A tet mesh (FEM, a PBD soft body) is tested exactly in its deformed shape: the
+    particles inside one of its tetrahedra, each one's distance to the mesh's surface (to points on the
+    surface triangles no more than a twentieth of ``spacing`` apart)."""
     a = _pos(f, entity)
     b = _pos(f, other)
+    _, g = entity_group(f, entity)
+    if "cells" in g and g["cells"].shape[1] == 4 and a.shape[2] == 3:  # a tet mesh: the exact test
+        tets = np.asarray(g["cells"][...], dtype=np.int64)
+        return f["time"][...], np.asarray([_depth_in_tets(xa, tets, xb) / spacing for xa, xb in zip(a, b)])
     out = []
     for xa, xb in zip(a, b):
         lo, hi = xa.min(axis=0), xa.max(axis=0)
@@ -115,6 +130,21 @@ def depth_inside(f, entity, other, spacing, **_):
         d = np.minimum(xb[inside] - lo, hi - xb[inside]).min(axis=1)
         out.append(float(d.max()) / spacing)
     return f["time"][...], np.asarray(out)
+
+
+def _depth_in_tets(x: np.ndarray, tets: np.ndarray, p: np.ndarray) -> float:
+    """How deep the deepest point of ``p`` lies inside the tet mesh (x, tets) [m]; 0 when none is inside."""
+    from scipy.spatial import cKDTree
+
+    from simcli.geometry.tetmesh import boundary_faces, points_in_tets, surface_points
+
+    q = p[points_in_tets(x, tets, p)]
+    if not len(q):
+        return 0.0
+    edge = float(np.median(np.linalg.norm(x[tets[:, 1]] - x[tets[:, 0]], axis=1)))
+    surf = surface_points(x, boundary_faces(tets, x), 0.05 * edge)
+    d, _ = cKDTree(surf).query(q)
+    return float(d.max())
 
 
 @measurement("speed_excess")
