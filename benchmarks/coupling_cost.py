@@ -41,6 +41,7 @@ def main(argv=None) -> int:
     if coupler is None:
         print("no coupled pair in this scene", file=sys.stderr)
         return 2
+    coupler.prepare()
     for s in solvers:
         s.build()
     coupler.build()

@@ -451,6 +451,8 @@ class Runner:
         from simcli.coupling import make_coupler  # None unless two coupled families meet (docs/COUPLING.md)
 
         coupler = self._coupler = make_coupler(scene, solvers, self.warn)
+        if coupler is not None:
+            coupler.prepare()
         for s in solvers:
             s.build()
         if coupler is not None:

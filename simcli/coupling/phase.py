@@ -34,6 +34,12 @@ def _mpm_fem(mpm, fem):
     return make_mpm_fem(mpm, fem)
 
 
+def _sph_fem(sph, fem):
+    from simcli.coupling.sph_fem import make_sph_fem
+
+    return make_sph_fem(sph, fem)
+
+
 def _particles(key):
     def make(a, b):
         from simcli.coupling.particle_pairs import make_particle_pair
@@ -48,7 +54,7 @@ IMPLEMENTED: dict[str, Callable] = {
     "mpm_pbd": _mpm_pbd,
     "mpm_fem": _mpm_fem,
     "sph_pbd": _particles("sph_pbd"),
-    "sph_fem": _particles("sph_fem"),
+    "sph_fem": _sph_fem,
     "pbd_fem": _particles("pbd_fem"),
 }
 
@@ -83,12 +89,27 @@ class Coupler:
 
     def __init__(self, solvers: list, pairs: list) -> None:
         self.solvers, self.pairs = solvers, pairs
+        # pairs that place another family's body in SPH before SPH's substep (sph_fem.py): SPH's pre_couple
+        # then runs after every other family's, so that it meets the body where that body's substep left it
+        self.before_sph = [p for p in pairs if hasattr(p, "before_sph")]
+        self.pre_order = list(solvers)
+        if self.before_sph:
+            self.pre_order = [s for s in solvers if s.family != "sph"] + [
+                s for s in solvers if s.family == "sph"
+            ]
         self.profile = False  # sync and time each phase (benchmarks, docs/PERFORMANCE.md)
         self.times = {"pre": 0.0, "couple": 0.0, "post": 0.0}
 
     @property
     def names(self) -> list[str]:
         return [p.name for p in self.pairs]
+
+    def prepare(self) -> None:
+        """Before the solvers' build: what a pair must give a solver to build with (sph_fem.py: the FEM
+        body's samples as SPH boundary particles)."""
+        for p in self.pairs:
+            if hasattr(p, "prepare"):
+                p.prepare()
 
     def build(self) -> None:
         """After the solvers' build: the pairs' fields and kernels."""
@@ -101,19 +122,24 @@ class Coupler:
     def substep(self, dt: float) -> None:
         if self.profile:
             return self._substep_timed(dt)
-        for s in self.solvers:
-            s.pre_couple(dt)
+        self._pre(dt)
         for p in self.pairs:
             p.couple(dt)
         for s in self.solvers:
             s.post_couple(dt)
 
+    def _pre(self, dt: float) -> None:
+        for s in self.pre_order:
+            if s.family == "sph":
+                for p in self.before_sph:
+                    p.before_sph(dt)
+            s.pre_couple(dt)
+
     def _substep_timed(self, dt: float) -> None:
         import taichi as ti
 
         t0 = time.perf_counter()
-        for s in self.solvers:
-            s.pre_couple(dt)
+        self._pre(dt)
         ti.sync()
         t1 = time.perf_counter()
         for p in self.pairs:

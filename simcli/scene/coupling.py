@@ -24,6 +24,18 @@ def coupled(scene: Any, fam_a: str, fam_b: str) -> bool:
     return False
 
 
+def sph_fem_by_particles(scene: Any) -> bool:
+    """Whether SPH meets FEM bodies as boundary particles (simcli/coupling/sph_fem.py: the FEM body sampled
+    into SPH's boundary, a 3D scene with SPH's boundary particles), not by the grid contact (volume maps)."""
+    sph = getattr(scene.solvers, "sph", None)
+    return (
+        coupled(scene, "SPH", "FEM")
+        and int(scene.sim.dim) == 3
+        and sph is not None
+        and getattr(sph, "boundary", "particles") == "particles"
+    )
+
+
 # families no coupling pair covers yet: their entities pass through every other family's (a warning says so)
 UNCOUPLED = {"FEMCloth": "FEM.Cloth", "SF": "SF"}
 

@@ -21,7 +21,7 @@ import re
 
 import numpy as np
 
-from simcli.scene.coupling import coupled, coupling_warnings
+from simcli.scene.coupling import coupled, coupling_warnings, sph_fem_by_particles
 
 # ------------------------------------------------------------------ bounds
 
@@ -437,7 +437,14 @@ def check_overlaps(loaded) -> tuple[list[str], list[str]]:
         if a.family == b.family and share > OVERLAP_FRACTION:
             errors.append(f"{head}{text}; their particles would sit on top of each other: move one")
         elif a.family != b.family:
-            if coupled(s, a.family, b.family):  # coupled families push each other apart in the first substeps
+            if {a.family, b.family} == {"SPH", "FEM"} and sph_fem_by_particles(s):
+                warns.append(  # the FEM body is SPH boundary particles (simcli/coupling/sph_fem.py)
+                    f"{head}warning: {text}; the liquid's particles inside the FEM body are removed at the "
+                    "start"
+                )
+            elif coupled(
+                s, a.family, b.family
+            ):  # coupled families push each other apart in the first substeps
                 warns.append(
                     f"{head}warning: {text}; {a.family} and {b.family} push each other out at the start"
                 )

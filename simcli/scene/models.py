@@ -421,8 +421,10 @@ class Coupling(Strict):
     )
     sph_fem: bool = Field(
         True,
-        description="SPH <-> FEM: contact on a background grid of the pair's own (two-way, momentum "
-        "conserving).",
+        description="SPH <-> FEM: the FEM body's samples as SPH boundary particles (Akinci et al. 2012, "
+        "two-way, momentum conserving: the liquid's pressure impulse on each sample goes to its "
+        "tetrahedron's corners); with solvers.sph.boundary: volume_map a contact on a background grid of "
+        "the pair's own.",
     )
     pbd_fem: bool = Field(
         True,

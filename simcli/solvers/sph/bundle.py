@@ -130,6 +130,7 @@ class SPHFields:
     bnear: Any  # a boundary particle lies in the cell's stencil
     bx0: Any  # body-frame position (colliders driven through ColliderPoses), else None
     bcol: Any  # collider index, -1: domain walls
+    bsrc: Any  # a deformable body's sample index (deformable.py), -1: none; None without one
     # materials and run-time parameters
     mat_rho0: Any
     mat_k: Any

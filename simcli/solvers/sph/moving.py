@@ -61,27 +61,33 @@ def moving_bounds(spec, lo, hi) -> tuple[np.ndarray, np.ndarray]:
     return lo - ext, hi + ext
 
 
-def make_moving_boundary(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, grid):
+def make_moving_boundary(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, grid, deformable=None):
     """``move()`` (a Taichi func, called at kernel scope before the liquid's sort): every moving collider's
     boundary particles to the substep's middle pose, with the surface velocity, then the boundary
     particles re-sorted into the cells. Fields moved along by the sort: position, volume, velocity,
-    no-slip flag, body-frame position, collider index, and WCSPH's relaxing wall pressure
-    (``fn.wall_pressure`` must be built). ``poses``: the solver's ColliderPoses; ``grid``: its CellGrid."""
+    no-slip flag, body-frame position, collider index, a deformable body's sample index, and WCSPH's
+    relaxing wall pressure (``fn.wall_pressure`` must be built). ``poses``: the solver's ColliderPoses;
+    ``grid``: its CellGrid; ``deformable``: a DeformableBoundary (deformable.py) or None: its samples take
+    the positions and velocities the coupling phase left in its ``sx``, ``sv``."""
     from simcli.solvers.sph.neighbours import make_neighbour_funcs
 
     f, dim, nbp = P.f, P.dim, max(1, P.nbp)
     specs = poses.specs
     moving = [k for k, c in enumerate(specs) if c.moving]
-    bx, bvel, bx0, bcol = F.bx, F.bvel, F.bx0, F.bcol
-    move = [F.bx, F.bV, F.bvel, F.bns, F.bx0, F.bcol]
+    bx, bvel, bx0, bcol, bsrc = F.bx, F.bvel, F.bx0, F.bcol, F.bsrc
+    move = [F.bx, F.bV, F.bvel, F.bns]
     tmp = [
         ti.Vector.field(dim, f, shape=nbp),
         ti.field(f, shape=nbp),
         ti.Vector.field(dim, f, shape=nbp),
         ti.field(ti.i32, shape=nbp),
-        ti.Vector.field(dim, f, shape=nbp),
-        ti.field(ti.i32, shape=nbp),
     ]
+    if bx0 is not None:  # colliders driven through ColliderPoses
+        move += [bx0, bcol]
+        tmp += [ti.Vector.field(dim, f, shape=nbp), ti.field(ti.i32, shape=nbp)]
+    if bsrc is not None:  # a deformable boundary's samples (deformable.py)
+        move.append(bsrc)
+        tmp.append(ti.field(ti.i32, shape=nbp))
     wp = fn.wall_pressure
     if wp is not None and wp.pbar is not None:
         move.append(wp.pbar)
@@ -103,32 +109,46 @@ def make_moving_boundary(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, grid):
     )
     n_b = P.nbp
 
+    db = deformable
+    has_db = db is not None
+
     @ti.func
     def move_boundary():
-        for b in range(n_b):
-            kb = bcol[b]
-            for k in ti.static(moving):
-                if kb == k:
-                    R, c, v, w = poses.get(0, k)
-                    xw = R @ (bx0[b] - poses.pivot[k]) + c
-                    bx[b] = xw
-                    bvel[b] = v + poses.cross(w, xw - c)
+        if ti.static(len(moving) > 0):
+            for b in range(n_b):
+                kb = bcol[b]
+                for k in ti.static(moving):
+                    if kb == k:
+                        R, c, v, w = poses.get(0, k)
+                        xw = R @ (bx0[b] - poses.pivot[k]) + c
+                        bx[b] = xw
+                        bvel[b] = v + poses.cross(w, xw - c)
+        if ti.static(has_db):  # samples of a deformable body: where the coupling put them
+            for b in range(n_b):
+                s = bsrc[b]
+                if s >= 0:
+                    bx[b] = db.sx[s]
+                    bvel[b] = db.sv[s]
         sort(n_b)
 
     return move_boundary
 
 
-def make_loads(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses):
+def make_loads(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, deformable=None):
     """Taichi funcs that add the liquid's loads on the named colliders to ``poses`` (the solver's
     ColliderPoses; see the module docstring): ``pressure(i, dt)`` (WCSPH after its force pass; DFSPH in
     ``finish`` with the substep's total stiffness in ``F.kk`` and its Shepard average in the wall pressure's
-    ``bval``) and ``viscous(i, dt)``."""
+    ``bval``) and ``viscous(i, dt)``. With ``deformable`` (a DeformableBoundary, deformable.py) ``pressure``
+    also adds each of its samples' share, the same pair impulse, to the sample's ``simp`` (f64), which
+    the coupling phase hands to the body's vertices."""
     f, dim = P.f, P.dim
     specs = poses.specs
     named = [k for k, c in enumerate(specs) if c.name is not None]
     named_noslip = [k for k in named if specs[k].contact == "sticky"] if P.has_noslip else []
     x, v, rho, p, mid = F.x, F.v, F.rho, F.p, F.mid
-    bx, bV, bvel, bcol, bstart = F.bx, F.bV, F.bvel, F.bcol, F.bstart
+    bx, bV, bvel, bcol, bstart, bsrc = F.bx, F.bV, F.bvel, F.bcol, F.bstart, F.bsrc
+    db = deformable
+    has_db = db is not None
     mat_rho0, mat_nu = F.mat_rho0, F.mat_nu
     rows, row_cell, gradW, h2 = fn.rows, fn.row_cell, fn.gradW, P.h2
     R = P.R
@@ -205,8 +225,26 @@ def make_loads(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses):
                                 poses.add_load(k, bx[b], J, 0)
 
     @ti.func
+    def deformable_pairs(i, dt):
+        xi = x[i]
+        c0 = rows(xi)
+        for a in range(row ** (dim - 1)):
+            lin = row_cell(c0, a)
+            for b in range(bstart[lin], bstart[lin + row]):
+                s = bsrc[b]
+                if s >= 0:
+                    d = xi - bx[b]
+                    r2 = d.dot(d)
+                    if r2 < h2:
+                        J = pair_impulse(i, b, d, gradW(d, ti.sqrt(r2)), dt)
+                        ti.atomic_add(db.simp[s], ti.cast(J, ti.f64))
+
+    @ti.func
     def pressure(i, dt):
-        for_named_pairs(i, dt, False)
+        if ti.static(len(named) > 0):
+            for_named_pairs(i, dt, False)
+        if ti.static(has_db):
+            deformable_pairs(i, dt)
 
     @ti.func
     def viscous(i, dt):

@@ -124,6 +124,9 @@ class SPHSolver(Solver):
         # emitters and sinks (simcli/solvers/sources.py): an active count; None in scenes without them
         self.sources = ActiveSet(scene, bodies, "SPH") if has_sources(scene, "SPH") else None
         self.active_set = self.sources
+        # a deformable body's boundary particles (deformable.py), attached by the coupling phase before build
+        self.deformable = None
+        self.bsrc = None
         self._built = False
 
     def _place_inside_colliders(self, scene: Any, bodies: list[Body]) -> list[Body]:
@@ -209,6 +212,59 @@ class SPHSolver(Solver):
             )
         return out
 
+    def remove_inside(self, inside: Any, what: str) -> None:
+        """Before build: drop the liquid's particles for which ``inside`` ((m, dim) positions -> (m,) bool)
+        holds, another family's body placed in the liquid at the start (a coupling pair, sph_fem.py), as
+        particles sampled inside a collider are removed; recorded with them (run.json, the warning)."""
+        if self._built:
+            raise RuntimeError("SPH: particles are removed before build")
+        from simcli.errors import SceneError
+
+        out = []
+        for b in self.bodies:
+            if is_emitter(b):
+                out.append(b)
+                continue
+            drop = np.asarray(inside(b.x), bool)
+            k = int(drop.sum())
+            if k == b.n > 0:
+                raise SceneError([f"entity '{b.name}': every particle lies inside {what}; move one of them"])
+            if k:
+                mass = float(k) * b.entity.material.rho * self.V_rest
+                rec = self.removed.setdefault(b.name, {"particles": 0, "of": b.n, "mass_kg": 0.0})
+                rec["particles"] += k
+                rec["mass_kg"] += mass
+                self.warnings.append(
+                    f"{b.name}: {k} of {b.n} particles were sampled inside {what} and removed "
+                    f"({mass:.4g} kg, {100.0 * k / b.n:.3g}%). Move the entity out of it to keep them"
+                )
+                keep = ~drop
+                b = Body(
+                    name=b.name,
+                    entity=b.entity,
+                    x=b.x[keep],
+                    v=b.v[keep],
+                    volume=b.volume[keep],
+                    mass=b.mass[keep],
+                    fixed=b.fixed[keep],
+                )
+            out.append(b)
+        self.bodies = out
+        self.offsets = np.cumsum([0] + [b.n for b in out]).astype(np.int64)
+        self.n = int(self.offsets[-1])
+        if self.sources is not None:
+            self.sources = ActiveSet(self.scene, out, "SPH")
+            self.active_set = self.sources
+
+    def attach_deformable(self, db: Any) -> None:
+        """Another family's body as boundary particles (deformable.py): called before build by a coupling
+        pair (simcli/coupling/sph_fem.py). Only with boundary particles (not volume maps)."""
+        if self._built:
+            raise RuntimeError("SPH: a deformable boundary is attached before build")
+        if self.opts.boundary != "particles":
+            raise ValueError("SPH: a deformable boundary needs solvers.sph.boundary: particles")
+        self.deformable = db
+
     @staticmethod
     def _rest_volume(scene: Any) -> float:
         """Rest volume of a particle [m^dim]: the lattice cell over the kernel's lattice sum."""
@@ -257,9 +313,23 @@ class SPHSolver(Solver):
             bp = BoundaryParticles(z, np.zeros(0), z, np.zeros(0, bool), np.zeros(0, np.int32))
         else:
             bp = sample_boundary(self.scene, dim, self.ps, self.support, self.poses.specs)
+        db = self.deformable
+        src = np.full(bp.n, -1, np.int32)
+        if db is not None and db.n:  # a deformable body's samples after the walls and colliders (collider -2)
+            from simcli.solvers.sph.boundary import BoundaryParticles
+
+            bp = BoundaryParticles(
+                np.concatenate([bp.x, db.x]),
+                np.concatenate([bp.volume, db.volume]),
+                np.concatenate([bp.velocity, db.velocity]),
+                np.concatenate([bp.no_slip, np.zeros(db.n, bool)]),
+                np.concatenate([bp.col, np.full(db.n, -2, np.int32)]),
+            )
+            src = np.concatenate([src, np.arange(db.n, dtype=np.int32)])
         keep = grid.inside_np(bp.x)
         if self.poses.any_moving:  # a moving collider's whole shell: it may enter the grid later
             keep |= np.isin(bp.col, [k for k, c in enumerate(self.poses.specs) if c.moving])
+        keep |= src >= 0  # a deformable body's samples too
         order, bstart = grid.sort_static(bp.x[keep])
         self.nbp = int(keep.sum())
         self.K = neighbour_capacity(dim, self.support / self.ps)
@@ -378,6 +448,9 @@ class SPHSolver(Solver):
         self.bnear = ti.field(ti.i8, shape=grid.ncells)  # a boundary particle lies in the cell's stencil
         self.bx0 = ti.Vector.field(dim, f, shape=nbp) if self.poses.needed else None  # body frame
         self.bcol = ti.field(ti.i32, shape=nbp) if self.poses.needed else None  # collider, -1: walls
+        if db is not None:  # each boundary particle's sample of the deformable body, -1: none
+            self.bsrc = ti.field(ti.i32, shape=nbp)
+            db.allocate(dim, f, self.npf)
         npf = self.npf
         if self.nbp:
             self.bx.from_numpy(bp.x[keep][order].astype(npf))
@@ -389,8 +462,11 @@ class SPHSolver(Solver):
         if self.poses.needed and self.nbp:
             self.bx0.from_numpy(bp.x[keep][order].astype(npf))
             self.bcol.from_numpy(bp.col[keep][order].astype(np.int32))
-        self.moving_boundary = self.poses.any_moving and self.nbp > 0
-        self.named_loads = self.poses.any_named and (self.nbp > 0 or self.vmap is not None)
+        if self.bsrc is not None and self.nbp:
+            self.bsrc.from_numpy(src[keep][order])
+        deform = db is not None and db.n > 0
+        self.moving_boundary = (self.poses.any_moving or deform) and self.nbp > 0
+        self.named_loads = (self.poses.any_named or deform) and (self.nbp > 0 or self.vmap is not None)
         if self.moving_boundary:  # every cell may have a moving boundary particle in reach
             self.bnear.fill(1)
 
@@ -659,12 +735,13 @@ class SPHSolver(Solver):
         bodies = tuple(k for k, c in enumerate(self.poses.specs) if getattr(c, "rigid", False))
         fn.wall_pressure = make_wall_pressure(P, F, fn, bodies) if P.ext_walls and P.nbp > 0 else None
         self.wall_pressure = fn.wall_pressure
+        db = self.deformable if (self.deformable is not None and self.deformable.n) else None
         if P.moving_boundary:
-            fn.move_boundary = make_moving_boundary(P, F, fn, self.poses, self.grid)
+            fn.move_boundary = make_moving_boundary(P, F, fn, self.poses, self.grid, db)
         if P.named_loads and self.vmap is not None:  # the named static colliders' maps (volume_map.py)
             fn.load_pressure, fn.load_viscous = self.vmap.make_loads(P, F, fn, self.poses)
         elif P.named_loads:
-            fn.load_pressure, fn.load_viscous = make_loads(P, F, fn, self.poses)
+            fn.load_pressure, fn.load_viscous = make_loads(P, F, fn, self.poses, db)
         self._frame_stats, self._density_only, self._dt_stats = make_outputs(P, F, fn, len(self.bodies))
         if P.dfsph:
             self._substep, self._couple_phases = make_dfsph(P, F, fn, self.dfsph_stats, self.n_live)
@@ -864,7 +941,11 @@ class SPHSolver(Solver):
         if self.wall_pressure is not None and self.wall_pressure.pbar is not None:
             d["wall_pressure"] = self.wall_pressure.pbar  # WCSPH's relaxing wall pressure (wall_pressure.py)
         if self.moving_boundary:  # the boundary particles' order (re-sorted every substep) and place
-            d.update(bx=self.bx, bV=self.bV, bvel=self.bvel, bns=self.bns, bx0=self.bx0, bcol=self.bcol)
+            d.update(bx=self.bx, bV=self.bV, bvel=self.bvel, bns=self.bns)
+            if self.bx0 is not None:
+                d.update(bx0=self.bx0, bcol=self.bcol)
+        if self.bsrc is not None:  # a deformable body's samples: their slots, places and velocities
+            d.update(bsrc=self.bsrc, deformable_x=self.deformable.sx, deformable_v=self.deformable.sv)
         return d
 
     def get_state(self) -> dict[str, np.ndarray]:
@@ -903,8 +984,9 @@ class SPHSolver(Solver):
                     "akinci"
                 )
             arr = np.asarray(state[k])
-            if k in ("bx", "bV", "bvel", "bns", "bx0", "bcol"):  # a moving boundary (moving.py)
-                fld.from_numpy(arr.astype(np.int32 if k in ("bns", "bcol") else self.npf))
+            if k in ("bx", "bV", "bvel", "bns", "bx0", "bcol", "bsrc", "deformable_x", "deformable_v"):
+                # a moving boundary (moving.py), a deformable body's samples (deformable.py)
+                fld.from_numpy(arr.astype(np.int32 if k in ("bns", "bcol", "bsrc") else self.npf))
                 continue
             if arr.shape != fld.shape + ((self.dim,) if k in ("x", "v") else ()):
                 hint = (

@@ -61,7 +61,8 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
     ``bhyd``, ``pbar``, ``bq``); needs the stencil and the smoothing kernels in ``fn``. Only for a scene
     with boundary particles (``P.nbp > 0``).
 
-    ``bodies``: the collider indices of free rigid bodies, whose boundary particles take Adami's hydrostatic
+    ``bodies``: the collider indices of free rigid bodies, whose boundary particles (and a deformable body's
+    samples, ``F.bsrc``, deformable.py) take Adami's hydrostatic
     term unclamped where they are above the liquid (their total pressure kept >= 0: WCSPH by its clamp,
     DFSPH by the liquid's last total stiffness), see :func:`mark`."""
     f, dim = P.f, P.dim
@@ -99,6 +100,8 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
     clamp = P.clamp_pressure
     bodies = tuple(bodies) if F.bcol is not None else ()
     bcol, kappa, dfsph = F.bcol, F.kappa, P.pressure_solver == "DFSPH"
+    bsrc = F.bsrc  # a deformable body's samples take the free bodies' rule too
+    has_src = bsrc is not None
     if filt:
         pbar.fill(NEW)
 
@@ -151,18 +154,25 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
                 for k in range(cnt):
                     bnb_w[b, k] /= sw
                 lim = ti.cast(0.0, f)
-                if ti.static(len(bodies) > 0):
-                    kb = bcol[b]
-                    for q in ti.static(bodies):
-                        if kb == q:
-                            lim = ti.cast(-1.0e30, f)
-                            if ti.static(dfsph):
-                                lim = ti.cast(0.0, f)
-                                for k in range(cnt):
-                                    if ti.static(uniform):
-                                        lim -= bnb_w[b, k] * kappa[bnb_j[b, k]]
-                                    else:
-                                        lim -= bnb_w[b, k] * mat_rho0[mid[bnb_j[b, k]]] * kappa[bnb_j[b, k]]
+                if ti.static(len(bodies) > 0 or has_src):
+                    body = False
+                    if ti.static(len(bodies) > 0):
+                        kb = bcol[b]
+                        for q in ti.static(bodies):
+                            if kb == q:
+                                body = True
+                    if ti.static(has_src):  # a deformable body's sample (deformable.py)
+                        if bsrc[b] >= 0:
+                            body = True
+                    if body:
+                        lim = ti.cast(-1.0e30, f)
+                        if ti.static(dfsph):
+                            lim = ti.cast(0.0, f)
+                            for k in range(cnt):
+                                if ti.static(uniform):
+                                    lim -= bnb_w[b, k] * kappa[bnb_j[b, k]]
+                                else:
+                                    lim -= bnb_w[b, k] * mat_rho0[mid[bnb_j[b, k]]] * kappa[bnb_j[b, k]]
                 bhyd[b] = ti.max(sh / sw, lim)
 
     @ti.func

@@ -1,0 +1,175 @@
+"""SPH <-> FEM: the FEM body as boundary particles of the liquid (Akinci et al. 2012, "Versatile rigid-fluid
+coupling for incompressible SPH", two-way), as SPH's rigid bodies are; docs/COUPLING.md says why.
+
+Sampling (numpy, at the pair's making, before the solvers' build): per FEM entity, the lattice of SPH's
+particle spacing fitted to the body's rest bounding box (points at the cells' centres, as SPH samples a Box
+collider, boundary.collider_particles), kept where it lies inside the rest tet mesh and within the
+boundary's layers (the kernel's support) of its surface. Each sample keeps its tetrahedron's four corners
+and its barycentric weights w_a (from the rest shape's inverse edge matrix), and the lattice cell's volume.
+
+Per substep: SPH reads the samples where the coupling phase left them (x_s = sum_a w_a x_a, v_s = sum_a w_a
+v_a, the FEM vertices after the previous substep's coupling) and treats them as a collider's boundary
+particles in its density, pressure and wall-pressure sums (deformable.py); it sums, per sample, the
+impulse its pressure gave the liquid, reversed (the named colliders' load, moving.make_loads), J_s. The
+coupling phase, after both families' substep, gives each free FEM vertex a its share:
+dv_a = sum_s w_a J_s / m_a, its end position dt dv_a (as the grid contacts move an advanced position), so
+that the liquid's momentum change and the body's are equal and opposite; then it places the samples for
+the next substep. The liquid next to the body is not a free surface to SPH (it was with the grid contact
+of particle_contact.py, which made a light body float a cell high and let the liquid creep under a slab).
+Held FEM components take no impulse. Contact is frictionless (the samples are slip boundaries).
+"""
+
+import math
+from typing import Any
+
+import numpy as np
+import taichi as ti
+
+from simcli.geometry.tetmesh import boundary_faces, points_in_tets, surface_points
+from simcli.solvers.sph.deformable import DeformableBoundary
+
+
+def fem_boundary_samples(
+    fem: Any, spacing: float, depth: float
+) -> "tuple[np.ndarray, np.ndarray, np.ndarray]":
+    """(corners (n, 4) int, weights (n, 4), volumes (n,)): the lattice points of ``spacing`` inside each FEM
+    entity's rest mesh and within ``depth`` of its surface (see the module docstring)."""
+    from scipy.spatial import cKDTree
+
+    x0, T, B = fem.x0, fem.tets, fem.B
+    corners, weights, volumes = [], [], []
+    for k in range(len(fem.entities)):
+        tk = T[fem.toffsets[k] : fem.toffsets[k + 1]]
+        Bk = B[fem.toffsets[k] : fem.toffsets[k + 1]]
+        verts = np.unique(tk)
+        lo, hi = x0[verts].min(axis=0), x0[verts].max(axis=0)
+        n = np.maximum(1, np.floor((hi - lo) / spacing + 0.5)).astype(int)
+        s = (hi - lo) / n
+        axes = [lo[a] + s[a] * (np.arange(n[a]) + 0.5) for a in range(3)]
+        p = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        # keep the points within `depth` of the surface (distance to a dense sampling of its triangles)
+        surf = surface_points(x0, boundary_faces(tk, x0), 0.25 * spacing)
+        dist, _ = cKDTree(surf).query(p)
+        p = p[dist < depth]
+        # the tetrahedron holding each point: candidates by centroid, the first with barycentrics >= 0
+        cen = x0[tk].mean(axis=1)
+        kq = min(len(tk), 32)
+        _, cand = cKDTree(cen).query(p, k=kq)
+        cand = np.asarray(cand).reshape(len(p), kq)
+        tet = np.full(len(p), -1, np.int64)
+        lam = np.zeros((len(p), 4))
+        for c in range(kq):
+            todo = tet < 0
+            if not todo.any():
+                break
+            e = cand[todo, c]
+            l3 = np.einsum("nij,nj->ni", Bk[e], p[todo] - x0[tk[e, 0]])
+            w = np.concatenate([1.0 - l3.sum(axis=1, keepdims=True), l3], axis=1)
+            ok = np.all(w >= -1e-9, axis=1)
+            idx = np.nonzero(todo)[0][ok]
+            tet[idx] = e[ok]
+            lam[idx] = w[ok]
+        inside = tet >= 0  # points of the box outside a non-box mesh are dropped here
+        corners.append(tk[tet[inside]])
+        weights.append(
+            np.clip(lam[inside], 0.0, 1.0) / np.clip(lam[inside], 0.0, 1.0).sum(axis=1, keepdims=True)
+        )
+        volumes.append(np.full(int(inside.sum()), float(np.prod(s))))
+    if not corners:
+        return np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros(0)
+    return np.concatenate(corners), np.concatenate(weights), np.concatenate(volumes)
+
+
+class SPHFEMBoundary:
+    """The sph_fem pair by boundary particles (made before the solvers' build; ``prepare``, also before it,
+    samples the body and attaches the samples to SPH, whose build allocates them)."""
+
+    name = "sph_fem"
+
+    def __init__(self, sph: Any, fem: Any) -> None:
+        self.sph, self.fem = sph, fem
+        self.n = 0
+        self.bytes = 0
+
+    def prepare(self) -> None:
+        from simcli.solvers.sph.boundary import LAYERS
+
+        sph, fem = self.sph, self.fem
+        # liquid sampled inside the body at the start would sit among its samples (a pressure blow-up):
+        # removed with a warning, as SPH removes particles sampled inside a collider
+        names = ", ".join(f"'{e.name}'" for e in fem.entities)
+        sph.remove_inside(
+            lambda p: points_in_tets(fem.xstart, fem.tets, p),
+            f"the FEM {'entity' if len(fem.entities) == 1 else 'entities'} {names}",
+        )
+        layers = max(LAYERS, math.ceil(sph.support / sph.ps - 1e-9))
+        idx, w, vol = fem_boundary_samples(fem, sph.ps, layers * sph.ps)
+        self.idx, self.w = idx.astype(np.int32), w
+        x = np.einsum("na,nad->nd", w, fem.xstart[idx]) if len(idx) else np.zeros((0, 3))
+        v = np.einsum("na,nad->nd", w, fem.v0[idx]) if len(idx) else np.zeros((0, 3))
+        self.db = DeformableBoundary("FEM", x, vol, v)
+        sph.attach_deformable(self.db)
+        self.n = self.db.n
+        # per sample: four corner indices and weights here, position, velocity (SPH's precision) and an f64
+        # impulse in SPH; per boundary particle SPH's own fields
+        self.bytes = 0
+
+    def build(self) -> None:
+        fem, db = self.fem, self.db
+        f = fem.f
+        n = max(1, self.n)
+        self.idx_f = ti.Vector.field(4, ti.i32, shape=n)
+        self.w_f = ti.Vector.field(4, f, shape=n)
+        if self.n:
+            self.idx_f.from_numpy(self.idx)
+            self.w_f.from_numpy(self.w.astype(fem.npf))
+        fb = 8 if f == ti.f64 else 4
+        self.bytes = self.n * (4 * 4 + 4 * fb + 2 * 3 * fb + 3 * 8)
+        x, v, mass, free = fem.x, fem.v, fem.mass_f, fem.free_f
+        sx, sv, simp = db.sx, db.sv, db.simp
+        idx_f, w_f = self.idx_f, self.w_f
+        ns = self.n
+
+        @ti.kernel
+        def couple(dt: f):
+            for s in range(ns):  # the liquid's impulse on each sample, to its tetrahedron's corners
+                J = ti.cast(simp[s], f)
+                simp[s] = ti.Vector.zero(ti.f64, 3)
+                for a in ti.static(range(4)):
+                    k = idx_f[s][a]
+                    dv = (w_f[s][a] / mass[k]) * J * free[k]
+                    ti.atomic_add(v[k], dv)
+                    ti.atomic_add(x[k], dt * dv)
+
+        @ti.kernel
+        def place():
+            for s in range(ns):  # the samples where the body's substep left them, before SPH's
+                xs = ti.Vector.zero(f, 3)
+                vs = ti.Vector.zero(f, 3)
+                for a in ti.static(range(4)):
+                    k = idx_f[s][a]
+                    xs += w_f[s][a] * x[k]
+                    vs += w_f[s][a] * v[k]
+                sx[s] = xs
+                sv[s] = vs
+
+        self._couple, self._place = couple, place
+
+    def before_sph(self, dt: float) -> None:
+        if self.n:
+            self._place()
+
+    def couple(self, dt: float) -> None:
+        if self.n:
+            self._couple(dt)
+
+
+def make_sph_fem(sph: Any, fem: Any):
+    """The SPH-FEM pair: boundary particles (this module) with SPH's boundary particles; with volume maps
+    (no boundary particles to add the body to) the grid contact of particle_contact.py."""
+    opts = getattr(sph, "opts", None)
+    if opts is None or (opts.boundary == "particles" and sph.dim == 3):
+        return SPHFEMBoundary(sph, fem)
+    from simcli.coupling.particle_pairs import make_particle_pair
+
+    return make_particle_pair("sph_fem", sph, fem)
