@@ -130,7 +130,6 @@ class SPHFields:
     bnear: Any  # a boundary particle lies in the cell's stencil
     bx0: Any  # body-frame position (colliders driven through ColliderPoses), else None
     bcol: Any  # collider index, -1: domain walls
-    bsrc: Any  # a deformable body's sample index (deformable.py), -1: none; None without one
     # materials and run-time parameters
     mat_rho0: Any
     mat_k: Any
@@ -149,6 +148,7 @@ class SPHFields:
     grad_rho: Any = None  # ... density_diffusion antuono: the renormalised density gradient
     pr2: Any = None  # WCSPH, one material: p_i / rho_i^2, written with the pressure (the force pass's pairs)
     m_rho: Any = None  # WCSPH, one material: m_i / rho_i, written with the pressure (the viscosity's pairs)
+    bsrc: Any = None  # per boundary particle, a deformable body's sample index (deformable.py), -1: none
 
 
 @dataclass
