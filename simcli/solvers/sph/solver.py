@@ -839,7 +839,8 @@ class SPHSolver(Solver):
 
     def stable_dt(self, horizon: float = 0.0) -> float:
         """min(cfl ps / (v + c), VISCOUS_SAFETY ps^2 / nu, max_substep) [s], c the WCSPH sound speed at the
-        largest compression now (0 for DFSPH). v is the largest particle speed now plus what gravity can add
+        largest compression now (0 for DFSPH). v is the largest particle speed now (a moving collider's or a
+        deformable body's surface, where faster) plus what gravity can add
         before the next check, ``horizon`` seconds ahead (the runner's substep policy says how long: a frame,
         or the last substep with sim.auto_check: substep)."""
         self._dt_stats()
@@ -850,6 +851,10 @@ class SPHSolver(Solver):
             return self.opts.max_substep
         if self.poses.any_moving:  # a moving collider's surface must not cross more than cfl ps either
             vmax = max(vmax, self.poses.max_surface_speed(self.time))
+        if self.deformable is not None and self.deformable.n and self._built:  # nor a deformable body's
+            sv = self.deformable.sv.to_numpy()[: self.deformable.n].astype(np.float64)
+            vs = float(np.sqrt((sv * sv).sum(axis=1)).max())
+            vmax = max(vmax, vs) if math.isfinite(vs) else vmax
         # gravity cannot add more than g t over the horizon, nor more than a free fall across the domain
         v_est = min(vmax + self.g_norm * horizon, math.sqrt(vmax**2 + 2.0 * self.g_norm * self.fall_height))
         c = 0.0
