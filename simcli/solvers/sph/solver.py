@@ -988,6 +988,12 @@ class SPHSolver(Solver):
                     "solvers.sph.wall_pressure: "
                     "akinci"
                 )
+            if k in ("bsrc", "deformable_x", "deformable_v", "bx", "bV") and k not in state:
+                raise ValueError(
+                    "SPH state: the checkpoint has no moving boundary or FEM body samples (it was written "
+                    "before SPH met FEM bodies as boundary particles, 2026-11-27, or by another scene); run "
+                    "the scene again from the start"
+                )
             arr = np.asarray(state[k])
             if k in ("bx", "bV", "bvel", "bns", "bx0", "bcol", "bsrc", "deformable_x", "deformable_v"):
                 # a moving boundary (moving.py), a deformable body's samples (deformable.py)
