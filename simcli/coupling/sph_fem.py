@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import taichi as ti
 
-from simcli.geometry.tetmesh import boundary_faces, points_in_tets, surface_points
+from simcli.geometry.tetmesh import boundary_faces, locate_in_tets, points_in_tets, surface_points
 from simcli.solvers.sph.deformable import DeformableBoundary
 
 
@@ -51,24 +51,8 @@ def fem_boundary_samples(
         surf = surface_points(x0, boundary_faces(tk, x0), 0.25 * spacing)
         dist, _ = cKDTree(surf).query(p)
         p = p[dist < depth]
-        # the tetrahedron holding each point: candidates by centroid, the first with barycentrics >= 0
-        cen = x0[tk].mean(axis=1)
-        kq = min(len(tk), 32)
-        _, cand = cKDTree(cen).query(p, k=kq)
-        cand = np.asarray(cand).reshape(len(p), kq)
-        tet = np.full(len(p), -1, np.int64)
-        lam = np.zeros((len(p), 4))
-        for c in range(kq):
-            todo = tet < 0
-            if not todo.any():
-                break
-            e = cand[todo, c]
-            l3 = np.einsum("nij,nj->ni", Bk[e], p[todo] - x0[tk[e, 0]])
-            w = np.concatenate([1.0 - l3.sum(axis=1, keepdims=True), l3], axis=1)
-            ok = np.all(w >= -1e-9, axis=1)
-            idx = np.nonzero(todo)[0][ok]
-            tet[idx] = e[ok]
-            lam[idx] = w[ok]
+        # the tetrahedron holding each point and its barycentric weights (the rest shape's edge matrices)
+        tet, lam = locate_in_tets(x0, tk, p, k=32, tol=1e-9, binv=Bk)
         inside = tet >= 0  # points of the box outside a non-box mesh are dropped here
         corners.append(tk[tet[inside]])
         weights.append(

@@ -135,33 +135,49 @@ def surface_points(x: np.ndarray, tris: np.ndarray, spacing: float) -> np.ndarra
     return np.concatenate(pts)
 
 
-def points_in_tets(x: np.ndarray, tets: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """(len(p),) bool: which points lie in one of the tetrahedra (x, tets) (3D; barycentric test against the
-    16 tetrahedra whose centroids are nearest, enough for meshes of shape-regular tetrahedra)."""
+def locate_in_tets(x: np.ndarray, tets: np.ndarray, p: np.ndarray, k: int = 16, tol: float = 0.0, binv=None):
+    """(tet (len(p),) int, -1 where none; lam (len(p), 4)): the tetrahedron of (x, tets) holding each point
+    and its barycentric coordinates, the first among the ``k`` whose centroids are nearest with every
+    coordinate >= -``tol`` (3D; enough for meshes of shape-regular tetrahedra). ``binv``: the tetrahedra's
+    inverse edge matrices, if the caller has them."""
     from scipy.spatial import cKDTree
 
+    tet = np.full(len(p), -1, np.int64)
+    lam = np.zeros((len(p), 4))
+    if not len(p) or not len(tets):
+        return tet, lam
+    X = x[tets]
+    ok = np.ones(len(tets), bool)
+    if binv is None:
+        D = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]], axis=2)
+        ok = np.abs(np.linalg.det(D)) > 1e-30
+        binv = np.zeros_like(D)
+        binv[ok] = np.linalg.inv(D[ok])
+    kq = min(len(tets), k)
+    _, cand = cKDTree(X.mean(axis=1)).query(p, k=kq)
+    cand = np.asarray(cand).reshape(len(p), kq)
+    for c in range(kq):
+        todo = np.flatnonzero(tet < 0)
+        if not len(todo):
+            break
+        e = cand[todo, c]
+        l3 = np.einsum("nij,nj->ni", binv[e], p[todo] - X[e, 0])
+        w = np.concatenate([1.0 - l3.sum(axis=1, keepdims=True), l3], axis=1)
+        hit = ok[e] & np.all(w >= -tol, axis=1)
+        tet[todo[hit]] = e[hit]
+        lam[todo[hit]] = w[hit]
+    return tet, lam
+
+
+def points_in_tets(x: np.ndarray, tets: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(len(p),) bool: which points lie in one of the tetrahedra (x, tets) (locate_in_tets)."""
     inside = np.zeros(len(p), bool)
     if not len(p) or not len(tets):
         return inside
     lo, hi = x.min(axis=0), x.max(axis=0)
     near = np.flatnonzero(np.all((p >= lo) & (p <= hi), axis=1))
-    if not len(near):
-        return inside
-    q = p[near]
-    X = x[tets]
-    D = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]], axis=2)
-    ok = np.abs(np.linalg.det(D)) > 1e-30
-    Binv = np.zeros_like(D)
-    Binv[ok] = np.linalg.inv(D[ok])
-    kq = min(len(tets), 16)
-    _, cand = cKDTree(X.mean(axis=1)).query(q, k=kq)
-    cand = np.asarray(cand).reshape(len(q), kq)
-    hit = np.zeros(len(q), bool)
-    for c in range(kq):
-        e = cand[:, c]
-        l3 = np.einsum("nij,nj->ni", Binv[e], q - X[e, 0])
-        hit |= ok[e] & np.all(l3 >= 0, axis=1) & (l3.sum(axis=1) <= 1)
-    inside[near] = hit
+    if len(near):
+        inside[near] = locate_in_tets(x, tets, p[near])[0] >= 0
     return inside
 
 
