@@ -202,14 +202,22 @@ def make_loads(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, deformable=None)
         return J
 
     @ti.func
-    def for_named_pairs(i, dt, viscous: ti.template()):
+    def for_pairs(i, dt, viscous: ti.template()):
+        """Liquid particle i's boundary neighbours that collect a load: a named collider's particles (the
+        pressure impulse, or with ``viscous`` the no-slip viscosity's) and, for the pressure, a deformable
+        body's samples (to their ``simp``)."""
         xi = x[i]
         c0 = rows(xi)
         for a in range(row ** (dim - 1)):
             lin = row_cell(c0, a)
             for b in range(bstart[lin], bstart[lin + row]):
-                kb = bcol[b]
-                if kb >= 0:
+                kb = -1
+                if ti.static(len(named) > 0):
+                    kb = bcol[b]
+                s = -1
+                if ti.static(has_db and not viscous):
+                    s = bsrc[b]
+                if kb >= 0 or s >= 0:
                     d = xi - bx[b]
                     r2 = d.dot(d)
                     if r2 < h2:
@@ -223,32 +231,18 @@ def make_loads(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, deformable=None)
                                 else:
                                     J = pair_impulse(i, b, d, g, dt)
                                 poses.add_load(k, bx[b], J, 0)
-
-    @ti.func
-    def deformable_pairs(i, dt):
-        xi = x[i]
-        c0 = rows(xi)
-        for a in range(row ** (dim - 1)):
-            lin = row_cell(c0, a)
-            for b in range(bstart[lin], bstart[lin + row]):
-                s = bsrc[b]
-                if s >= 0:
-                    d = xi - bx[b]
-                    r2 = d.dot(d)
-                    if r2 < h2:
-                        J = pair_impulse(i, b, d, gradW(d, ti.sqrt(r2)), dt)
-                        ti.atomic_add(db.simp[s], ti.cast(J, ti.f64))
+                        if ti.static(has_db and not viscous):
+                            if s >= 0:
+                                ti.atomic_add(db.simp[s], ti.cast(pair_impulse(i, b, d, g, dt), ti.f64))
 
     @ti.func
     def pressure(i, dt):
-        if ti.static(len(named) > 0):
-            for_named_pairs(i, dt, False)
-        if ti.static(has_db):
-            deformable_pairs(i, dt)
+        if ti.static(len(named) > 0 or has_db):
+            for_pairs(i, dt, False)
 
     @ti.func
     def viscous(i, dt):
         if ti.static(len(named_noslip) > 0):
-            for_named_pairs(i, dt, True)
+            for_pairs(i, dt, True)
 
     return pressure, viscous
