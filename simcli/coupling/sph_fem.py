@@ -7,14 +7,13 @@ collider, boundary.collider_particles), kept where it lies inside the rest tet m
 boundary's layers (the kernel's support) of its surface. Each sample keeps its tetrahedron's four corners
 and its barycentric weights w_a (from the rest shape's inverse edge matrix), and the lattice cell's volume.
 
-Per substep: SPH reads the samples where the coupling phase left them (x_s = sum_a w_a x_a, v_s = sum_a w_a
-v_a, the FEM vertices after the previous substep's coupling) and treats them as a collider's boundary
-particles in its density, pressure and wall-pressure sums (deformable.py); it sums, per sample, the
-impulse its pressure gave the liquid, reversed (the named colliders' load, moving.make_loads), J_s. The
-coupling phase, after both families' substep, gives each free FEM vertex a its share:
-dv_a = sum_s w_a J_s / m_a, its end position dt dv_a (as the grid contacts move an advanced position), so
-that the liquid's momentum change and the body's are equal and opposite; then it places the samples for
-the next substep. The liquid next to the body is not a free surface to SPH (it was with the grid contact
+Per substep (the coupler runs SPH's pre_couple after the FEM's): ``before_sph`` places the samples where the
+body's substep left it (x_s = sum_a w_a x_a, v_s = sum_a w_a v_a); SPH treats them as a collider's boundary
+particles in its density, pressure and wall-pressure sums (deformable.py) and sums, per sample, the impulse
+its pressure gave the liquid, reversed (the named colliders' load, moving.make_loads), J_s; ``couple`` gives
+each free FEM vertex a its share, dv_a = sum_s w_a J_s / m_a, and its end position dt dv_a (as the grid
+contacts move an advanced position), so that the liquid's momentum change and the body's are equal and
+opposite. The liquid next to the body is not a free surface to SPH (it was with the grid contact
 of particle_contact.py, which made a light body float a cell high and let the liquid creep under a slab).
 Held FEM components take no impulse. Contact is frictionless (the samples are slip boundaries).
 """
@@ -25,7 +24,7 @@ from typing import Any
 import numpy as np
 import taichi as ti
 
-from simcli.geometry.tetmesh import boundary_faces, locate_in_tets, points_in_tets, surface_points
+from simcli.geometry.tetmesh import locate_in_tets, points_in_tets
 from simcli.solvers.sph.deformable import DeformableBoundary
 
 
@@ -33,8 +32,10 @@ def fem_boundary_samples(
     fem: Any, spacing: float, depth: float
 ) -> "tuple[np.ndarray, np.ndarray, np.ndarray]":
     """(corners (n, 4) int, weights (n, 4), volumes (n,)): the lattice points of ``spacing`` inside each FEM
-    entity's rest mesh and within ``depth`` of its surface (see the module docstring)."""
-    from scipy.spatial import cKDTree
+    entity's rest mesh and within ``depth`` of its surface (see the module docstring). The depth is counted
+    on the lattice: a point's distance to the nearest lattice point outside the mesh (a Euclidean distance
+    transform), which is its distance to the surface plus half a spacing for a box fitted to the lattice."""
+    from scipy.ndimage import distance_transform_edt
 
     x0, T, B = fem.x0, fem.tets, fem.B
     corners, weights, volumes = [], [], []
@@ -47,18 +48,16 @@ def fem_boundary_samples(
         s = (hi - lo) / n
         axes = [lo[a] + s[a] * (np.arange(n[a]) + 0.5) for a in range(3)]
         p = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        # keep the points within `depth` of the surface (distance to a dense sampling of its triangles)
-        surf = surface_points(x0, boundary_faces(tk, x0), 0.25 * spacing)
-        dist, _ = cKDTree(surf).query(p)
-        p = p[dist < depth]
-        # the tetrahedron holding each point and its barycentric weights (the rest shape's edge matrices)
+        # the tetrahedron holding each point and its barycentric weights (the rest shape's edge matrices);
+        # points of the box outside a non-box mesh hold none
         tet, lam = locate_in_tets(x0, tk, p, k=32, tol=1e-9, binv=Bk)
-        inside = tet >= 0  # points of the box outside a non-box mesh are dropped here
-        corners.append(tk[tet[inside]])
-        weights.append(
-            np.clip(lam[inside], 0.0, 1.0) / np.clip(lam[inside], 0.0, 1.0).sum(axis=1, keepdims=True)
-        )
-        volumes.append(np.full(int(inside.sum()), float(np.prod(s))))
+        inside = np.pad((tet >= 0).reshape(tuple(n)), 1)  # a layer of outside points all round
+        dist = distance_transform_edt(inside, sampling=s)[1:-1, 1:-1, 1:-1].reshape(-1)
+        keep = (tet >= 0) & (dist < depth + 0.5 * s.min())
+        wk = np.clip(lam[keep], 0.0, 1.0)
+        corners.append(tk[tet[keep]])
+        weights.append(wk / wk.sum(axis=1, keepdims=True))
+        volumes.append(np.full(int(keep.sum()), float(np.prod(s))))
     if not corners:
         return np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros(0)
     return np.concatenate(corners), np.concatenate(weights), np.concatenate(volumes)
@@ -94,9 +93,6 @@ class SPHFEMBoundary:
         self.db = DeformableBoundary("FEM", x, vol, v)
         sph.attach_deformable(self.db)
         self.n = self.db.n
-        # per sample: four corner indices and weights here, position, velocity (SPH's precision) and an f64
-        # impulse in SPH; per boundary particle SPH's own fields
-        self.bytes = 0
 
     def build(self) -> None:
         fem, db = self.fem, self.db
@@ -107,6 +103,8 @@ class SPHFEMBoundary:
         if self.n:
             self.idx_f.from_numpy(self.idx)
             self.w_f.from_numpy(self.w.astype(fem.npf))
+        # per sample: four corner indices and weights here; position, velocity (SPH's precision) and an f64
+        # impulse in SPH (SPH's boundary particle fields besides)
         fb = 8 if f == ti.f64 else 4
         self.bytes = self.n * (4 * 4 + 4 * fb + 2 * 3 * fb + 3 * 8)
         x, v, mass, free = fem.x, fem.v, fem.mass_f, fem.free_f

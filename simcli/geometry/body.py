@@ -38,6 +38,21 @@ class Body:
         self.mass = np.ascontiguousarray(self.mass, dtype=np.float64).reshape(n)
         self.fixed = np.ascontiguousarray(self.fixed, dtype=bool).reshape(n)
 
+    def kept(self, keep: np.ndarray, x: np.ndarray | None = None, v: np.ndarray | None = None) -> Body:
+        """The body with the particles where ``keep`` holds (positions ``x`` and velocities ``v`` instead of
+        its own where given, before the selection)."""
+        x = self.x if x is None else x
+        v = self.v if v is None else v
+        return Body(
+            name=self.name,
+            entity=self.entity,
+            x=x[keep],
+            v=v[keep],
+            volume=self.volume[keep],
+            mass=self.mass[keep],
+            fixed=self.fixed[keep],
+        )
+
     @property
     def n(self) -> int:
         return int(self.x.shape[0])

@@ -121,20 +121,6 @@ def boundary_faces(tets: np.ndarray, x: np.ndarray) -> np.ndarray:
     return faces
 
 
-def surface_points(x: np.ndarray, tris: np.ndarray, spacing: float) -> np.ndarray:
-    """Points on the triangles (x, tris) no farther than ``spacing`` apart along each triangle's edges (a
-    distance-to-surface reference: its error is below ``spacing``)."""
-    pts = [x[tris].reshape(-1, 3)]
-    for t in tris:
-        a, b, c = x[t]
-        longest = max(np.linalg.norm(b - a), np.linalg.norm(c - a), np.linalg.norm(c - b))
-        m = max(1, int(math.ceil(longest / spacing)))
-        i, j = np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij")
-        keep = i + j <= m
-        pts.append(a + np.outer(i[keep] / m, b - a) + np.outer(j[keep] / m, c - a))
-    return np.concatenate(pts)
-
-
 def locate_in_tets(x: np.ndarray, tets: np.ndarray, p: np.ndarray, k: int = 16, tol: float = 0.0, binv=None):
     """(tet (len(p),) int, -1 where none; lam (len(p), 4)): the tetrahedron of (x, tets) holding each point
     and its barycentric coordinates, the first among the ``k`` whose centroids are nearest with every

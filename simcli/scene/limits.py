@@ -442,9 +442,8 @@ def check_overlaps(loaded) -> tuple[list[str], list[str]]:
                     f"{head}warning: {text}; the liquid's particles inside the FEM body are removed at the "
                     "start"
                 )
-            elif coupled(
-                s, a.family, b.family
-            ):  # coupled families push each other apart in the first substeps
+            elif coupled(s, a.family, b.family):
+                # coupled families push each other apart in the first substeps
                 warns.append(
                     f"{head}warning: {text}; {a.family} and {b.family} push each other out at the start"
                 )

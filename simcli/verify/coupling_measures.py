@@ -112,8 +112,7 @@ def depth_inside(f, entity, other, spacing, **_):
     for each particle of ``other`` inside the bounding box of ``entity``, its distance to the box's nearest
     face (0 when none is inside). For a convex, roughly box-shaped body (a block), an upper bound of how deep
     the other material went in. A tet mesh (FEM, a PBD soft body) is tested exactly in its deformed shape: the
-    particles inside one of its tetrahedra, each one's distance to the mesh's surface (to points on the
-    surface triangles no more than a twentieth of ``spacing`` apart)."""
+    particles inside one of its tetrahedra, each one's distance to the mesh's surface triangles."""
     a = _pos(f, entity)
     b = _pos(f, other)
     _, g = entity_group(f, entity)
@@ -133,18 +132,15 @@ def depth_inside(f, entity, other, spacing, **_):
 
 
 def _depth_in_tets(x: np.ndarray, tets: np.ndarray, p: np.ndarray) -> float:
-    """How deep the deepest point of ``p`` lies inside the tet mesh (x, tets) [m]; 0 when none is inside."""
-    from scipy.spatial import cKDTree
-
-    from simcli.geometry.tetmesh import boundary_faces, points_in_tets, surface_points
+    """How deep the deepest point of ``p`` lies inside the tet mesh (x, tets) [m]: its exact distance to the
+    mesh's surface triangles; 0 when none is inside."""
+    from simcli.collider_mesh import mesh_distance
+    from simcli.geometry.tetmesh import boundary_faces, points_in_tets
 
     q = p[points_in_tets(x, tets, p)]
     if not len(q):
         return 0.0
-    edge = float(np.median(np.linalg.norm(x[tets[:, 1]] - x[tets[:, 0]], axis=1)))
-    surf = surface_points(x, boundary_faces(tets, x), 0.05 * edge)
-    d, _ = cKDTree(surf).query(q)
-    return float(d.max())
+    return float(mesh_distance(x, boundary_faces(tets, x), q).max())
 
 
 @measurement("speed_excess")

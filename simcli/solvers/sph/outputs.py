@@ -10,9 +10,10 @@ with stdout_to_stderr():
     import taichi as ti
 
 
-def make_outputs(P: SPHParams, F: SPHFields, fn: SPHFuncs, nbodies: int):
+def make_outputs(P: SPHParams, F: SPHFields, fn: SPHFuncs, nbodies: int, deformable=None):
     """``(frame_stats, density_only, dt_stats)`` kernels; needs ``fn.neighbours_density`` (and
-    ``fn.move_boundary`` with a moving boundary)."""
+    ``fn.move_boundary`` with a moving boundary). ``deformable``: a DeformableBoundary (deformable.py) whose
+    samples' speed dt_stats counts too, or None."""
     nb = nbodies
     x, v, rho, mid, mat_rho0 = F.x, F.v, F.rho, F.mid, F.mat_rho0
     body_offsets, stat_speed, stat_bad, pid = F.body_offsets, F.stat_speed, F.stat_bad, F.pid
@@ -48,11 +49,15 @@ def make_outputs(P: SPHParams, F: SPHFields, fn: SPHFuncs, nbodies: int):
 
     stat_dt = F.stat_dt
     wcsph = P.pressure_solver == "WCSPH"
+    db = deformable
+    has_db = db is not None
+    n_db = db.n if has_db else 0
 
     @ti.kernel
     def dt_stats():
         """stable_dt's inputs in one launch (before every substep with sim.auto_check: substep): the
-        largest finite particle speed, and for WCSPH the largest rho / rho0 (global reductions, cheaper
+        largest finite particle speed (a deformable body's samples' included: its surface must not cross more
+        than cfl ps in a substep either), and for WCSPH the largest rho / rho0 (global reductions, cheaper
         than frame_stats' per-body atomics)."""
         stat_dt[0] = 0.0
         stat_dt[1] = 0.0
@@ -62,5 +67,10 @@ def make_outputs(P: SPHParams, F: SPHFields, fn: SPHFuncs, nbodies: int):
                 ti.atomic_max(stat_dt[0], vi.norm())
             if ti.static(wcsph):
                 ti.atomic_max(stat_dt[1], rho[i] / mat_rho0[mid[i]])
+        if ti.static(has_db):
+            for s in range(n_db):
+                vs = db.sv[s]
+                if finite(vs):
+                    ti.atomic_max(stat_dt[0], vs.norm())
 
     return frame_stats, density_only, dt_stats

@@ -198,18 +198,7 @@ class SPHSolver(Solver):
                     f"({mass:.4g} {unit}, {100.0 * k / b.n:.3g}%; {why}). Move the entity out of the "
                     "collider to keep them" + ("" if push else ", or set inside_colliders: push_out")
                 )
-            keep = ~drop
-            out.append(
-                Body(
-                    name=b.name,
-                    entity=b.entity,
-                    x=x[keep],
-                    v=v[keep],
-                    volume=b.volume[keep],
-                    mass=b.mass[keep],
-                    fixed=b.fixed[keep],
-                )
-            )
+            out.append(b.kept(~drop, x, v))
         return out
 
     def remove_inside(self, inside: Any, what: str) -> None:
@@ -238,16 +227,7 @@ class SPHSolver(Solver):
                     f"{b.name}: {k} of {b.n} particles were sampled inside {what} and removed "
                     f"({mass:.4g} kg, {100.0 * k / b.n:.3g}%). Move the entity out of it to keep them"
                 )
-                keep = ~drop
-                b = Body(
-                    name=b.name,
-                    entity=b.entity,
-                    x=b.x[keep],
-                    v=b.v[keep],
-                    volume=b.volume[keep],
-                    mass=b.mass[keep],
-                    fixed=b.fixed[keep],
-                )
+                b = b.kept(~drop)
             out.append(b)
         self.bodies = out
         self.offsets = np.cumsum([0] + [b.n for b in out]).astype(np.int64)
@@ -742,7 +722,7 @@ class SPHSolver(Solver):
             fn.load_pressure, fn.load_viscous = self.vmap.make_loads(P, F, fn, self.poses)
         elif P.named_loads:
             fn.load_pressure, fn.load_viscous = make_loads(P, F, fn, self.poses, db)
-        self._frame_stats, self._density_only, self._dt_stats = make_outputs(P, F, fn, len(self.bodies))
+        self._frame_stats, self._density_only, self._dt_stats = make_outputs(P, F, fn, len(self.bodies), db)
         if P.dfsph:
             self._substep, self._couple_phases = make_dfsph(P, F, fn, self.dfsph_stats, self.n_live)
             self._pressure_from_density = None
@@ -851,10 +831,6 @@ class SPHSolver(Solver):
             return self.opts.max_substep
         if self.poses.any_moving:  # a moving collider's surface must not cross more than cfl ps either
             vmax = max(vmax, self.poses.max_surface_speed(self.time))
-        if self.deformable is not None and self.deformable.n and self._built:  # nor a deformable body's
-            sv = self.deformable.sv.to_numpy()[: self.deformable.n].astype(np.float64)
-            vs = float(np.sqrt((sv * sv).sum(axis=1)).max())
-            vmax = max(vmax, vs) if math.isfinite(vs) else vmax
         # gravity cannot add more than g t over the horizon, nor more than a free fall across the domain
         v_est = min(vmax + self.g_norm * horizon, math.sqrt(vmax**2 + 2.0 * self.g_norm * self.fall_height))
         c = 0.0
