@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import taichi as ti
 
+from simcli.coupling.samples import box_lattice, surface_band
 from simcli.geometry.tetmesh import locate_in_tets, points_in_tets
 from simcli.solvers.sph.deformable import DeformableBoundary
 
@@ -35,8 +36,6 @@ def fem_boundary_samples(
     entity's rest mesh and within ``depth`` of its surface (see the module docstring). The depth is counted
     on the lattice: a point's distance to the nearest lattice point outside the mesh (a Euclidean distance
     transform), which is its distance to the surface plus half a spacing for a box fitted to the lattice."""
-    from scipy.ndimage import distance_transform_edt
-
     x0, T, B = fem.x0, fem.tets, fem.B
     corners, weights, volumes = [], [], []
     for k in range(len(fem.entities)):
@@ -44,16 +43,11 @@ def fem_boundary_samples(
         Bk = B[fem.toffsets[k] : fem.toffsets[k + 1]]
         verts = np.unique(tk)
         lo, hi = x0[verts].min(axis=0), x0[verts].max(axis=0)
-        n = np.maximum(1, np.floor((hi - lo) / spacing + 0.5)).astype(int)
-        s = (hi - lo) / n
-        axes = [lo[a] + s[a] * (np.arange(n[a]) + 0.5) for a in range(3)]
-        p = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        p, n, s = box_lattice(lo, hi, spacing)
         # the tetrahedron holding each point and its barycentric weights (the rest shape's edge matrices);
         # points of the box outside a non-box mesh hold none
         tet, lam = locate_in_tets(x0, tk, p, k=32, tol=1e-9, binv=Bk)
-        inside = np.pad((tet >= 0).reshape(tuple(n)), 1)  # a layer of outside points all round
-        dist = distance_transform_edt(inside, sampling=s)[1:-1, 1:-1, 1:-1].reshape(-1)
-        keep = (tet >= 0) & (dist < depth + 0.5 * s.min())
+        keep = surface_band(tet >= 0, n, s, depth)
         wk = np.clip(lam[keep], 0.0, 1.0)
         corners.append(tk[tet[keep]])
         weights.append(wk / wk.sum(axis=1, keepdims=True))
@@ -68,6 +62,7 @@ class SPHFEMBoundary:
     samples the body and attaches the samples to SPH, whose build allocates them)."""
 
     name = "sph_fem"
+    method = "boundary_particles"
 
     def __init__(self, sph: Any, fem: Any) -> None:
         self.sph, self.fem = sph, fem
@@ -111,12 +106,13 @@ class SPHFEMBoundary:
         sx, sv, simp = db.sx, db.sv, db.simp
         idx_f, w_f = self.idx_f, self.w_f
         ns = self.n
+        off = db.offset  # its first sample in SPH's samples (another body may share them: deformable.py)
 
         @ti.kernel
         def couple(dt: f):
             for s in range(ns):  # the liquid's impulse on each sample, to its tetrahedron's corners
-                J = ti.cast(simp[s], f)
-                simp[s] = ti.Vector.zero(ti.f64, 3)
+                J = ti.cast(simp[off + s], f)
+                simp[off + s] = ti.Vector.zero(ti.f64, 3)
                 for a in ti.static(range(4)):
                     k = idx_f[s][a]
                     dv = (w_f[s][a] / mass[k]) * J * free[k]
@@ -132,8 +128,8 @@ class SPHFEMBoundary:
                     k = idx_f[s][a]
                     xs += w_f[s][a] * x[k]
                     vs += w_f[s][a] * v[k]
-                sx[s] = xs
-                sv[s] = vs
+                sx[off + s] = xs
+                sv[off + s] = vs
 
         self._couple, self._place = couple, place
 

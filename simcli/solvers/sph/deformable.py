@@ -10,6 +10,10 @@ impulse the liquid's pressure gives it (``simp``, summed in f64 by moving.make_l
 impulse as a named collider's load; the coupling phase hands it to the body's vertices and clears it).
 The samples are re-sorted into the cells every substep with the moving boundary; ``bsrc`` (per boundary
 particle, in cell order) names each one's sample, -1 for walls and colliders.
+
+Several bodies (an FEM body and an MPM body in one liquid) are joined into one set of samples
+(``DeformableBoundary.joined``): each part keeps its own numbering, starting at its ``offset`` in the joined
+fields, which it shares.
 """
 
 from __future__ import annotations
@@ -33,6 +37,26 @@ class DeformableBoundary:
         self.velocity = np.asarray(velocity, dtype=np.float64)
         self.n = int(self.x.shape[0])
         self.sx = self.sv = self.simp = None
+        self.offset = 0  # this body's first sample in the fields (several bodies: ``joined``)
+        self.parts = [self]
+
+    @classmethod
+    def joined(cls, parts: "list[DeformableBoundary]") -> "DeformableBoundary":
+        """One set of samples for several bodies, in order; each part's ``offset`` is its first sample, and
+        ``allocate`` hands every part the joined fields."""
+        flat = [q for p in parts for q in p.parts]
+        db = cls(
+            "+".join(q.name for q in flat),
+            np.concatenate([q.x for q in flat]),
+            np.concatenate([q.volume for q in flat]),
+            np.concatenate([q.velocity for q in flat]),
+        )
+        db.parts = flat
+        off = 0
+        for q in flat:
+            q.offset = off
+            off += q.n
+        return db
 
     def allocate(self, dim: int, f, npf) -> None:
         """The fields (SPH's build): positions and velocities in SPH's precision, impulses in f64."""
@@ -43,3 +67,6 @@ class DeformableBoundary:
         if self.n:
             self.sx.from_numpy(self.x.astype(npf))
             self.sv.from_numpy(self.velocity.astype(npf))
+        for q in self.parts:
+            if q is not self:
+                q.sx, q.sv, q.simp = self.sx, self.sv, self.simp

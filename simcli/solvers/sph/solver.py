@@ -238,12 +238,19 @@ class SPHSolver(Solver):
 
     def attach_deformable(self, db: Any) -> None:
         """Another family's body as boundary particles (deformable.py): called before build by a coupling
-        pair (simcli/coupling/sph_fem.py). Only with boundary particles (not volume maps)."""
+        pair (simcli/coupling/sph_fem.py, mpm_sph.py). Only with boundary particles (not volume maps). A
+        second body joins the first (``DeformableBoundary.joined``: each keeps its offset into the shared
+        fields)."""
         if self._built:
             raise RuntimeError("SPH: a deformable boundary is attached before build")
         if self.opts.boundary != "particles":
             raise ValueError("SPH: a deformable boundary needs solvers.sph.boundary: particles")
-        self.deformable = db
+        if self.deformable is None:
+            self.deformable = db
+        else:
+            from simcli.solvers.sph.deformable import DeformableBoundary
+
+            self.deformable = DeformableBoundary.joined([self.deformable, db])
 
     @staticmethod
     def _rest_volume(scene: Any) -> float:
