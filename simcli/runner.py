@@ -458,6 +458,7 @@ class Runner:
         if coupler is not None:
             coupler.build()
             self.info["coupling"] = coupler.names
+            self.info["coupling_methods"] = coupler.methods
         for s in solvers:  # what a solver changed of the scene as given (e.g. SPH particles in a collider)
             for w in s.warnings:
                 self.warn(w)

@@ -44,6 +44,10 @@ class MpmPbd:
     def bytes(self) -> int:
         return int(getattr(self.contact, "bytes", 0))
 
+    @property
+    def method(self) -> str:
+        return "sheet_contact" if isinstance(self.contact, SheetContact) else "grid_contact"
+
     def build(self) -> None:
         self.contact = _grid(self.mpm, self.pbd) if _volumetric(self.pbd) else _sheet(self.mpm, self.pbd)
 

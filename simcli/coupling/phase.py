@@ -104,6 +104,12 @@ class Coupler:
     def names(self) -> list[str]:
         return [p.name for p in self.pairs]
 
+    @property
+    def methods(self) -> dict[str, str]:
+        """Each pair's method (run.json ``coupling_methods``): ``boundary_particles`` (sph_fem.py,
+        mpm_sph.py), ``sheet_contact`` (MPM-PBD cloth, rope, soft-body vertices) or ``grid_contact``."""
+        return {p.name: str(getattr(p, "method", "grid_contact")) for p in self.pairs}
+
     def prepare(self) -> None:
         """Before the solvers' build: what a pair must give a solver to build with (sph_fem.py: the FEM
         body's samples as SPH boundary particles)."""

@@ -36,6 +36,30 @@ def sph_fem_by_particles(scene: Any) -> bool:
     )
 
 
+# MPM materials that meet SPH as boundary particles (mpm_sph_by_particles): solids, whose particles keep their
+# neighbours; sand and liquid (which mix with the water, and whose grains the liquid would otherwise fill
+# around) keep the grid contact
+MPM_SAMPLED = ("MPM.Elastic", "MPM.ElastoPlastic", "MPM.Snow", "MPM.Muscle")
+
+
+def mpm_sph_by_particles(scene: Any) -> bool:
+    """Whether SPH meets the MPM bodies as boundary particles (simcli/coupling/mpm_sph.py: every MPM particle
+    a sample in SPH's boundary), not by the grid contact: a 3D scene with SPH's boundary particles, whose
+    MPM entities are all solids (MPM_SAMPLED) with a fixed set of particles (no MPM emitter, no sink)."""
+    sph = getattr(scene.solvers, "sph", None)
+    types = {e.material.type for e in scene.entities if e.family == "MPM"}
+    return (
+        coupled(scene, "MPM", "SPH")
+        and int(scene.sim.dim) == 3
+        and sph is not None
+        and getattr(sph, "boundary", "particles") == "particles"
+        and bool(types)
+        and types <= set(MPM_SAMPLED)
+        and not getattr(scene, "sinks", None)
+        and not any(em.family == "MPM" for em in getattr(scene, "emitters", None) or [])
+    )
+
+
 # families no coupling pair covers yet: their entities pass through every other family's (a warning says so)
 UNCOUPLED = {"FEMCloth": "FEM.Cloth", "SF": "SF"}
 

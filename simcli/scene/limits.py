@@ -21,7 +21,7 @@ import re
 
 import numpy as np
 
-from simcli.scene.coupling import coupled, coupling_warnings, sph_fem_by_particles
+from simcli.scene.coupling import coupled, coupling_warnings, mpm_sph_by_particles, sph_fem_by_particles
 
 # ------------------------------------------------------------------ bounds
 
@@ -440,6 +440,11 @@ def check_overlaps(loaded) -> tuple[list[str], list[str]]:
             if {a.family, b.family} == {"SPH", "FEM"} and sph_fem_by_particles(s):
                 warns.append(  # the FEM body is SPH boundary particles (simcli/coupling/sph_fem.py)
                     f"{head}warning: {text}; the liquid's particles inside the FEM body are removed at the "
+                    "start"
+                )
+            elif {a.family, b.family} == {"SPH", "MPM"} and mpm_sph_by_particles(s):
+                warns.append(  # the MPM body is SPH boundary particles (simcli/coupling/mpm_sph.py)
+                    f"{head}warning: {text}; the liquid's particles inside the MPM body are removed at the "
                     "start"
                 )
             elif coupled(s, a.family, b.family):
