@@ -17,10 +17,10 @@
   again from where it started, with the impulses in, as g2p will move the particles (a sample that kept the
   velocity before them lagged its body by dt^2 |dv| a substep, and drifted out of it). Frictionless, as the
   walls' slip.
-- **Grid contact** (otherwise: 2D, volume maps, sand or liquid MPM, MPM emitters or sinks): SPH particles
-  meet the MPM grid as the second material of a grid contact (grid_contact.py). Phase order: MPM p2g +
-  grid_update | SPH neighbours, forces and pressure solve (the velocity at the substep's end) -> couple on
-  the MPM grid (both velocities edited) -> MPM g2p | SPH advect.
+- **Grid contact** (otherwise: 2D, volume maps, sand or liquid MPM, MPM emitters or sinks, pinned MPM):
+  SPH particles meet the MPM grid as the second material of a grid contact (grid_contact.py). Phase order:
+  MPM p2g + grid_update | SPH neighbours, forces and pressure solve (the velocity at the substep's end) ->
+  couple on the MPM grid (both velocities edited) -> MPM g2p | SPH advect.
 """
 
 import math

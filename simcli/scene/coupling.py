@@ -45,9 +45,12 @@ MPM_SAMPLED = ("MPM.Elastic", "MPM.ElastoPlastic", "MPM.Snow", "MPM.Muscle")
 def mpm_sph_by_particles(scene: Any) -> bool:
     """Whether SPH meets the MPM bodies as boundary particles (simcli/coupling/mpm_sph.py: every MPM particle
     a sample in SPH's boundary), not by the grid contact: a 3D scene with SPH's boundary particles, whose
-    MPM entities are all solids (MPM_SAMPLED) with a fixed set of particles (no MPM emitter, no sink)."""
+    MPM entities are all solids (MPM_SAMPLED) with a fixed set of particles (no MPM emitter, no sink) and
+    none pinned (``fixed``: a pinned node's velocity is reset every substep, so the liquid's impulse there
+    would move the samples and not the body)."""
     sph = getattr(scene.solvers, "sph", None)
-    types = {e.material.type for e in scene.entities if e.family == "MPM"}
+    ents = [e for e in scene.entities if e.family == "MPM"]
+    types = {e.material.type for e in ents}
     return (
         coupled(scene, "MPM", "SPH")
         and int(scene.sim.dim) == 3
@@ -55,6 +58,7 @@ def mpm_sph_by_particles(scene: Any) -> bool:
         and getattr(sph, "boundary", "particles") == "particles"
         and bool(types)
         and types <= set(MPM_SAMPLED)
+        and all(getattr(e, "fixed", None) is None for e in ents)
         and not getattr(scene, "sinks", None)
         and not any(em.family == "MPM" for em in getattr(scene, "emitters", None) or [])
     )

@@ -406,10 +406,11 @@ class Coupling(Strict):
 
     mpm_sph: bool = Field(
         True,
-        description="MPM <-> SPH (two-way, momentum conserving): in 3D, MPM solids (Elastic, ElastoPlastic, "
-        "Snow, Muscle; no MPM emitter or sink) as SPH boundary particles (Akinci et al. 2012: samples on "
-        "SPH's lattice moved by MPM's grid, the liquid's pressure impulse back to its nodes); otherwise (2D, "
-        "sand, liquid, solvers.sph.boundary: volume_map) a contact on the MPM grid.",
+        description="MPM <-> SPH (two-way, momentum conserving): in 3D, MPM solids (Elastic, "
+        "ElastoPlastic, Snow, Muscle; no MPM emitter or sink, none pinned) as SPH boundary particles "
+        "(Akinci et al. 2012: samples on SPH's lattice moved by MPM's grid, the liquid's pressure impulse "
+        "back to its nodes); otherwise (2D, sand, liquid, solvers.sph.boundary: volume_map) a contact on the "
+        "MPM grid.",
     )
     mpm_pbd: bool = Field(
         True, description="MPM <-> PBD: contact on the MPM grid (two-way, momentum conserving)."

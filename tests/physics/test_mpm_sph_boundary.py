@@ -85,6 +85,10 @@ def test_the_rule_takes_boundary_particles_for_3d_solids_only():
     )
     assert not mpm_sph_by_particles(_scene(sink))
     assert not mpm_sph_by_particles(_scene(text.replace("probes:", "coupling: {mpm_sph: false}\nprobes:")))
+    # pinned MPM particles: a pinned node's velocity is reset every substep, the samples would drift
+    pin = "    fixed: {type: Box, lower: [0.06, 0.12, 0.12], upper: [0.07, 0.18, 0.18]}\n"
+    pinned = text.replace("    velocity: [1.0, 0.0, 0.0]\n", "    velocity: [1.0, 0.0, 0.0]\n" + pin, 1)
+    assert "fixed:" in pinned and not mpm_sph_by_particles(_scene(pinned))
 
 
 def test_the_samples_of_an_mpm_box_are_sphs_lattice_near_its_surface():
