@@ -11,7 +11,10 @@ instead of prescribed, a rigid body, goes the same way).
   the boundary condition where the static walls' velocity did: DFSPH's density rate (sum_b V_b v_b .
   grad W_ib, so the pressure solves make the liquid's normal velocity follow the wall) and no-slip
   viscosity; WCSPH sees the wall through the density sum it compresses. A moving collider makes every
-  cell test for boundary neighbours (``bnear`` all set).
+  cell test for boundary neighbours (``bnear`` all set); a deformable body's samples alone (no moving
+  collider) mark the cells within reach of each sample every substep, beside the walls' fixed ones
+  (``mark_near``), so the liquid far from every boundary skips the scan as with static walls (C1, an MPM duck
+  in a water box: the substep about 14% faster).
 * **No particle inside.** The advection's last guard pushes a particle that ended inside a collider
   (its body-frame signed distance at the substep's end pose, slot 1) onto its surface and removes its
   normal velocity into the surface relative to the surface's own velocity (boundary.make_pushout).
@@ -61,14 +64,21 @@ def moving_bounds(spec, lo, hi) -> tuple[np.ndarray, np.ndarray]:
     return lo - ext, hi + ext
 
 
-def make_moving_boundary(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, grid, deformable=None):
+def make_moving_boundary(
+    P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, grid, deformable=None, near_static=None
+):
     """``move()`` (a Taichi func, called at kernel scope before the liquid's sort): every moving collider's
     boundary particles to the substep's middle pose, with the surface velocity, then the boundary
     particles re-sorted into the cells. Fields moved along by the sort: position, volume, velocity,
     no-slip flag, body-frame position, collider index, a deformable body's sample index, and WCSPH's
     relaxing wall pressure (``fn.wall_pressure`` must be built). ``poses``: the solver's ColliderPoses;
     ``grid``: its CellGrid; ``deformable``: a DeformableBoundary (deformable.py) or None: its samples take
-    the positions and velocities the coupling phase left in its ``sx``, ``sv``."""
+    the positions and velocities the coupling phase left in its ``sx``, ``sv``. ``near_static``: with only
+    a deformable body's samples moving, the cells with a wall or static collider particle in reach (the
+    solver's ``bnear`` before the samples): ``mark_near`` (a Taichi func, called by ``move`` after the sort,
+    and after a checkpoint's restore) sets ``F.bnear`` to it plus the cells within reach of a sample, so that
+    the liquid far from every boundary skips the boundary scan as with static walls. Returns
+    (move, mark_near); mark_near is None without ``near_static``."""
     from simcli.solvers.sph.neighbours import make_neighbour_funcs
 
     f, dim, nbp = P.f, P.dim, max(1, P.nbp)
@@ -92,7 +102,7 @@ def make_moving_boundary(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, grid, 
     if wp is not None and wp.pbar is not None:
         move.append(wp.pbar)
         tmp.append(ti.field(f, shape=nbp))
-    sort, _, _ = make_neighbour_funcs(
+    sort, cell_coords, linear = make_neighbour_funcs(
         grid,
         f,
         P.cpu,
@@ -111,6 +121,20 @@ def make_moving_boundary(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, grid, 
 
     db = deformable
     has_db = db is not None
+    dyn_near = has_db and near_static is not None
+    mark_near = None
+    if dyn_near:
+        bnear, ncells, R, ns = F.bnear, grid.ncells, grid.R, db.n
+        side = 2 * R + 1
+        hi_c = ti.Vector([d - 1 for d in grid.dims])
+
+        @ti.func
+        def mark_near():
+            for c in range(ncells):
+                bnear[c] = near_static[c]
+            for s, k in ti.ndrange(ns, side**dim):  # a sample is in reach of the liquid within R cells of it
+                o = ti.Vector([(k // side**d) % side - R for d in ti.static(range(dim))])
+                bnear[linear(ti.min(ti.max(cell_coords(db.sx[s]) + o, 0), hi_c))] = ti.cast(1, ti.i8)
 
     @ti.func
     def move_boundary():
@@ -130,8 +154,10 @@ def make_moving_boundary(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, grid, 
                     bx[b] = db.sx[s]
                     bvel[b] = db.sv[s]
         sort(n_b)
+        if ti.static(dyn_near):
+            mark_near()
 
-    return move_boundary
+    return move_boundary, mark_near
 
 
 def make_loads(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, deformable=None):

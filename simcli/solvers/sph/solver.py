@@ -454,8 +454,17 @@ class SPHSolver(Solver):
         deform = db is not None and db.n > 0
         self.moving_boundary = (self.poses.any_moving or deform) and self.nbp > 0
         self.named_loads = (self.poses.any_named or deform) and (self.nbp > 0 or self.vmap is not None)
-        if self.moving_boundary:  # every cell may have a moving boundary particle in reach
+        # which cells have a boundary particle in reach (density.py skips the boundary scan elsewhere): with a
+        # moving collider every cell may; with only a deformable body's samples moving, the walls' and static
+        # colliders' cells (kept here) and the samples' own, marked again every substep (moving.py)
+        self.bnear_static = None
+        if self.moving_boundary and self.poses.any_moving:
             self.bnear.fill(1)
+        elif self.moving_boundary:
+            fixed = keep & (src < 0)
+            occupied = np.bincount(grid.cell_index_np(bp.x[fixed]), minlength=grid.ncells) > 0
+            self.bnear_static = ti.field(ti.i8, shape=grid.ncells)
+            self.bnear_static.from_numpy(grid.dilate(occupied).astype(np.int8))
 
         # materials and run-time parameters
         nm = len(self.materials)
@@ -724,7 +733,16 @@ class SPHSolver(Solver):
         self.wall_pressure = fn.wall_pressure
         db = self.deformable if (self.deformable is not None and self.deformable.n) else None
         if P.moving_boundary:
-            fn.move_boundary = make_moving_boundary(P, F, fn, self.poses, self.grid, db)
+            fn.move_boundary, mark_near = make_moving_boundary(
+                P, F, fn, self.poses, self.grid, db, self.bnear_static
+            )
+            if self.bnear_static is not None:
+
+                @ti.kernel
+                def refresh_near():
+                    mark_near()
+
+                self._refresh_near = refresh_near
         if P.named_loads and self.vmap is not None:  # the named static colliders' maps (volume_map.py)
             fn.load_pressure, fn.load_viscous = self.vmap.make_loads(P, F, fn, self.poses)
         elif P.named_loads:
@@ -991,6 +1009,8 @@ class SPHSolver(Solver):
                 )
                 raise ValueError(f"SPH state {k!r}: shape {arr.shape} does not fit {fld.shape}{hint}")
             fld.from_numpy(arr.astype(np.int32 if k in ("mid", "pid") else self.npf))
+        if getattr(self, "_refresh_near", None) is not None:  # the restored samples' cells (moving.py)
+            self._refresh_near()
         if "rho" not in state:
             self._density_only()  # sorts every per-particle field along: after all of them are loaded
         if "time" in state:
