@@ -31,6 +31,7 @@ import taichi as ti
 
 from simcli.coupling.grid_contact import GridContact, ParticleSet
 from simcli.scene.coupling import mpm_sph_by_particles
+from simcli.solvers.mpm.stencil import build_stencil
 from simcli.solvers.sph.deformable import DeformableBoundary
 
 
@@ -59,66 +60,63 @@ def sph_particle_set(sph: Any) -> ParticleSet:
     )
 
 
-def mpm_boundary_samples(
-    mpm: Any, spacing: float, depth: float
-) -> "tuple[np.ndarray, np.ndarray, np.ndarray]":
-    """(positions (m, 3), velocities (m, 3), volumes (m,)): per MPM body, the lattice of ``spacing`` fitted to
-    its box (its particles' extent plus half their spacing) kept where it lies in the body (within a
-    particle's cell of one, by the max-norm) and within ``depth`` of its surface; each point takes its nearest
-    particle's velocity."""
-    from scipy.spatial import cKDTree
+class ParticleBody:
+    """An MPM body's particles at the start, as the samples need them: their spacing ``h`` [m] (the median
+    distance to the nearest neighbour on a lattice, whose particles' volumes are scaled to the shape's, a
+    little off the lattice's cell; else vol^(1/dim)), ``inside(p)`` (within a particle's cell, max-norm half
+    the spacing, more for jittered or Poisson-disk particles; a point on the face between two cells, where
+    SPH's lattice at twice the particles' spacing lands, counts: the reach is 5% over the half) and
+    ``nearest(p)`` (the index of the nearest particle). One k-d tree per body."""
 
+    def __init__(self, mpm: Any, b: Any) -> None:
+        from scipy.spatial import cKDTree
+
+        self.x = np.asarray(b.x, np.float64)
+        self.v = np.asarray(b.v, np.float64)
+        self.tree = cKDTree(self.x)
+        lattice = getattr(mpm.scene.solvers.mpm, "sampling", "lattice") == "lattice"
+        if lattice and len(self.x) > 1:
+            d, _ = self.tree.query(self.x, k=2)
+            self.h = float(np.median(d[:, 1]))
+        else:
+            self.h = float(np.median(b.volume)) ** (1.0 / mpm.dim)
+        self.reach = (0.525 if lattice else 0.8) * self.h
+
+    def inside(self, p: np.ndarray) -> np.ndarray:
+        p = np.asarray(p, dtype=np.float64)
+        if not len(p):
+            return np.zeros(0, bool)
+        d, _ = self.tree.query(p, p=np.inf)
+        return d < self.reach
+
+    def nearest(self, p: np.ndarray) -> np.ndarray:
+        return self.tree.query(np.asarray(p, dtype=np.float64))[1]
+
+
+def particle_bodies(mpm: Any) -> "list[ParticleBody]":
+    return [ParticleBody(mpm, b) for b in mpm.bodies if b.n]
+
+
+def mpm_boundary_samples(
+    mpm: Any, spacing: float, depth: float, bodies: "list[ParticleBody] | None" = None
+) -> "tuple[np.ndarray, np.ndarray, np.ndarray]":
+    """(positions (m, 3), velocities (m, 3), volumes (m,)): per MPM body (``bodies``, made here if not given),
+    the lattice of ``spacing`` fitted to its box (its particles' extent plus half their spacing) kept where it
+    lies in the body and within ``depth`` of its surface; each point takes its nearest particle's velocity."""
     from simcli.coupling.samples import box_lattice, surface_band
 
     xs, vs, vols = [], [], []
-    for b in mpm.bodies:
-        if not b.n:
-            continue
-        inside = body_inside(mpm, b)
-        h = particle_spacing(mpm, b)
-        lo, hi = b.x.min(axis=0) - 0.5 * h, b.x.max(axis=0) + 0.5 * h
+    for pb in particle_bodies(mpm) if bodies is None else bodies:
+        lo, hi = pb.x.min(axis=0) - 0.5 * pb.h, pb.x.max(axis=0) + 0.5 * pb.h
         p, n, s = box_lattice(lo, hi, spacing)
-        keep = surface_band(inside(p), n, s, depth)
-        _, k = cKDTree(b.x).query(p[keep])
+        keep = surface_band(pb.inside(p), n, s, depth)
         xs.append(p[keep])
-        vs.append(np.asarray(b.v, np.float64)[k])
+        vs.append(pb.v[pb.nearest(p[keep])])
         vols.append(np.full(int(keep.sum()), float(np.prod(s))))
     if not xs:
         z = np.zeros((0, mpm.dim))
         return z, z, np.zeros(0)
     return np.concatenate(xs), np.concatenate(vs), np.concatenate(vols)
-
-
-def particle_spacing(mpm: Any, b: Any) -> float:
-    """MPM body ``b``'s particle spacing [m]: the median distance to the nearest neighbour on a lattice (the
-    particles' volumes are scaled to the shape's, a little off the lattice's cell), else vol^(1/dim)."""
-    from scipy.spatial import cKDTree
-
-    if getattr(mpm.scene.solvers.mpm, "sampling", "lattice") == "lattice" and b.n > 1:
-        d, _ = cKDTree(np.asarray(b.x, np.float64)).query(b.x, k=2)
-        return float(np.median(d[:, 1]))
-    return float(np.median(b.volume)) ** (1.0 / mpm.dim)
-
-
-def body_inside(mpm: Any, b: Any):
-    """Whether points lie in MPM body ``b`` at its start: within the cell (max-norm half its spacing, more for
-    jittered or Poisson-disk particles) of one of its particles. A point on the face between two cells (SPH's
-    lattice at twice the particles' spacing lands there) counts as inside: the reach is 5% over the half."""
-    from scipy.spatial import cKDTree
-
-    h = particle_spacing(mpm, b)
-    lattice = getattr(mpm.scene.solvers.mpm, "sampling", "lattice") == "lattice"
-    reach = (0.525 if lattice else 0.8) * h
-    tree = cKDTree(np.asarray(b.x, np.float64))
-
-    def inside(p):
-        p = np.asarray(p, dtype=np.float64)
-        if not len(p):
-            return np.zeros(0, bool)
-        d, _ = tree.query(p, p=np.inf)
-        return d < reach
-
-    return inside
 
 
 class MPMSPHBoundary:
@@ -140,18 +138,18 @@ class MPMSPHBoundary:
         mpm, sph = self.mpm, self.sph
         # liquid sampled inside the body at the start would sit among its samples: removed with a warning,
         # as for a collider
-        tests = [body_inside(mpm, b) for b in mpm.bodies if b.n]
+        bodies = particle_bodies(mpm)
 
         def inside(p):
             out = np.zeros(len(p), bool)
-            for t in tests:
-                out |= t(p)
+            for pb in bodies:
+                out |= pb.inside(p)
             return out
 
         names = ", ".join(f"'{b.name}'" for b in mpm.bodies)
         sph.remove_inside(inside, f"the MPM {'entity' if len(mpm.bodies) == 1 else 'entities'} {names}")
         layers = max(LAYERS, math.ceil(sph.support / sph.ps - 1e-9))
-        x, v, vol = mpm_boundary_samples(mpm, sph.ps, layers * sph.ps)
+        x, v, vol = mpm_boundary_samples(mpm, sph.ps, layers * sph.ps, bodies)
         self.db = DeformableBoundary("MPM", x, vol, v)
         sph.attach_deformable(self.db)
         self.n = self.db.n
@@ -164,30 +162,25 @@ class MPMSPHBoundary:
         grid_v, grid_m = mpm.grid_v, mpm.grid_m
         sx, sv, simp = db.sx, db.sv, db.simp
         off, ns = db.offset, self.n
-        origin = ti.Vector(list(mpm.origin), dt=f)
-        inv_dx = float(mpm.inv_dx)
-        base_max = ti.Vector([s - 3 for s in mpm.grid_shape])
-
-        @ti.func
-        def weights(xp):  # MPM's quadratic B-spline stencil (solvers/mpm/stencil.py)
-            Xp = (xp - origin) * inv_dx
-            base = ti.min(ti.max(ti.cast(Xp - 0.5, ti.i32), 0), base_max)
-            fx = Xp - ti.cast(base, f)
-            w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
-            return base, w
+        bspline = build_stencil(mpm.params).bspline  # MPM's quadratic B-spline stencil, as p2g and g2p
 
         x0 = ti.Vector.field(dim, f, shape=max(1, ns))  # each sample's place at the substep's start
         self.bytes += self.n * dim * fb
+        stencil = [3] * dim
+
+        @ti.func
+        def weight(w: ti.template(), o: ti.template()):  # the stencil node o's weight (o static)
+            wt = ti.cast(1.0, f)
+            for d in ti.static(range(dim)):
+                wt *= w[o[d]][d]
+            return wt
 
         @ti.func
         def grid_velocity(xs):
-            base, w = weights(xs)
+            base, _, w = bspline(xs)
             vs = ti.Vector.zero(f, dim)
-            for o in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):
-                wt = ti.cast(1.0, f)
-                for d in ti.static(range(dim)):
-                    wt *= w[o[d]][d]
-                vs += wt * grid_v[base + o]
+            for o in ti.static(ti.grouped(ti.ndrange(*stencil))):
+                vs += weight(w, o) * grid_v[base + o]
             return vs
 
         @ti.kernel
@@ -204,15 +197,12 @@ class MPMSPHBoundary:
             for s in range(ns):  # the liquid's impulse on each sample, spread over its nodes
                 J = ti.cast(simp[off + s], f)
                 simp[off + s] = ti.Vector.zero(ti.f64, dim)
-                base, w = weights(x0[s])
-                for o in ti.static(ti.grouped(ti.ndrange(*([3] * dim)))):
-                    wt = ti.cast(1.0, f)
-                    for d in ti.static(range(dim)):
-                        wt *= w[o[d]][d]
+                base, _, w = bspline(x0[s])
+                for o in ti.static(ti.grouped(ti.ndrange(*stencil))):
                     I = base + o
                     m = grid_m[I]
                     if m > 0:
-                        ti.atomic_add(grid_v[I], (wt / m) * J)
+                        ti.atomic_add(grid_v[I], (weight(w, o) / m) * J)
 
         @ti.kernel
         def follow(dt: f):

@@ -24,16 +24,22 @@ def coupled(scene: Any, fam_a: str, fam_b: str) -> bool:
     return False
 
 
-def sph_fem_by_particles(scene: Any) -> bool:
-    """Whether SPH meets FEM bodies as boundary particles (simcli/coupling/sph_fem.py: the FEM body sampled
-    into SPH's boundary, a 3D scene with SPH's boundary particles), not by the grid contact (volume maps)."""
+def _sph_samples(scene: Any, family: str) -> bool:
+    """SPH and ``family`` coupled in a 3D scene with SPH's boundary particles (not volume maps): what both
+    rules below ask first."""
     sph = getattr(scene.solvers, "sph", None)
     return (
-        coupled(scene, "SPH", "FEM")
+        coupled(scene, "SPH", family)
         and int(scene.sim.dim) == 3
         and sph is not None
         and getattr(sph, "boundary", "particles") == "particles"
     )
+
+
+def sph_fem_by_particles(scene: Any) -> bool:
+    """Whether SPH meets FEM bodies as boundary particles (simcli/coupling/sph_fem.py: the FEM body sampled
+    into SPH's boundary, a 3D scene with SPH's boundary particles), not by the grid contact (volume maps)."""
+    return _sph_samples(scene, "FEM")
 
 
 # MPM materials that meet SPH as boundary particles (mpm_sph_by_particles): solids, whose particles keep their
@@ -43,19 +49,15 @@ MPM_SAMPLED = ("MPM.Elastic", "MPM.ElastoPlastic", "MPM.Snow", "MPM.Muscle")
 
 
 def mpm_sph_by_particles(scene: Any) -> bool:
-    """Whether SPH meets the MPM bodies as boundary particles (simcli/coupling/mpm_sph.py: every MPM particle
-    a sample in SPH's boundary), not by the grid contact: a 3D scene with SPH's boundary particles, whose
+    """Whether SPH meets the MPM bodies as boundary particles (simcli/coupling/mpm_sph.py: the body sampled on
+    SPH's lattice into its boundary), not by the grid contact: a 3D scene with SPH's boundary particles, whose
     MPM entities are all solids (MPM_SAMPLED) with a fixed set of particles (no MPM emitter, no sink) and
     none pinned (``fixed``: a pinned node's velocity is reset every substep, so the liquid's impulse there
     would move the samples and not the body)."""
-    sph = getattr(scene.solvers, "sph", None)
     ents = [e for e in scene.entities if e.family == "MPM"]
     types = {e.material.type for e in ents}
     return (
-        coupled(scene, "MPM", "SPH")
-        and int(scene.sim.dim) == 3
-        and sph is not None
-        and getattr(sph, "boundary", "particles") == "particles"
+        _sph_samples(scene, "MPM")
         and bool(types)
         and types <= set(MPM_SAMPLED)
         and all(getattr(e, "fixed", None) is None for e in ents)

@@ -23,6 +23,9 @@ import numpy as np
 
 from simcli.scene.coupling import coupled, coupling_warnings, mpm_sph_by_particles, sph_fem_by_particles
 
+# the families whose bodies SPH meets as boundary particles, and the rule that says when
+SPH_SAMPLED = {"FEM": sph_fem_by_particles, "MPM": mpm_sph_by_particles}
+
 # ------------------------------------------------------------------ bounds
 
 # A run of more substeps than this is refused: at a (fast) 1e-6 s per substep of a tiny scene it is
@@ -437,15 +440,11 @@ def check_overlaps(loaded) -> tuple[list[str], list[str]]:
         if a.family == b.family and share > OVERLAP_FRACTION:
             errors.append(f"{head}{text}; their particles would sit on top of each other: move one")
         elif a.family != b.family:
-            if {a.family, b.family} == {"SPH", "FEM"} and sph_fem_by_particles(s):
-                warns.append(  # the FEM body is SPH boundary particles (simcli/coupling/sph_fem.py)
-                    f"{head}warning: {text}; the liquid's particles inside the FEM body are removed at the "
-                    "start"
-                )
-            elif {a.family, b.family} == {"SPH", "MPM"} and mpm_sph_by_particles(s):
-                warns.append(  # the MPM body is SPH boundary particles (simcli/coupling/mpm_sph.py)
-                    f"{head}warning: {text}; the liquid's particles inside the MPM body are removed at the "
-                    "start"
+            body = b.family if a.family == "SPH" else a.family if b.family == "SPH" else None
+            if body in SPH_SAMPLED and SPH_SAMPLED[body](s):
+                warns.append(  # the body is SPH boundary particles (simcli/coupling/sph_fem.py, mpm_sph.py)
+                    f"{head}warning: {text}; the liquid's particles inside the {body} body are removed at "
+                    "the start"
                 )
             elif coupled(s, a.family, b.family):
                 # coupled families push each other apart in the first substeps
