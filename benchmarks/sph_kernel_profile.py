@@ -50,7 +50,7 @@ def main() -> None:
     sets = list(args.sets) + ([] if args.boundary is None else [f"solvers.sph.boundary={args.boundary}"])
     scene = load_scene(args.scene, sets).scene
     bodies = [b for b in sample_scene(scene, Path(args.scene).parent) if b.entity.family == "SPH"]
-    s = SPHSolver(scene, bodies)
+    s = SPHSolver(scene, bodies, Path(args.scene).parent)
     s.build()
     for _ in range(args.warm):  # the first compiles
         s.substep(args.dt)

@@ -85,3 +85,35 @@ def test_still_named_collider_load_is_the_impulse_it_gave(ti_f32, solver):
     J = s.collider_loads()["wall"]
     assert J[0] > 1e-3  # the water pushes the wall along +x (impulse of a substep [N s per m])
     np.testing.assert_allclose(J[:2], -(p1 - p0), rtol=1e-6, atol=1e-6 * J[0])
+
+
+def test_cells_marked_in_reach_of_a_turning_paddle_hold_every_boundary_neighbour(ti_f32):
+    """With a collider in motion the density pass scans boundary particles only from the cells marked in
+    reach of one (the walls' cells, kept from the build, and those within reach of a moving boundary
+    particle, marked every substep): every liquid particle with a boundary particle within the kernel's
+    support sits in a marked cell, and the liquid far from the paddle and the walls is not marked (it skips
+    the scan, as with still walls)."""
+    paddle = {
+        "name": "paddle",
+        "type": "Box",
+        "lower": [0.3, 0.1],
+        "upper": [0.42, 0.115],
+        "motion": {"angular_velocity": [12.566370614359172]},
+    }
+    d = _scene("DFSPH", [paddle], water=((0.0, 0.0), (0.72, 0.2)))
+    d["domain"] = {"lower": [0, 0], "upper": [0.72, 0.3]}
+    s, _ = make(d)
+    for k in range(60):
+        s.substep(1e-3)
+        if k % 20 != 19:
+            continue
+        x = s.x.to_numpy()[: s.n].astype(np.float64)
+        bx = s.bx.to_numpy()[: s.nbp].astype(np.float64)
+        near = s.bnear.to_numpy()[s.grid.cell_index_np(x)] != 0
+        from scipy.spatial import cKDTree
+
+        dist, _ = cKDTree(bx).query(x, distance_upper_bound=s.support)
+        in_reach = np.isfinite(dist) & (dist < s.support)
+        assert in_reach.sum() > 100
+        assert near[in_reach].all()  # never a boundary neighbour missed
+        assert (~near).sum() > 0.2 * s.n  # the bulk between the paddle and the walls skips the scan

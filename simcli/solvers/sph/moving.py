@@ -10,11 +10,12 @@ instead of prescribed, a rigid body, goes the same way).
   colliders stay in their cells, and the sort keeps their relative order). The velocity ``v_b`` enters
   the boundary condition where the static walls' velocity did: DFSPH's density rate (sum_b V_b v_b .
   grad W_ib, so the pressure solves make the liquid's normal velocity follow the wall) and no-slip
-  viscosity; WCSPH sees the wall through the density sum it compresses. A moving collider makes every
-  cell test for boundary neighbours (``bnear`` all set); a deformable body's samples alone (no moving
-  collider) mark the cells within reach of each sample every substep, beside the walls' fixed ones
-  (``mark_near``), so the liquid far from every boundary skips the scan as with static walls (C1, an MPM duck
-  in a water box: 25.7 substeps/s at best against 22.3, docs/PERFORMANCE.md).
+  viscosity; WCSPH sees the wall through the density sum it compresses. The cells that test for boundary
+  neighbours (``bnear``) are the walls' and still colliders' (fixed at the build) plus those within reach
+  of a moving boundary particle (a moving collider's or rigid body's, a deformable body's sample), marked
+  every substep after the sort (``mark_near``), so the liquid far from every boundary skips the scan as
+  with still walls (C1, an MPM duck in a water box: 25.7 substeps/s at best against 22.3; C1's water with a
+  free rigid box: 6% less kernel time a substep; docs/PERFORMANCE.md).
 * **No particle inside.** The advection's last guard pushes a particle that ended inside a collider
   (its body-frame signed distance at the substep's end pose, slot 1) onto its surface and removes its
   normal velocity into the surface relative to the surface's own velocity (boundary.make_pushout).
@@ -73,12 +74,11 @@ def make_moving_boundary(
     no-slip flag, body-frame position, collider index, a deformable body's sample index, and WCSPH's
     relaxing wall pressure (``fn.wall_pressure`` must be built). ``poses``: the solver's ColliderPoses;
     ``grid``: its CellGrid; ``deformable``: a DeformableBoundary (deformable.py) or None: its samples take
-    the positions and velocities the coupling phase left in its ``sx``, ``sv``. ``near_static``: with only
-    a deformable body's samples moving, the cells with a wall or static collider particle in reach (the
-    solver's ``bnear`` before the samples): ``mark_near`` (a Taichi func, called by ``move`` after the sort,
-    and after a checkpoint's restore) sets ``F.bnear`` to it plus the cells within reach of a sample, so that
-    the liquid far from every boundary skips the boundary scan as with static walls. Returns
-    (move, mark_near); mark_near is None without ``near_static``."""
+    the positions and velocities the coupling phase left in its ``sx``, ``sv``. ``near_static``: the cells
+    with a wall or still collider particle in reach: ``mark_near`` (a Taichi func, called by ``move`` after
+    the sort, and after a checkpoint's restore) sets ``F.bnear`` to it plus the cells within reach of a
+    moving boundary particle, so that the liquid far from every boundary skips the boundary scan as with
+    still walls. Returns (move, mark_near); mark_near is None without ``near_static``."""
     from simcli.solvers.sph.neighbours import make_neighbour_funcs
 
     f, dim, nbp = P.f, P.dim, max(1, P.nbp)
@@ -121,20 +121,37 @@ def make_moving_boundary(
 
     db = deformable
     has_db = db is not None
-    dyn_near = has_db and near_static is not None
+    dyn_near = near_static is not None
     mark_near = None
     if dyn_near:
-        bnear, ncells, R, ns = F.bnear, grid.ncells, grid.R, db.n
+        bnear, ncells, R = F.bnear, grid.ncells, grid.R
         side = 2 * R + 1
         hi_c = ti.Vector([d - 1 for d in grid.dims])
+
+        @ti.func
+        def is_moving(b):
+            m = False
+            if ti.static(has_db):
+                m = bsrc[b] >= 0
+            if ti.static(len(moving) > 0):
+                kb = bcol[b]
+                for k in ti.static(moving):
+                    if kb == k:
+                        m = True
+            return m
 
         @ti.func
         def mark_near():
             for c in range(ncells):
                 bnear[c] = near_static[c]
-            for s, k in ti.ndrange(ns, side**dim):  # a sample is in reach of the liquid within R cells of it
-                o = ti.Vector([(k // side**d) % side - R for d in ti.static(range(dim))])
-                bnear[linear(ti.min(ti.max(cell_coords(db.sx[s]) + o, 0), hi_c))] = ti.cast(1, ti.i8)
+            # a moving boundary particle (a moving collider's, a sample's) is in reach of the liquid within R
+            # cells of it; one outside the domain marks the edge cells it clamps to (more scans, never fewer)
+            for b in range(n_b):
+                if is_moving(b):
+                    cb = cell_coords(bx[b])
+                    for k in range(side**dim):
+                        o = ti.Vector([(k // side**d) % side - R for d in ti.static(range(dim))])
+                        bnear[linear(ti.min(ti.max(cb + o, 0), hi_c))] = ti.cast(1, ti.i8)
 
     @ti.func
     def move_boundary():

@@ -455,13 +455,13 @@ class SPHSolver(Solver):
         self.moving_boundary = (self.poses.any_moving or deform) and self.nbp > 0
         self.named_loads = (self.poses.any_named or deform) and (self.nbp > 0 or self.vmap is not None)
         # which cells have a boundary particle in reach (density.py skips the boundary scan elsewhere): with a
-        # moving collider every cell may; with only a deformable body's samples moving, the walls' and static
-        # colliders' cells (kept here) and the samples' own, marked again every substep (moving.py)
+        # moving boundary (a collider in motion, a rigid body, a deformable body's samples), the walls' and
+        # still colliders' cells (kept here) and those within reach of a moving boundary particle, marked
+        # again every substep (moving.py)
         self.bnear_static = None
-        if self.moving_boundary and self.poses.any_moving:
-            self.bnear.fill(1)
-        elif self.moving_boundary:
-            fixed = keep & (src < 0)
+        if self.moving_boundary:
+            moving_cols = [k for k, c in enumerate(self.poses.specs) if c.moving]
+            fixed = keep & (src < 0) & ~np.isin(bp.col, moving_cols)
             occupied = np.bincount(grid.cell_index_np(bp.x[fixed]), minlength=grid.ncells) > 0
             self.bnear_static = ti.field(ti.i8, shape=grid.ncells)
             self.bnear_static.from_numpy(grid.dilate(occupied).astype(np.int8))
@@ -1009,7 +1009,7 @@ class SPHSolver(Solver):
                 )
                 raise ValueError(f"SPH state {k!r}: shape {arr.shape} does not fit {fld.shape}{hint}")
             fld.from_numpy(arr.astype(np.int32 if k in ("mid", "pid") else self.npf))
-        if getattr(self, "_refresh_near", None) is not None:  # the restored samples' cells (moving.py)
+        if getattr(self, "_refresh_near", None) is not None:  # the moving boundary's cells (moving.py)
             self._refresh_near()
         if "rho" not in state:
             self._density_only()  # sorts every per-particle field along: after all of them are loaded
