@@ -16,13 +16,12 @@ import csv
 import shutil
 import subprocess
 import sys
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.physics.test_sph_fem_boundary import ROOT, _run, check_liquid_inside_removed
 
 SCENE = """\
 version: 1
@@ -133,13 +132,6 @@ def test_a_mesh_bodys_samples_lie_in_it():
     assert np.all(np.abs(vol / 0.02**3 - 1.0) < 0.1)  # the lattice cell, fitted to the duck's box
 
 
-def _run(tmp_path, text, args=()):
-    scene = tmp_path / "scene.yaml"
-    scene.write_text(text)
-    cmd = [sys.executable, "-m", "simcli", "run", str(scene), "-o", str(tmp_path / "out"), "-q", *args]
-    return scene, subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900)
-
-
 def _check_thrown(out, p0):
     rows = list(csv.DictReader(open(out / "probes.csv")))
     px = np.array([float(row["p.x"]) for row in rows])
@@ -175,28 +167,7 @@ def test_a_thrown_mpm_cube_meets_dfsph_water(tmp_path):
 def test_liquid_sampled_inside_an_mpm_body_is_removed_and_validate_says_so(tmp_path):
     """The MPM cube placed 2 cm into the water: validate warns at the water's morph that the liquid inside the
     cube is removed, and the run removes exactly the particles whose centres lie in the cube."""
-    from click.testing import CliRunner
-
-    from simcli.cli import cli
-
-    text = _text(duration=0.004, every=2).replace(
-        "lower: [0.06, 0.12, 0.12], upper: [0.12, 0.18, 0.18]",
-        "lower: [0.12, 0.12, 0.12], upper: [0.18, 0.18, 0.18]",
-    )
-    assert "lower: [0.12, 0.12, 0.12]" in text
-    scene = tmp_path / "scene.yaml"
-    scene.write_text(text)
-    r = CliRunner().invoke(cli, ["validate", str(scene)])
-    assert r.exit_code == 0, r.output
-    line = [ln for ln in r.output.splitlines() if "removed at the start" in ln]
-    assert len(line) == 1 and line[0].startswith(f"{scene}:15:12:"), r.output
-    _, r = _run(tmp_path, text)
-    assert r.returncode == 0, r.stdout + r.stderr
-    # the water's lattice (0.01 m, x from 0.145 to 0.195) has columns x = 0.145, ..., 0.175 inside the cube
-    # (x < 0.18): 4 of 6 columns, every y and z: 144 of 216
-    assert "144 of 216 particles were sampled inside the MPM entity 'block' and removed" in r.stderr
-    with h5py.File(tmp_path / "out" / "sim.h5", "r") as f:
-        assert f["entities/water/position"].shape[1] == 72
+    check_liquid_inside_removed(tmp_path, _text(duration=0.004, every=2), "MPM")
 
 
 @pytest.mark.slow

@@ -139,15 +139,15 @@ def test_a_coupled_sph_fem_run_resumes_as_the_uninterrupted_one(tmp_path):
                 np.testing.assert_array_equal(b[f"entities/{e}/{k}"][...], a[f"entities/{e}/{k}"][...])
 
 
-def test_liquid_sampled_inside_an_fem_body_is_removed_and_validate_says_so(tmp_path):
-    """An FEM cube placed 2 cm into the water: validate warns at the water's morph that the liquid inside the
-    cube is removed, and the run removes exactly the particles whose centres lie in the cube (a particle among
-    the samples would be thrown out; before the removal this scene went to NaN within 0.05 s)."""
+def check_liquid_inside_removed(tmp_path, text, family):
+    """The block of ``text`` moved 2 cm into the water (0.12-0.18 m on each axis): validate warns at the
+    water's morph that the liquid inside the ``family`` body is removed, and the run removes exactly the
+    particles whose centres lie in it. Shared with test_mpm_sph_boundary.py."""
     from click.testing import CliRunner
 
     from simcli.cli import cli
 
-    text = SCENE.format(duration=0.004, extra="", every=2, solver="WCSPH").replace(
+    text = text.replace(
         "lower: [0.06, 0.12, 0.12], upper: [0.12, 0.18, 0.18]",
         "lower: [0.12, 0.12, 0.12], upper: [0.18, 0.18, 0.18]",
     )
@@ -162,9 +162,18 @@ def test_liquid_sampled_inside_an_fem_body_is_removed_and_validate_says_so(tmp_p
     assert r.returncode == 0, r.stdout + r.stderr
     # the water's lattice (0.01 m, x from 0.145 to 0.195) has columns x = 0.145, 0.155, ..., 0.175 inside the
     # cube (x < 0.18): 4 of 6 columns, every y and z: 4 x 6 x 6 = 144 of 216
-    assert "144 of 216 particles were sampled inside the FEM entity 'block' and removed" in r.stderr
+    assert f"144 of 216 particles were sampled inside the {family} entity 'block' and removed" in r.stderr
     with h5py.File(tmp_path / "out" / "sim.h5", "r") as f:
         assert f["entities/water/position"].shape[1] == 72
+
+
+def test_liquid_sampled_inside_an_fem_body_is_removed_and_validate_says_so(tmp_path):
+    """An FEM cube placed 2 cm into the water: validate warns at the water's morph that the liquid inside the
+    cube is removed, and the run removes exactly the particles whose centres lie in the cube (a particle among
+    the samples would be thrown out; before the removal this scene went to NaN within 0.05 s)."""
+    check_liquid_inside_removed(
+        tmp_path, SCENE.format(duration=0.004, extra="", every=2, solver="WCSPH"), "FEM"
+    )
 
 
 def test_the_substep_keeps_a_fast_fem_body_within_the_liquids_cfl(tmp_path):
