@@ -685,6 +685,58 @@ def test_matsuoka_nakai_bad_combinations_are_refused():
     mat(type="MPM.Sand", friction_angle=60.0, yield_surface="matsuoka_nakai", cone="compression")
 
 
+def test_the_default_yield_surface_is_matsuoka_nakai_in_3d_where_its_fit_exists(ti_f32):
+    """``yield_surface: auto`` (the default): Matsuoka-Nakai in 3D with the simple_shear fit below 45 deg
+    and no mu(I) (a spreading 3D flow sits near triaxial compression, where the cone is weak); the cone in
+    2D (a plane flow sits at b = 0.5, where both carry tan(phi)), with the other fits, at 45 deg and above
+    (no finite K) and with mu(I). The law compiles what the resolution says, and the echoed scene names it."""
+    import taichi as ti
+
+    from simcli.scene.models import Scene, resolved_scene_dict
+    from simcli.solvers.mpm.laws import LAWS
+
+    assert mat(type="MPM.Sand", friction_angle=30.0).yield_surface == "auto"
+    cases = [
+        ({"friction_angle": 30.0}, 3, "matsuoka_nakai"),
+        ({"friction_angle": 44.9}, 3, "matsuoka_nakai"),
+        ({"friction_angle": 30.0}, 2, "drucker_prager"),
+        ({}, 3, "drucker_prager"),  # the default 45 deg: K would be infinite
+        ({"friction_angle": 30.0, "cone": "plane_strain"}, 3, "drucker_prager"),
+        ({"friction_angle": 30.0, "cone": "compression"}, 3, "drucker_prager"),
+        ({"friction_angle": 30.0, "mu_i": {}}, 3, "drucker_prager"),
+        ({"friction_angle": 30.0, "yield_surface": "drucker_prager"}, 3, "drucker_prager"),
+        ({"friction_angle": 30.0, "yield_surface": "mohr_coulomb"}, 2, "mohr_coulomb"),
+    ]
+    for kw, dim, expected in cases:
+        m = mat(type="MPM.Sand", **kw)
+        assert m.surface(dim) == expected, (kw, dim)
+        law = LAWS["sand"](dim, ti.f32)
+        law.allocate(2)
+        law.allocate_materials([m])
+        assert law.use_mn == (expected == "matsuoka_nakai"), (kw, dim)
+        assert law.use_mc == (expected == "mohr_coulomb"), (kw, dim)
+    for dim, expected in ((3, "matsuoka_nakai"), (2, "drucker_prager")):
+        center = [0.5, 0.5, 0.5][:dim]
+        scene = Scene.model_validate(
+            {
+                "sim": {"dim": dim},
+                "entities": [
+                    {
+                        "name": "sand",
+                        "material": {"type": "MPM.Sand", "friction_angle": 30.0},
+                        "morph": {
+                            "type": "Box" if dim == 3 else "Rectangle",
+                            "center": center,
+                            "size": [0.1] * dim,
+                        },
+                    }
+                ],
+            }
+        )
+        echoed = resolved_scene_dict(scene, "s")
+        assert echoed["entities"][0]["material"]["yield_surface"] == expected
+
+
 @pytest.mark.parametrize("cohesion", [0.0, 2.0e3])
 def test_matsuoka_nakai_sand_ends_on_or_inside_the_cone(ti_f32, cohesion):
     """Random trial F_E (compressive and tensile, large shear): the stress ends on or inside I1 I2 / I3 = K

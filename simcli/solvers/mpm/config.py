@@ -195,10 +195,14 @@ class MPMSand(_Solid):
         "triaxial compression (alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi))); a flowing layer mobilises "
         "tan = 3 alpha / sqrt(2) (34.7 deg for 30).",
     )
-    yield_surface: Literal["drucker_prager", "mohr_coulomb", "matsuoka_nakai"] = Field(
-        "drucker_prager",
+    yield_surface: Literal["auto", "drucker_prager", "mohr_coulomb", "matsuoka_nakai"] = Field(
+        "auto",
         description="The yield surface's shape in the deviatoric plane, with the same zero-dilatancy "
-        "(volume-keeping) flow. drucker_prager: a circular cone, the same in every direction, fitted by "
+        "(volume-keeping) flow. auto (default): matsuoka_nakai in 3D with cone: simple_shear, "
+        "friction_angle < 45 and no mu_i; drucker_prager otherwise (in 2D a plane flow sits at b = 0.5, "
+        "where the two carry the same friction, so the cheaper cone serves; the other fits, 45 deg and "
+        "above, and mu_i are the cone's). OUT/scene.yaml echoes the surface used. drucker_prager: a "
+        "circular cone, the same in every direction, fitted by "
         "`cone`; fitted to simple shear it is, in triaxial compression (the surface flow of a conical heap, "
         "spreading radially), a Mohr-Coulomb material of only 25.4 deg for 30 deg sand. mohr_coulomb: the "
         "hexagonal pyramid (sigma_1 - sigma_3) + (sigma_1 + sigma_3 - 2 a) sin(phi_mc) <= 0 (Kirchhoff, "
@@ -240,7 +244,7 @@ class MPMSand(_Solid):
 
     @model_validator(mode="after")
     def _mohr_coulomb_fit(self) -> MPMSand:
-        if self.yield_surface == "drucker_prager":
+        if self.yield_surface in ("auto", "drucker_prager"):  # auto falls back to the cone where MN can't
             return self
         if self.mu_i is not None:
             raise ValueError(
@@ -275,6 +279,21 @@ class MPMSand(_Solid):
                 "43.2)"
             )
         return self
+
+    def surface(self, dim: int) -> str:
+        """The yield surface used in a ``dim``-dimensional scene (``yield_surface: auto`` resolved).
+
+        auto is Matsuoka-Nakai where the Lode angle matters and its simple-shear fit exists: in 3D a flow
+        that spreads (a conical heap's flank, the bed under an impact) sits near triaxial compression,
+        where the circular cone fitted to simple shear carries only 25.4 deg for 30 deg sand
+        (docs/VALIDATION.md, granular items 5-8). In 2D the volume-keeping flow puts the stress at b = 0.5,
+        where both surfaces carry tan(friction_angle) (every 2D sand case within noise), so the cheaper
+        cone is kept there."""
+        if self.yield_surface != "auto":
+            return self.yield_surface
+        if int(dim) == 3 and self.cone == "simple_shear" and self.friction_angle < 45.0 and self.mu_i is None:
+            return "matsuoka_nakai"
+        return "drucker_prager"
 
     @property
     def mc_sin_phi(self) -> float:

@@ -32,6 +32,8 @@ last substep, ``svd3_via_b_warm``; 2D: ``ti.svd``), after the update F <- (I + d
   and strength characteristics of soil under three different principal stresses", Proc. JSCE 232, 59-70),
   Mohr-Coulomb at triaxial compression and extension, outside it between them, fitted at b = 0.5 as the
   cone; returned radially in the deviatoric plane (the cone's flow; ``SandLaw.matsuoka_nakai_return``).
+  The default ``yield_surface: auto`` is Matsuoka-Nakai in 3D (simple_shear fit, friction_angle < 45, no
+  mu(I)) and the cone otherwise (``MPMSand.surface``).
 
 Each law computes the Kirchhoff stress from the same decomposition and stores it per particle
 (``stores_stress``): p2g reads it, so F is decomposed once per substep. J_p, where tracked, obeys
@@ -478,6 +480,10 @@ class SandLaw(_SVDPlasticLaw):
     tracks_jp = True
     plane_strain_zz = True
 
+    def surface(self, material: Any) -> str:
+        """The yield surface this law applies to ``material`` (``yield_surface: auto`` resolved by dim)."""
+        return material.surface(self.dim) if hasattr(material, "surface") else "drucker_prager"
+
     def allocate(self, n: int) -> None:
         super().allocate(n)
         self.vc = ti.field(self.dtype, shape=n)  # log-volume gained while separated (Tampubolon 2017)
@@ -496,23 +502,17 @@ class SandLaw(_SVDPlasticLaw):
         self.apex = self._param(materials, lambda m: m.cohesion / math.tan(math.radians(m.friction_angle)))
         self.correct = self._param(materials, lambda m: 1.0 if m.volume_correction else 0.0)
         # Mohr-Coulomb (yield_surface: mohr_coulomb), compiled in only when a sand material asks for it
-        self.use_mc = any(
-            self.uses(m) and getattr(m, "yield_surface", "drucker_prager") == "mohr_coulomb"
-            for m in materials
-        )
+        self.use_mc = any(self.uses(m) and self.surface(m) == "mohr_coulomb" for m in materials)
         if self.use_mc:
-            self.mc = self._param(materials, lambda m: 1.0 if m.yield_surface == "mohr_coulomb" else 0.0)
+            self.mc = self._param(materials, lambda m: 1.0 if self.surface(m) == "mohr_coulomb" else 0.0)
             self.mc_sin = self._param(materials, lambda m: m.mc_sin_phi)
         # Matsuoka-Nakai (yield_surface: matsuoka_nakai), compiled in only when a sand material asks for it
-        self.use_mn = any(
-            self.uses(m) and getattr(m, "yield_surface", "drucker_prager") == "matsuoka_nakai"
-            for m in materials
-        )
+        self.use_mn = any(self.uses(m) and self.surface(m) == "matsuoka_nakai" for m in materials)
         if self.use_mn:
 
             def mn(getter):  # only the Matsuoka-Nakai materials' (a cone of 45 deg sand has no finite K)
                 return self._param(
-                    materials, lambda m: getter(m) if m.yield_surface == "matsuoka_nakai" else 0.0
+                    materials, lambda m: getter(m) if self.surface(m) == "matsuoka_nakai" else 0.0
                 )
 
             self.mn = mn(lambda m: 1.0)
