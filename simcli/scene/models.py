@@ -499,13 +499,15 @@ def resolved_scene_dict(scene: Scene, name: str) -> dict:
     for em in d.get("emitters") or []:  # the same for emitters before slot reuse existed
         if em.get("reuse") is False:
             em.pop("reuse")
-    # the sand yield surface actually used (yield_surface: auto resolves by dimension; so a 2D run
+    # the sand yield surface and fit actually used (yield_surface: auto resolves by dimension; so a 2D run
     # checkpointed when the default was drucker_prager resumes, and a 3D one does not silently change law)
     for given, echoed in zip(
         [*scene.entities, *scene.emitters], [*d["entities"], *(d.get("emitters") or [])], strict=True
     ):
-        if hasattr(given.material, "surface"):
-            echoed["material"]["yield_surface"] = given.material.surface(dim)
+        if hasattr(given.material, "resolved"):
+            used = given.material.resolved(dim)
+            echoed["material"]["yield_surface"] = used.yield_surface
+            echoed["material"]["cone"] = used.cone
     if not d.get("rigid_bodies"):  # scenes without rigid bodies echo as before
         d.pop("rigid_bodies", None)
     for rb in d.get("rigid_bodies") or []:  # (and those without CPIC bodies: runs checkpointed before resume)

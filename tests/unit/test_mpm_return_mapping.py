@@ -658,14 +658,14 @@ def test_matsuoka_nakai_inner_radius_is_the_smallest_at_any_lode_angle():
 
 
 def test_matsuoka_nakai_beside_a_45_deg_cone_in_one_law(ti_f32):
-    """One compiled sand law for a Matsuoka-Nakai material and a cone of 45 deg sand (the default, for which
-    the simple_shear K would be infinite): the cone's parameters are not asked for K."""
+    """One compiled sand law for a Matsuoka-Nakai material and a cone of 45 deg sand (the default friction
+    angle, for which the simple_shear K would be infinite): the cone's parameters are not asked for K."""
     import taichi as ti
 
     from simcli.solvers.mpm.laws import LAWS
 
     mn = mat(type="MPM.Sand", friction_angle=30.0, yield_surface="matsuoka_nakai")
-    dp = mat(type="MPM.Sand")
+    dp = mat(type="MPM.Sand", yield_surface="drucker_prager")  # in 3D auto would be Matsuoka-Nakai
     law = LAWS["sand"](3, ti.f32)
     law.allocate(4)
     law.allocate_materials([dp, mn])
@@ -685,11 +685,12 @@ def test_matsuoka_nakai_bad_combinations_are_refused():
     mat(type="MPM.Sand", friction_angle=60.0, yield_surface="matsuoka_nakai", cone="compression")
 
 
-def test_the_default_yield_surface_is_matsuoka_nakai_in_3d_where_its_fit_exists(ti_f32):
-    """``yield_surface: auto`` (the default): Matsuoka-Nakai in 3D with the simple_shear fit below 45 deg
-    and no mu(I) (a spreading 3D flow sits near triaxial compression, where the cone is weak); the cone in
-    2D (a plane flow sits at b = 0.5, where both carry tan(phi)), with the other fits, at 45 deg and above
-    (no finite K) and with mu(I). The law compiles what the resolution says, and the echoed scene names it."""
+def test_the_default_yield_surface_is_matsuoka_nakai_fitted_in_compression_in_3d(ti_f32):
+    """``yield_surface: auto`` (the default): in 3D Matsuoka-Nakai, fitted in triaxial compression unless the
+    scene gives ``cone`` (a spreading 3D flow sits near triaxial compression, where the cone fitted to simple
+    shear is weak); in 2D (a plane flow sits at b = 0.5) and with mu(I), the cone; with an explicit
+    simple_shear fit at 45 deg and above (no finite K), the cone. The law compiles the resolved surface with
+    the resolved fit's K, and the echoed scene names both."""
     import taichi as ti
 
     from simcli.scene.models import Scene, resolved_scene_dict
@@ -697,25 +698,34 @@ def test_the_default_yield_surface_is_matsuoka_nakai_in_3d_where_its_fit_exists(
 
     assert mat(type="MPM.Sand", friction_angle=30.0).yield_surface == "auto"
     cases = [
-        ({"friction_angle": 30.0}, 3, "matsuoka_nakai"),
-        ({"friction_angle": 44.9}, 3, "matsuoka_nakai"),
-        ({"friction_angle": 30.0}, 2, "drucker_prager"),
-        ({}, 3, "drucker_prager"),  # the default 45 deg: K would be infinite
-        ({"friction_angle": 30.0, "cone": "plane_strain"}, 3, "drucker_prager"),
-        ({"friction_angle": 30.0, "cone": "compression"}, 3, "drucker_prager"),
-        ({"friction_angle": 30.0, "mu_i": {}}, 3, "drucker_prager"),
-        ({"friction_angle": 30.0, "yield_surface": "drucker_prager"}, 3, "drucker_prager"),
-        ({"friction_angle": 30.0, "yield_surface": "mohr_coulomb"}, 2, "mohr_coulomb"),
+        ({"friction_angle": 30.0}, 3, "matsuoka_nakai", "compression"),
+        ({}, 3, "matsuoka_nakai", "compression"),  # the default 45 deg: K = 17 in compression
+        ({"friction_angle": 30.0, "cone": "simple_shear"}, 3, "matsuoka_nakai", "simple_shear"),
+        ({"friction_angle": 45.0, "cone": "simple_shear"}, 3, "drucker_prager", "simple_shear"),
+        ({"friction_angle": 30.0, "cone": "plane_strain"}, 3, "matsuoka_nakai", "plane_strain"),
+        ({"friction_angle": 30.0}, 2, "drucker_prager", "simple_shear"),
+        ({"friction_angle": 30.0, "mu_i": {}}, 3, "drucker_prager", "simple_shear"),
+        ({"friction_angle": 30.0, "yield_surface": "drucker_prager"}, 3, "drucker_prager", "simple_shear"),
+        ({"friction_angle": 30.0, "yield_surface": "mohr_coulomb"}, 2, "mohr_coulomb", "simple_shear"),
     ]
-    for kw, dim, expected in cases:
+    for kw, dim, surface, cone in cases:
         m = mat(type="MPM.Sand", **kw)
-        assert m.surface(dim) == expected, (kw, dim)
+        used = m.resolved(dim)
+        assert (used.yield_surface, used.cone) == (surface, cone), (kw, dim)
+        assert m.surface(dim) == surface
         law = LAWS["sand"](dim, ti.f32)
         law.allocate(2)
         law.allocate_materials([m])
-        assert law.use_mn == (expected == "matsuoka_nakai"), (kw, dim)
-        assert law.use_mc == (expected == "mohr_coulomb"), (kw, dim)
-    for dim, expected in ((3, "matsuoka_nakai"), (2, "drucker_prager")):
+        assert law.use_mn == (surface == "matsuoka_nakai"), (kw, dim)
+        assert law.use_mc == (surface == "mohr_coulomb"), (kw, dim)
+        assert law.alpha.to_numpy()[0] == pytest.approx(used.alpha, rel=1e-6)
+        if surface == "matsuoka_nakai":
+            assert law.mn_k.to_numpy()[0] == pytest.approx(used.mn_k, rel=1e-6)
+    s30 = math.sin(math.radians(30.0))  # Matsuoka-Nakai in compression: K = (9 - sin^2) / (1 - sin^2)
+    assert mat(type="MPM.Sand", friction_angle=30.0).resolved(3).mn_k == pytest.approx(
+        (9 - s30**2) / (1 - s30**2)
+    )
+    for dim, surface, cone in ((3, "matsuoka_nakai", "compression"), (2, "drucker_prager", "simple_shear")):
         center = [0.5, 0.5, 0.5][:dim]
         scene = Scene.model_validate(
             {
@@ -733,8 +743,8 @@ def test_the_default_yield_surface_is_matsuoka_nakai_in_3d_where_its_fit_exists(
                 ],
             }
         )
-        echoed = resolved_scene_dict(scene, "s")
-        assert echoed["entities"][0]["material"]["yield_surface"] == expected
+        echoed = resolved_scene_dict(scene, "s")["entities"][0]["material"]
+        assert (echoed["yield_surface"], echoed["cone"]) == (surface, cone)
 
 
 @pytest.mark.parametrize("cohesion", [0.0, 2.0e3])

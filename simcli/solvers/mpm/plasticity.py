@@ -32,8 +32,8 @@ last substep, ``svd3_via_b_warm``; 2D: ``ti.svd``), after the update F <- (I + d
   and strength characteristics of soil under three different principal stresses", Proc. JSCE 232, 59-70),
   Mohr-Coulomb at triaxial compression and extension, outside it between them, fitted at b = 0.5 as the
   cone; returned radially in the deviatoric plane (the cone's flow; ``SandLaw.matsuoka_nakai_return``).
-  The default ``yield_surface: auto`` is Matsuoka-Nakai in 3D (simple_shear fit, friction_angle < 45, no
-  mu(I)) and the cone otherwise (``MPMSand.surface``).
+  The default ``yield_surface: auto`` is Matsuoka-Nakai fitted in triaxial compression in 3D (no mu(I)) and
+  the cone fitted to simple shear in 2D (``MPMSand.resolved``).
 
 Each law computes the Kirchhoff stress from the same decomposition and stores it per particle
 (``stores_stress``): p2g reads it, so F is decomposed once per substep. J_p, where tracked, obeys
@@ -484,6 +484,10 @@ class SandLaw(_SVDPlasticLaw):
         """The yield surface this law applies to ``material`` (``yield_surface: auto`` resolved by dim)."""
         return material.surface(self.dim) if hasattr(material, "surface") else "drucker_prager"
 
+    def resolve(self, material: Any) -> Any:
+        """``material`` with ``yield_surface: auto`` resolved for this law's dimension (surface and fit)."""
+        return material.resolved(self.dim) if hasattr(material, "resolved") else material
+
     def allocate(self, n: int) -> None:
         super().allocate(n)
         self.vc = ti.field(self.dtype, shape=n)  # log-volume gained while separated (Tampubolon 2017)
@@ -496,6 +500,7 @@ class SandLaw(_SVDPlasticLaw):
         self.vc.from_numpy(np.zeros(self.n, self._np()))
 
     def allocate_materials(self, materials: list) -> None:
+        materials = [self.resolve(m) for m in materials]  # auto's surface and fit, by dimension
         self.n_materials = len(materials)
         self.alpha = self._param(materials, lambda m: m.alpha)
         # mean Kirchhoff stress at the cone's apex: c cot(phi) (Mohr-Coulomb), 0 without cohesion
