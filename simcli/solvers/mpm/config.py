@@ -184,7 +184,8 @@ class MPMSand(_Solid):
     )
     cone: Literal["simple_shear", "plane_strain", "compression"] = Field(
         "simple_shear",
-        description="How the Drucker-Prager cone |dev tau| + alpha tr(tau) <= 0 is fitted to friction_angle. "
+        description="How the Drucker-Prager cone |dev tau| + alpha tr(tau) <= 0 is fitted to friction_angle "
+        "(with yield_surface: auto in 3D, where the surface is matsuoka_nakai, compression unless given). "
         "simple_shear: a flowing layer (steady simple shear, zero dilatancy) carries tan(friction_angle) "
         "times "
         "its normal stress on its shear planes, so friction_angle is the angle of repose, in 2D and 3D "
