@@ -283,10 +283,6 @@ class MPMSand(_Solid):
             )
         return self
 
-    def surface(self, dim: int) -> str:
-        """The yield surface used in a ``dim``-dimensional scene (``yield_surface: auto`` resolved)."""
-        return self.resolved(dim).yield_surface
-
     def resolved(self, dim: int) -> MPMSand:
         """This material as a ``dim``-dimensional scene uses it: ``yield_surface: auto`` replaced by the
         surface, and for auto's Matsuoka-Nakai the fit (``cone``) when the scene did not give one.

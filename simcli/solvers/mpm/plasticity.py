@@ -480,10 +480,6 @@ class SandLaw(_SVDPlasticLaw):
     tracks_jp = True
     plane_strain_zz = True
 
-    def surface(self, material: Any) -> str:
-        """The yield surface this law applies to ``material`` (``yield_surface: auto`` resolved by dim)."""
-        return material.surface(self.dim) if hasattr(material, "surface") else "drucker_prager"
-
     def resolve(self, material: Any) -> Any:
         """``material`` with ``yield_surface: auto`` resolved for this law's dimension (surface and fit)."""
         return material.resolved(self.dim) if hasattr(material, "resolved") else material
@@ -507,17 +503,17 @@ class SandLaw(_SVDPlasticLaw):
         self.apex = self._param(materials, lambda m: m.cohesion / math.tan(math.radians(m.friction_angle)))
         self.correct = self._param(materials, lambda m: 1.0 if m.volume_correction else 0.0)
         # Mohr-Coulomb (yield_surface: mohr_coulomb), compiled in only when a sand material asks for it
-        self.use_mc = any(self.uses(m) and self.surface(m) == "mohr_coulomb" for m in materials)
+        self.use_mc = any(self.uses(m) and m.yield_surface == "mohr_coulomb" for m in materials)
         if self.use_mc:
-            self.mc = self._param(materials, lambda m: 1.0 if self.surface(m) == "mohr_coulomb" else 0.0)
+            self.mc = self._param(materials, lambda m: 1.0 if m.yield_surface == "mohr_coulomb" else 0.0)
             self.mc_sin = self._param(materials, lambda m: m.mc_sin_phi)
         # Matsuoka-Nakai (yield_surface: matsuoka_nakai), compiled in only when a sand material asks for it
-        self.use_mn = any(self.uses(m) and self.surface(m) == "matsuoka_nakai" for m in materials)
+        self.use_mn = any(self.uses(m) and m.yield_surface == "matsuoka_nakai" for m in materials)
         if self.use_mn:
 
             def mn(getter):  # only the Matsuoka-Nakai materials' (a cone of 45 deg sand has no finite K)
                 return self._param(
-                    materials, lambda m: getter(m) if self.surface(m) == "matsuoka_nakai" else 0.0
+                    materials, lambda m: getter(m) if m.yield_surface == "matsuoka_nakai" else 0.0
                 )
 
             self.mn = mn(lambda m: 1.0)
