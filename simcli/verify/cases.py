@@ -2,7 +2,8 @@
 
 A case names a scene, a measurement (a quantity extracted from the run's ``sim.h5``), a
 reference (an analytic formula, a value, or a published table shipped in
-``simcli/verify/reference_data/`` and named ``${REFERENCE}/<file>``) and a tolerance.
+``simcli/verify/reference_data/`` and named ``${REFERENCE}/<file>``) and a tolerance. A case of
+``kind: measurement`` characterises (reported as "measured", not judged against its tolerance).
 Adding a case means adding files; nothing here lists cases.
 
     # configs/validation/free_fall.case.yaml
@@ -122,7 +123,18 @@ class Case(_M):
     measure: Measure
     reference: Reference
     error: ErrorSpec = Field(default_factory=ErrorSpec)
-    tolerance: float = Field(gt=0, description="Pass when error <= tolerance.")
+    tolerance: float = Field(
+        gt=0,
+        description="Pass when error <= tolerance (kind: measurement: the band the error is shown against, "
+        "not judged).",
+    )
+    kind: Literal["validation", "measurement"] = Field(
+        "validation",
+        description="validation: judged against the tolerance (pass / FAIL; verify exits 1 on a FAIL). "
+        "measurement: a case that characterises rather than validates (its reference is for comparison, "
+        "the description says why it is not a pass/fail check): reported as 'measured' with its error, "
+        "never as a failure of the physics; a run that fails or a measure that is not finite still FAILs.",
+    )
     refine: dict[str, float] = Field(
         default_factory=dict,
         description="Per refinement level, multiply these scene keys (dotted paths) by these factors.",

@@ -92,7 +92,7 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse, v
             else [run_case(c, 0, out, backend, reuse=reuse)]
         )
         for r in rs:
-            state = "pass" if r.passed else ("FAIL" if r.passed is False else "-")
+            state = r.status if r.passed is not None else "-"
             click.echo(
                 f"verify:   level {r.level} ({r.resolution}): error "
                 f"{r.error if r.error is None else f'{r.error:.4g}'} tol {r.tolerance:g} {state} "
@@ -122,7 +122,8 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse, v
             f"{time.perf_counter() - t0:.0f} s. Each case is a scene plus a `.case.yaml` in "
             "configs/validation/ (measurement, reference, tolerance). With --refine, only the finest level "
             "(or the case's refine_tolerance_level) is judged against the tolerance; order = observed order "
-            "of convergence between successive levels.\n"
+            "of convergence between successive levels. A case of kind measurement characterises rather than "
+            "validates: its result reads 'measured' (its error shown against the tolerance, not judged).\n"
             "\n" + table + img
         )
         click.echo(f"wrote {report}", err=True)

@@ -14,6 +14,7 @@ COLUMNS = [
     "error",
     "tolerance",
     "passed",
+    "kind",
     "order",
     "wall_s",
     "stepping_s",
@@ -52,9 +53,7 @@ def markdown_table(results: list[Result]) -> str:
     ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in results:
-        result = "pass" if r.passed else ("FAIL" if r.passed is False else "(coarser level)")
-        if r.passed is None and r.exit_code != 0:
-            result = f"run failed ({r.exit_code})"
+        result = r.status
         cells = [
             r.case,
             str(r.level),

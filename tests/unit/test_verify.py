@@ -207,6 +207,51 @@ def test_report_table_has_every_result():
     assert "| a | 1 | gd=64 | 0.02 | 0.05 | pass | 2.32 |" in md and "(coarser level)" in md
 
 
+def test_a_measurement_is_shown_not_judged_but_a_failed_run_still_fails():
+    ok = Result("m", 0, "-", 0.4, 0.05, True, 1.0, 0.5, 0.2, 100, 1e6, 10, 0, kind="measurement")
+    bad = Result("m", 0, "-", None, 0.05, False, 1.0, None, None, None, None, None, 70, kind="measurement")
+    val = Result("v", 0, "-", 0.4, 0.05, False, 1.0, 0.5, 0.2, 100, 1e6, 10, 0)
+    assert (ok.status, bad.status, val.status) == ("measured", "FAIL", "FAIL")
+    md = markdown_table([ok, bad, val])
+    assert "| m | 0 | - | 0.4 | 0.05 | measured |" in md and "| v | 0 | - | 0.4 | 0.05 | FAIL |" in md
+
+
+@pytest.mark.timeout(600)
+def test_verify_exits_0_on_a_measurement_beyond_its_band_and_1_on_a_failed_validation(tmp_path):
+    """`simcli verify --root`: a measurement case whose error exceeds its band reads "measured" (exit 0);
+    the same scene as a validation case with that tolerance FAILs (exit 1)."""
+    root = tmp_path / "cases"
+    root.mkdir()
+    (root / "fall.yaml").write_text(
+        "version: 1\nsim: {dim: 2, dt: 5.0e-3, substeps: 4, duration: 0.05}\n"
+        "domain: {lower: [0, 0], upper: [1, 1]}\nsolvers: {mpm: {grid_density: 32}}\n"
+        "entities:\n  - name: b\n    material: {type: MPM.Elastic, E: 1.0e5, nu: 0.3, rho: 1000}\n"
+        "    morph: {type: Box, center: [0.5, 0.7], size: [0.1, 0.1]}\noutput: {every: 5, formats: [hdf5]}\n"
+    )
+    case = (
+        "scene: fall.yaml\nmeasure: {quantity: com, entity: b, axis: 1}\n"
+        "reference: {value: 0.5}\nerror: {metric: final_abs}\ntolerance: 0.01\n"
+    )
+    (root / "fall_m.case.yaml").write_text(case + "kind: measurement\n")
+    (root / "fall_v.case.yaml").write_text(case)
+
+    def verify(name):
+        out = tmp_path / name
+        r = subprocess.run(
+            [sys.executable, "-m", "simcli", "verify", name, "--root", str(root), "-o", str(out)],
+            capture_output=True,
+            text=True,
+            timeout=500,
+        )
+        return r, (out / "verify.md").read_text()
+
+    r, md = verify("fall_m")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "measured" in md and "FAIL" not in md and "not judged" in md
+    r, md = verify("fall_v")
+    assert r.returncode == 1 and "FAIL" in md
+
+
 @pytest.mark.validation
 @pytest.mark.timeout(1800)
 def test_verify_fast_set_passes_end_to_end(tmp_path):
