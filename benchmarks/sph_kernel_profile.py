@@ -87,6 +87,7 @@ def main() -> None:
         "cpu_ms_per_substep": round(1e3 * (c1 - c0) / args.substeps, 3),
         "wall_ms_per_substep": round(1e3 * (w1 - w0) / args.substeps, 3),
         "cpu_ms_per_substep_fastest_chunk": round(min(chunk_ms), 3),
+        "cpu_ms_per_substep_chunks": [round(c, 2) for c in chunk_ms],
         "kernel_ms_per_substep_sum_of_fastest": fastest,
         "kernel_ms_per_substep_measured": total,
         "density_iterations": r.get("density", {}).get("iterations_per_substep"),
