@@ -43,7 +43,9 @@ from simcli.errors import EXIT_INVALID_SCENE, SceneError
     help="Also write the Markdown report here (e.g. docs/VALIDATION.md).",
 )
 @click.option("--backend", default=None, help="Compute backend for the runs.")
-@click.option("--list", "list_", is_flag=True, help="List the cases and exit.")
+@click.option(
+    "--list", "list_", is_flag=True, help="List the cases (name, kind, tags, description) and exit."
+)
 @click.option(
     "--reuse",
     is_flag=True,
@@ -77,7 +79,7 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse, v
         sys.exit(EXIT_INVALID_SCENE)
     if list_:
         for c in chosen:
-            click.echo(f"{c.name}\t{','.join(c.tags)}\t{c.description}")
+            click.echo(f"{c.name}\t{c.kind}\t{','.join(c.tags)}\t{c.description}")
         return
     if not chosen:
         click.echo("no cases selected", err=True)

@@ -245,6 +245,13 @@ def test_verify_exits_0_on_a_measurement_beyond_its_band_and_1_on_a_failed_valid
         )
         return r, (out / "verify.md").read_text()
 
+    listed = subprocess.run(
+        [sys.executable, "-m", "simcli", "verify", "--all", "--list", "--root", str(root)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    ).stdout.splitlines()
+    assert [line.split("\t")[:2] for line in listed] == [["fall_m", "measurement"], ["fall_v", "validation"]]
     r, md = verify("fall_m")
     assert r.returncode == 0, r.stderr[-2000:]
     assert "measured" in md and "FAIL" not in md and "not judged" in md
