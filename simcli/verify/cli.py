@@ -94,7 +94,7 @@ def verify(cases, all_, tag, refine, root, out, report, backend, list_, reuse, v
             else [run_case(c, 0, out, backend, reuse=reuse)]
         )
         for r in rs:
-            state = r.status if r.passed is not None else "-"
+            state = r.status
             click.echo(
                 f"verify:   level {r.level} ({r.resolution}): error "
                 f"{r.error if r.error is None else f'{r.error:.4g}'} tol {r.tolerance:g} {state} "
