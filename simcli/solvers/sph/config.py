@@ -253,11 +253,6 @@ class SPHOptions(_Options):
                 "conjugate-gradient "
                 "solve for clamp_pressure: false needs a symmetric operator): set wall_pressure: akinci"
             )
-        if self.boundary == "volume_map" and self.gradient_correction is True:
-            raise ValueError(
-                "gradient_correction: true (the full matrix) is not available with boundary: volume_map: set "
-                "gradient_correction: scalar (or auto), or boundary: particles"
-            )
         if self.pressure_solver == "DFSPH" and (
             self.density != "summation" or self.density_diffusion is not None or self.artificial_viscosity
         ):

@@ -146,7 +146,7 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                                     M += coef * g.outer_product(d)
                                     m_w += coef * bvel[b].dot(d) * g
         if ti.static(vmap):  # walls and static colliders as precomputed maps (volume_map.py)
-            psi, Bm, cm, Tm, Mm, mwm, Sm, Hy = fn.boundary_map(xi, gravity[None], i)
+            psi, Bm, cm, Tm, Mm, mwm, Sm, Hy, Mb, Qm = fn.boundary_map(xi, gravity[None], i)
             if ti.static(has_hb):
                 Hb[i] = Hy
             r_i += rho0_i * psi
@@ -155,6 +155,11 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             cntb += ti.cast(cm + 0.5, ti.i32)
             if ti.static(kgc_scalar):
                 Mtr += Tm
+            elif ti.static(
+                kgc
+            ):  # the map's moment sum_b V_b grad W_ib (x_i - x_b)^T and B v^T (volume_map.py)
+                Mom -= Mb
+                Qb += Qm
             if ti.static(has_noslip):
                 M += Mm
                 m_w += mwm

@@ -722,6 +722,7 @@ class SPHSolver(Solver):
                 self.poses if self.poses.any_moving else None,
                 F,
                 fn,
+                with_moment=self.kgc and not self.kgc_scalar,
             )
             fn.map_wall_k = self.vmap.make_wall_k(F, fn)
         fn.neighbours_density = make_neighbours_density(P, F, fn)

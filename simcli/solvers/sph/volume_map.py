@@ -302,11 +302,26 @@ class VolumeMap:
 
     # ---------------------------------------------------------------- Taichi side
 
-    def build(self, f, npf, with_noslip: bool, with_hyd: bool = False, poses=None, F=None, fn=None):
-        """Taichi fields and the func ``boundary(xi, g, i) -> (psi, B, cnt, T, M, m_w, S, H)`` (liquid
+    def build(
+        self,
+        f,
+        npf,
+        with_noslip: bool,
+        with_hyd: bool = False,
+        poses=None,
+        F=None,
+        fn=None,
+        with_moment: bool = False,
+    ):
+        """Taichi fields and the func ``boundary(xi, g, i) -> (psi, B, cnt, T, M, m_w, S, H, Mom, Q)`` (liquid
         particle i at xi, its neighbour list built); ``with_noslip``: the no-slip sums are wanted (a viscous
         liquid); ``with_hyd``: H, the walls' hydrostatic pressure term for gravity g (the extrapolated wall
-        pressure, see ``hydrostatic``; needs the solver's fields ``F`` and funcs ``fn``), else zero."""
+        pressure, see ``hydrostatic``; needs the solver's fields ``F`` and funcs ``fn``), else zero;
+        ``with_moment``: Mom = sum_b V_b grad W_ib (x_i - x_b)^T, the boundary's part of the moment matrix
+        that DFSPH's matrix gradient correction inverts (``gradient_correction: true``, density.py), and Q =
+        sum_b V_b grad W_ib v_b^T (its wall-velocity term: B v^T of each moving face and collider, as S takes
+        B . v), else zero. Mom is the hydrostatic term's moment, summed over the faces, edges, corners and
+        colliders with the same inclusion-exclusion."""
         from simcli.backend import stdout_to_stderr
 
         with stdout_to_stderr():
@@ -465,7 +480,7 @@ class VolumeMap:
                 Mc = ti.Matrix.zero(f, dim, dim)
                 for m in ti.static(range(nsym)):
                     i, j = ti.static(col_sym[c][m][0], col_sym[c][m][1])
-                    if ti.static(with_hyd):
+                    if ti.static(with_hyd or with_moment):
                         Mo[i, j] = v[3 + dim + m]
                         Mo[j, i] = v[3 + dim + m]
                     if ti.static(col_noslip[c]):
@@ -491,6 +506,8 @@ class VolumeMap:
             M = ti.Matrix.zero(f, dim, dim)
             mw = ti.Vector.zero(f, dim)
             S = ti.cast(0.0, f)
+            Mom = ti.Matrix.zero(f, dim, dim)  # with_moment: sum_b V_b grad W_ib (x_i - x_b)^T
+            Q = ti.Matrix.zero(f, dim, dim)  # with_moment: sum_b V_b grad W_ib v_b^T
             # distances to the faces (inward), in the walls' order (x-, x+, y-, ...)
             dist = ti.Vector.zero(f, 2 * dim)
             near = False
@@ -525,12 +542,19 @@ class VolumeMap:
                         if ti.static(any_vel[k]):
                             vw = ti.Vector(vel, dt=f)
                             S += sgn * vw[ax] * v[1]
-                        if ti.static(with_hyd):
+                            if ti.static(with_moment):
+                                Bf = ti.Vector.zero(f, dim)
+                                Bf[ax] = sgn * v[1]
+                                Q += Bf.outer_product(vw)
+                        if ti.static(with_hyd or with_moment):
                             nv = ti.Vector.zero(f, dim)
                             nv[ax] = sgn
                             nn = nv.outer_product(nv)
                             Mo = v[6] * nn + v[7] * (ti.Matrix.identity(f, dim) - nn)
-                            Hy += hydrostatic(v[1] * nv, Mo, g, lim)
+                            if ti.static(with_hyd):
+                                Hy += hydrostatic(v[1] * nv, Mo, g, lim)
+                            if ti.static(with_moment):
+                                Mom += Mo
                         if ti.static(ns):
                             nv = ti.Vector.zero(f, dim)
                             nv[ax] = sgn
@@ -551,7 +575,7 @@ class VolumeMap:
                                 B[k1 // 2] -= faces[k1][2] * q[2]
                                 cnt -= q[3]
                                 T -= q[4]
-                                if ti.static(with_hyd):
+                                if ti.static(with_hyd or with_moment):
                                     a0, a1 = ti.static(k0 // 2, k1 // 2)
                                     s0, s1 = ti.static(faces[k0][2], faces[k1][2])
                                     Mo = ti.Matrix.zero(f, dim, dim)
@@ -565,7 +589,10 @@ class VolumeMap:
                                     Bo = ti.Vector.zero(f, dim)
                                     Bo[a0] = s0 * q[1]
                                     Bo[a1] = s1 * q[2]
-                                    Hy -= hydrostatic(Bo, Mo, g, lim)
+                                    if ti.static(with_hyd):
+                                        Hy -= hydrostatic(Bo, Mo, g, lim)
+                                    if ti.static(with_moment):
+                                        Mom -= Mo
                                 if ti.static(faces[k1][3]):
                                     # no-slip: boundary particles give the edge's lattice the first face's
                                     # kind and velocity (boundary.wall_particles): the second face's copy goes
@@ -593,7 +620,7 @@ class VolumeMap:
                             B[2] += faces[k2][2] * o[3]
                             cnt += o[4]
                             T += o[5]
-                            if ti.static(with_hyd):
+                            if ti.static(with_hyd or with_moment):
                                 sg = ti.static((faces[k0][2], faces[k1][2], faces[k2][2]))
                                 comps = ti.static(
                                     ((0, 0, 6), (1, 1, 7), (2, 2, 8), (0, 1, 9), (0, 2, 10), (1, 2, 11))
@@ -604,7 +631,10 @@ class VolumeMap:
                                     Mo[i0, i1] = sg[i0] * sg[i1] * o[ch]
                                     Mo[i1, i0] = sg[i0] * sg[i1] * o[ch]
                                 Bo = ti.Vector([sg[0] * o[1], sg[1] * o[2], sg[2] * o[3]])
-                                Hy += hydrostatic(Bo, Mo, g, lim)
+                                if ti.static(with_hyd):
+                                    Hy += hydrostatic(Bo, Mo, g, lim)
+                                if ti.static(with_moment):
+                                    Mom += Mo
                             if ti.static(faces[k2][3]):  # no-slip: the third face's copy, removed twice
                                 sg = ti.static((faces[k0][2], faces[k1][2], faces[k2][2]))
                                 comps = ti.static(
@@ -626,13 +656,17 @@ class VolumeMap:
                 T += cT
                 if ti.static(col_moving[c]):  # the wall's velocity: the surface's at x_i (module docstring)
                     S += vs.dot(cB)
+                    if ti.static(with_moment):
+                        Q += cB.outer_product(vs)
                 if ti.static(with_hyd):
                     Hy += hydrostatic(cB, Mo, g, lim_body if ti.static(col_rigid[c]) else lim)
+                if ti.static(with_moment):
+                    Mom += Mo
                 if ti.static(col_noslip[c]):
                     M += Mc
                     if ti.static(col_moving[c]):
                         mw += Mc @ vs
-            return psi, B, cnt, T, M, mw, S, Hy
+            return psi, B, cnt, T, M, mw, S, Hy, Mom, Q
 
         def make_collider_terms(c):
             @ti.func
