@@ -146,8 +146,12 @@ def test_moving_collider_map_gives_its_boundary_particles_sums(ti_f32):
     assert np.abs(Sm - Sp).max() < 0.05 * np.abs(Sp).max(), (np.abs(Sm - Sp).max(), np.abs(Sp).max())
 
 
-def _lm(sc):
+def _lm(sc, at=None):
+    """L_i, x_i and the wall-velocity term Sb_i after a density pass, in particle-id order (``at``: the
+    colliders' poses at (t, dt) first)."""
     s, _ = make(sc)
+    if at is not None:
+        s.poses.set_time(*at)
     s._density_only()
     order = np.argsort(s.pid.to_numpy()[: s.n])
     return [a[: s.n][order] for a in (s.Lm.to_numpy(), s.x.to_numpy(), s.Sb.to_numpy())], s.support
@@ -183,12 +187,7 @@ def test_matrix_gradient_correction_next_to_a_collider_map(ti_f32, moving):
         sc["solvers"]["sph"]["gradient_correction"] = True
         if moving:
             sc["colliders"][0]["motion"] = {"angular_velocity": [2.0], "linear_velocity": [0.05, 0.02]}
-        s, _ = make(sc)
-        if moving:
-            s.poses.set_time(0.19, 0.02)
-        s._density_only()
-        order = np.argsort(s.pid.to_numpy()[: s.n])
-        out[b] = [a[: s.n][order] for a in (s.Lm.to_numpy(), s.x.to_numpy(), s.Sb.to_numpy())]
+        out[b], _ = _lm(sc, (0.19, 0.02) if moving else None)
     (Lp, x, Sp), (Lm, _, Sm) = out["particles"], out["volume_map"]
     below = x[:, 1] < 0.12 - 0.01
     err = np.abs(Lm[below] - Lp[below]).max()

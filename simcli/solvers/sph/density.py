@@ -155,9 +155,8 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             cntb += ti.cast(cm + 0.5, ti.i32)
             if ti.static(kgc_scalar):
                 Mtr += Tm
-            elif ti.static(
-                kgc
-            ):  # the map's moment sum_b V_b grad W_ib (x_i - x_b)^T and B v^T (volume_map.py)
+            elif ti.static(kgc):
+                # the map's moment sum_b V_b grad W_ib (x_i - x_b)^T and its B v^T (volume_map.py)
                 Mom -= Mb
                 Qb += Qm
             if ti.static(has_noslip):
