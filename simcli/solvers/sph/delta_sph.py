@@ -72,6 +72,8 @@ def make_delta_sph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             M = ti.Matrix.zero(f, dim, dim)  # sum_j V_j grad W_ij (x_j - x_i)^T
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 d = xi - x[j]
                 g = gradW(d, d.norm())
                 Vj = mass_of(j) / rho[j]
@@ -102,6 +104,8 @@ def make_delta_sph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         gvec = gravity[None]
         for k in range(nb_cnt[i]):
             j = nb_j[i, k]
+            if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                break
             d = xi - x[j]
             r2 = d.dot(d)
             g = gradW(d, ti.sqrt(r2))
@@ -139,6 +143,8 @@ def make_delta_sph(P: SPHParams, F: SPHFields, fn: SPHFuncs):
             ci = sound_speed(mid[i])
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 d = xi - x[j]
                 vr = (vi - v[j]).dot(d)
                 if vr < 0:

@@ -73,6 +73,8 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         for a in range(row ** (dim - 1)):  # a run-time loop: unrolled, it compiles for minutes
             lin = row_cell(c0, a)
             for j in range(start[lin], start[lin + row]):
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 d = xi - x[j]
                 r2 = d.dot(d)
                 if r2 < h2 and j != i:
@@ -118,6 +120,8 @@ def make_neighbours_density(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                 for a in range(row ** (dim - 1)):
                     lin = row_cell(c0, a)
                     for b in range(bstart[lin], bstart[lin + row]):
+                        if b < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                            break
                         d = xi - bx[b]
                         r2 = d.dot(d)
                         if r2 < h2:

@@ -126,6 +126,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
         s = vi.dot(corr(i, B[i])) - Sb[i]
         for k in range(nb_cnt[i]):
             j = nb_j[i, k]
+            if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                break
             s += fn.volume_of(j) * (vi - v[j]).dot(corr(i, ((xi - x[j]) * nb_s[i, k])))
         return s
 
@@ -183,6 +185,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             kci = ki * Lc[i]
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 if ti.static(uniform):
                     g += (kci + k_[j] * Lc[j]) * fn.volume_of(j) * ((xi - x[j]) * nb_s[i, k])
                 else:
@@ -193,6 +197,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             kLi = ki * Lm[i]
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 if ti.static(uniform):
                     g += fn.volume_of(j) * ((kLi + k_[j] * Lm[j]) @ ((xi - x[j]) * nb_s[i, k]))
                 else:
@@ -202,6 +208,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
         else:
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 if ti.static(uniform):
                     g += (ki + k_[j]) * fn.volume_of(j) * ((xi - x[j]) * nb_s[i, k])
                 else:
@@ -228,6 +236,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             acc = ti.Vector.zero(f, dim)
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 acc += ((kci + kc[j]) * nb_s[i, k]) * (xi - x[j])
             v[i] -= dt * (dv + fn.volume_of(i) * acc)
         else:
@@ -279,6 +289,8 @@ def make_dfsph(P: SPHParams, F: SPHFields, fn: SPHFuncs, stats: "SolveStats", n_
             d = dv.dot(corr(i, B[i]))
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 d += fn.volume_of(j) * (dv - dvt[j]).dot(corr(i, ((xi - x[j]) * nb_s[i, k])))
             cg_Ap[i] = -dt * d
         serial_dot(cg_p, cg_Ap, 1)

@@ -254,6 +254,8 @@ def make_loads(P: SPHParams, F: SPHFields, fn: SPHFuncs, poses, deformable=None)
         for a in range(row ** (dim - 1)):
             lin = row_cell(c0, a)
             for b in range(bstart[lin], bstart[lin + row]):
+                if b < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 kb = -1
                 if ti.static(len(named) > 0):
                     kb = bcol[b]

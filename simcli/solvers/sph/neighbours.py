@@ -21,6 +21,14 @@ boundary particles), rebuilt every substep by a counting sort that also reorders
   of the cells. A particle with more neighbours than the
   capacity (a compression far beyond any liquid's) drops the excess; the count is reported.
 * **Boundary particles** are static: sorted into the same cells once, at build.
+* **Scalar pair loops.** Every loop over a particle's neighbours (list or cells) in this family starts with
+  ``if j < 0: break``, a test that never holds. Taichi compiles with fast math, which lets LLVM 15 reorder a
+  pair loop's sums and vectorise it with gather loads (``vpgatherdd``) where the host CPU's model says
+  gathers are cheap (Intel Xeons); there they are not: on the Intel Xeon of docs/PERFORMANCE_SPH.md
+  (2026-11-28) a DFSPH iteration's pass took 1.46 ms vectorised and 0.61 ms scalar (1 thread, 6,859
+  particles), and a stand-alone C loop compiled with ``-march=native`` ran 3x slower than with generic
+  tuning. A loop with an exit is not vectorised, so the loop stays scalar on every CPU, and its sums are
+  taken in list order (the same on every CPU, where the vector width used to decide the order).
 """
 
 from __future__ import annotations

@@ -66,6 +66,8 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
         an = ti.Vector.zero(f, dim)  # the curvature term, sum_j k_ij (n_i - n_j)
         for k in range(nb_cnt[i]):
             j = nb_j[i, k]
+            if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                break
             d = xi - x[j]
             s = nb_s[i, k]
             c = -mj * (dpi + pr2[j]) * s  # the pressure force, -m_j (p_i / rho_i^2 + p_j / rho_j^2) grad W
@@ -113,6 +115,8 @@ def make_non_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs):
                 ni = nrm[i]
             for k in range(nb_cnt[i]):
                 j = nb_j[i, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 d = ti.Vector.zero(f, dim)
                 r2 = ti.cast(0.0, f)
                 if ti.static(has_visc or has_tension or not store_grad):

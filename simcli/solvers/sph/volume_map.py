@@ -724,6 +724,8 @@ class VolumeMap:
                 sk = w0 * kap[i]
                 for k in range(nb_cnt[i]):
                     j = nb_j[i, k]
+                    if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                        break
                     w = volume_of(j) * W((xi - x[j]).norm())
                     den += w
                     sk += w * kap[j]
@@ -763,6 +765,8 @@ class VolumeMap:
                 den = w0
                 for k in range(nb_cnt[i]):
                     j = nb_j[i, k]
+                    if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                        break
                     w = volume_of(j) * W((xi - x[j]).norm())
                     num += w * k_[j]
                     den += w

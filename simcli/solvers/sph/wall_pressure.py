@@ -132,6 +132,8 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
             for a in range(row ** (dim - 1)):
                 lin = row_cell(c0, a)
                 for j in range(start[lin], start[lin + row]):
+                    if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                        break
                     d = xb - x[j]
                     r2 = d.dot(d)
                     if r2 < h2:
@@ -184,6 +186,8 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
             acc = ti.cast(0.0, f)
             for k in range(bnb_cnt[b]):
                 j = bnb_j[b, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
                 if ti.static(uniform):
                     acc += bnb_w[b, k] * src[j]
                 else:
@@ -198,6 +202,8 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
         xi = x[i]
         for k in range(nb_cnt[i], nbw_end[i]):
             b = nb_j[i, k]
+            if b < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                break
             out += val[b] * (bV[b] * ((xi - bx[b]) * nb_s[i, k]))  # the list's factor: V_b grad W_ib
         if ti.static(not uniform):
             out /= mat_rho0[mid[i]]
@@ -219,7 +225,10 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
             b = active[t]
             acc = ti.cast(0.0, f)
             for k in range(bnb_cnt[b]):
-                acc += bnb_w[b, k] * p_liq[bnb_j[b, k]]
+                j = bnb_j[b, k]
+                if j < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                    break
+                acc += bnb_w[b, k] * p_liq[j]
             if ti.static(uniform):
                 acc += mat_rho0[0] * bhyd[b]
             else:
@@ -248,6 +257,8 @@ def make_wall_pressure(P: SPHParams, F: SPHFields, fn: SPHFuncs, bodies: tuple =
         m = mid[i]
         for k in range(nb_cnt[i], nbw_end[i]):
             b = nb_j[i, k]
+            if b < 0:  # never: keeps the pair loop scalar (neighbours.py, Scalar pair loops)
+                break
             d = xi - bx[b]
             g = ti.Vector.zero(f, dim)
             if ti.static(list_s):
