@@ -297,7 +297,10 @@ class ImplicitIntegrator:
                 if ti.static(ray_a > 0):
                     D += ti.Matrix.identity(float, 3) * (ray_a * mi / dt)
                 for qq in range(s.adj_start_f[i], s.adj_start_f[i + 1]):
-                    D += db[s.adj_f[qq]]
+                    k = s.adj_f[qq]
+                    if k < 0:  # never: keeps the loop scalar (solvers/sph/neighbours.py, Scalar pair loops)
+                        break
+                    D += db[k]
                 if ck[i] > 0:
                     D += ck[i] * cn[i].outer_product(cn[i])
                 fr = free[i]

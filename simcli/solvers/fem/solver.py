@@ -444,7 +444,10 @@ class FEMSolver(Solver):
         def gather(i):
             s = ti.Vector.zero(float, 3)
             for q in range(self.adj_start_f[i], self.adj_start_f[i + 1]):
-                s += self.fe[self.adj_f[q]]
+                k = self.adj_f[q]
+                if k < 0:  # never: keeps the loop scalar (solvers/sph/neighbours.py, Scalar pair loops)
+                    break
+                s += self.fe[k]
             return s
 
         self.deformation, self.law_call, self.law_hessian = deformation, law_call, law_hessian
@@ -482,7 +485,10 @@ class FEMSolver(Solver):
             for i in range(n):
                 acc = ti.Vector.zero(float, 3)
                 for q in range(self.adj_start_f[i], self.adj_start_f[i + 1]):
-                    acc += self.fe[nc * (self.adj_f[q] // nc)]
+                    k = self.adj_f[q]
+                    if k < 0:  # never: keeps the loop scalar (solvers/sph/neighbours.py, Scalar pair loops)
+                        break
+                    acc += self.fe[nc * (k // nc)]
                 out_vm[i] = acc[0] / acc[2]
                 out_J[i] = acc[1] / acc[2]
 
