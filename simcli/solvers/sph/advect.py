@@ -1,5 +1,6 @@
 """advect: symplectic Euler's position update, x += dt v (plus the shifting displacement), then the guards:
-clamp to the domain (dropping the velocity into the wall) and push out of colliders (boundary.make_pushout).
+clamp to the domain, or `wall_standoff` inside it (dropping the velocity into the wall), and push out of
+colliders (boundary.make_pushout).
 """
 
 from simcli.backend import stdout_to_stderr
@@ -15,8 +16,9 @@ def make_advect(P: SPHParams, F: SPHFields, fn: SPHFuncs):
     x, v, shift = F.x, F.v, F.shift
     has_shift = shift is not None
     pushout = fn.pushout
-    dom_lo = ti.Vector(list(P.domain_lo), dt=f)
-    dom_hi = ti.Vector(list(P.domain_hi), dt=f)
+    # the guard's faces: the domain walls, or wall_standoff inside them
+    dom_lo = ti.Vector([a + P.wall_standoff for a in P.domain_lo], dt=f)
+    dom_hi = ti.Vector([a - P.wall_standoff for a in P.domain_hi], dt=f)
 
     @ti.func
     def advect(i, vi, dt):

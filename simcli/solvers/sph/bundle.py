@@ -59,6 +59,7 @@ class SPHParams:
     max_divergence_iterations: int
     max_density_iterations: int
     cpu: bool  # a CPU backend (the counting sort's serial count)
+    wall_standoff: float = 0.0  # the position guard's distance from the domain walls [m] (solvers.sph)
     volume_map: bool = False  # walls and static colliders as precomputed maps (volume_map.py), nbp = 0
     # WCSPH, delta-SPH (delta_sph.py): the density from the continuity equation, its diffusion, Monaghan's
     # artificial viscosity

@@ -236,6 +236,19 @@ class SPHOptions(_Options):
         "extrapolated it settled at 2 ms (docs/SPH.md, gaps).",
     )
 
+    wall_standoff: float = Field(
+        0.0,
+        ge=0.0,
+        le=0.5,
+        description="How far the domain walls keep particle centres off their faces, in particle sizes [-]: "
+        "0 lets a centre reach the face; 0.5, a particle's radius, keeps every particle's volume inside "
+        "the domain (where sampling puts the particles next to a wall), as SPlisHSPlasH keeps its "
+        "particles one radius off its boundaries. The position guard moves a particle that comes closer "
+        "back to that distance and drops its velocity into the wall. On SPlisHSPlasH's dam break 0.5 takes "
+        "271 adaptive substeps instead of 323: the fast jets along the walls come from particles that "
+        "reach the last half spacing (docs/SPH.md, session 26). Colliders are not affected.",
+    )
+
     @model_validator(mode="after")
     def _dfsph_only(self) -> SPHOptions:
         if self.gradient_correction not in (False, "auto") and self.pressure_solver != "DFSPH":

@@ -768,6 +768,7 @@ class SPHSolver(Solver):
             grid_dims=tuple(self.grid.dims),
             domain_lo=tuple(self.domain_lo),
             domain_hi=tuple(self.domain_hi),
+            wall_standoff=self.opts.wall_standoff * self.ps,
             nbp=self.nbp,
             uniform=self.uniform,
             m_c=float(self.materials[0].rho * self.V_rest),
