@@ -301,3 +301,78 @@ def test_cloth_traction_takes_no_axes(tmp_path):
     r = _validate(_scene(tmp_path, EDGE_LOAD % bc))
     assert r.returncode == 65, r.stderr
     assert "boundary_conditions" in r.stderr and "axes" in r.stderr, r.stderr
+
+
+def test_compressed_triangles_keep_the_negative_curvature_their_inertia_covers():
+    """membrane(..., inertia): a compressed triangle's Hessian is proj(H_e + D_e) - D_e. Where H_e + D_e is
+    already positive semi-definite that is H_e itself (the exact Hessian, negative curvature kept); where
+    not, H_e + D_e becomes the nearest PSD matrix, so the assembled matrix plus the inertia stays PSD; a
+    triangle in tension is unchanged either way."""
+    X, t = _sheet(3)
+    mod = ShellModel(X, t, mu=3.0, lam_ps=2.0, thickness=0.1, D=0.0)
+    x = X * np.array([0.8, 0.9, 1.0]) + 0.01 * np.random.default_rng(3).standard_normal(X.shape)
+    _, _, H_clamped = mod.membrane(x, 2)  # the old projection (dP/dF clamped)
+    exact = ShellModel(X, t, mu=3.0, lam_ps=2.0, thickness=0.1, D=0.0)
+    _, _, H_big = exact.membrane(x, 2, inertia=np.full(len(x), 1e3))  # inertia covers everything
+    _, _, H_none = exact.membrane(x, 2, inertia=np.zeros(len(x)))  # no inertia: the 9x9 clamp
+    # the exact element Hessians, by finite differences of the element gradients
+    eps = 1e-6
+    for k in range(len(t)):
+        Hfd = np.empty((9, 9))
+        for c in range(9):
+            xp, xm = x.copy(), x.copy()
+            xp[t[k][c // 3], c % 3] += eps
+            xm[t[k][c // 3], c % 3] -= eps
+            gp = _element_grad(exact, xp, k)
+            gm = _element_grad(exact, xm, k)
+            Hfd[:, c] = (gp - gm) / (2 * eps)
+        assert np.abs(H_big[k] - Hfd).max() <= 1e-5 * np.abs(Hfd).max()
+        assert np.linalg.eigvalsh(H_none[k]).min() >= -1e-9 * np.abs(Hfd).max()
+    lam = np.linalg.eigvalsh(H_big)
+    assert lam.min() < -1e-6 * np.abs(lam).max()  # some compressed triangle had negative curvature: kept
+    assert np.linalg.eigvalsh(H_clamped).min() >= -1e-9 * np.abs(lam).max()  # the old one dropped it
+
+
+def _element_grad(mod, x, k):
+    """Gradient of triangle k's membrane energy with respect to its 9 vertex coordinates."""
+    sub = ShellModel(mod.X, mod.tris[k : k + 1], mu=3.0, lam_ps=2.0, thickness=0.1, D=0.0)
+    _, g, _ = sub.membrane(x, 1)
+    return g[mod.tris[k]].ravel()
+
+
+def test_newton_vtol_stops_on_the_step_s_velocity(tmp_path):
+    """solvers.fem.newton_vtol: Newton also stops when |p| / dt falls below it; off (0) by default. A sheet
+    falling onto a sphere: fewer Newton steps with it, the same sheet within a millimetre."""
+    from simcli.scene.loader import load_scene
+    from simcli.solvers.fem.cloth.solver import ClothSolver
+
+    p = tmp_path / "s.yaml"
+    p.write_text(
+        textwrap.dedent(
+            """\
+            version: 1
+            sim: {dim: 3, dt: 1.0e-2, substeps: 1, duration: 0.15}
+            domain: {lower: [-1, -1, 0], upper: [1, 1, 1.5]}
+            colliders:
+              - {type: Sphere, center: [0, 0, 0.3], radius: 0.25, friction: 0.3}
+            solvers:
+              fem: {contact_distance: 2.0e-3}
+            entities:
+              - name: cloth
+                material: {type: FEM.Cloth, E: 1.0e6, nu: 0.3, rho: 400, thickness: 5.0e-4, damping: 0.5}
+                morph: {type: Rectangle, center: [0, 0, 0.6], size: [1.0, 1.0], resolution: 16}
+            """
+        )
+    )
+    out = {}
+    for vtol in (0.0, 1.0e-2):
+        sc = load_scene(p, [f"solvers.fem.newton_vtol={vtol}"]).scene
+        assert sc.solvers.fem.newton_vtol == vtol
+        s = ClothSolver(sc, [], scene_dir=None)
+        s.build()
+        for _ in range(15):
+            s.substep(0.01)
+        out[vtol] = (s.info()["newton_iterations"], s.x.copy())
+        assert len(edge_triangle_intersections(s.x, s.tris)) == 0
+    assert out[1.0e-2][0] < out[0.0][0]
+    assert np.abs(out[1.0e-2][1] - out[0.0][1]).max() < 1.0e-3

@@ -84,6 +84,15 @@ class FEMOptions(_Options):
         description="Implicit: absolute Newton stop [m/s^2]: largest residual force per vertex mass (1e-2 is "
         "1e-3 g). Newton also stops when the line search finds no decrease (round-off reached; counted).",
     )
+    newton_vtol: float = Field(
+        0.0,
+        ge=0,
+        description="FEM.Cloth: Newton also stops when its step's largest vertex displacement divided by the "
+        "step, |p| / dt, falls below this velocity [m/s] (the step test of IPC, Li et al. 2020). A speed "
+        "for accuracy trade: fewer Newton steps, but the forces are then converged only as far as the "
+        "contact's stiffness times |p| (1e-3 m/s: a sheet resting on a sphere reads its weight 9 % high, "
+        "docs/FEM.md). 0 (default): newton_tol and newton_atol alone.",
+    )
     newton_max_iter: int = Field(
         50,
         ge=1,

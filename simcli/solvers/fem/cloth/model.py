@@ -163,8 +163,15 @@ class ShellModel:
         tr = Eg[:, 0, 0] + Eg[:, 1, 1]
         return 2 * self.mu[:, None, None] * Eg + (self.lam * tr)[:, None, None] * np.eye(2)
 
-    def membrane(self, x: np.ndarray, order: int = 2):
-        """Energy [J], gradient (n, 3) and, for order 2, the projected element Hessians (m, 9, 9)."""
+    def membrane(self, x: np.ndarray, order: int = 2, inertia: np.ndarray | None = None):
+        """Energy [J], gradient (n, 3) and, for order 2, the projected element Hessians (m, 9, 9).
+
+        inertia (n,), optional: each vertex's inertia term of the Newton matrix (M / dt^2 + c M / dt) divided
+        among its triangles. A compressed triangle's Hessian H_e is then projected as
+        proj(H_e + D_e) - D_e, D_e its vertices' shares: the assembled matrix (which adds M / dt^2 + c M / dt
+        back) stays positive semi-definite, and the negative curvature of a compressed triangle is kept as far
+        as its inertia covers it, where clamping dP/dF drops all of it (docs/FEM.md, Newton on compressed
+        triangles). Without it: dP/dF clamped (6 x 6)."""
         F = self.deformation(x)
         Eg = 0.5 * (np.swapaxes(F, 1, 2) @ F - np.eye(2))
         tr = Eg[:, 0, 0] + Eg[:, 1, 1]
@@ -201,7 +208,7 @@ class ShellModel:
         half_tr = 0.5 * (S[:, 0, 0] + S[:, 1, 1])
         s_min = half_tr - np.hypot(0.5 * (S[:, 0, 0] - S[:, 1, 1]), S[:, 0, 1])
         comp = np.nonzero(s_min < 0.0)[0]
-        if len(comp):
+        if len(comp) and inertia is None:
             lam_e, Q = np.linalg.eigh(dPdF[comp])
             dPdF[comp] = (Q * np.maximum(lam_e, 0.0)[:, None, :]) @ np.swapaxes(Q, 1, 2)
         # dF_(ij) / dx_(a,l) = G[a, j] delta_il  ->  (m, 6, 9)
@@ -210,6 +217,10 @@ class ShellModel:
             J[:, i, :, :, i] = np.swapaxes(self.G, 1, 2)  # [k, j, a]
         J = J.reshape(m, 6, 9)
         H = w[:, None, None] * (np.swapaxes(J, 1, 2) @ dPdF @ J)
+        if len(comp) and inertia is not None:
+            De = np.repeat(inertia[self.tris[comp]], 3, axis=1)[:, :, None] * np.eye(9)  # (c, 9, 9)
+            lam_e, Q = np.linalg.eigh(H[comp] + De)
+            H[comp] = (Q * np.maximum(lam_e, 0.0)[:, None, :]) @ np.swapaxes(Q, 1, 2) - De
         return energy, grad, H
 
     # ------------------------------------------------------------ bending
@@ -233,9 +244,10 @@ class ShellModel:
         H = (2 * self.kb)[:, None, None] * gf[:, :, None] * gf[:, None, :]
         return energy, grad, H
 
-    def energy_grad_hess(self, x: np.ndarray, order: int = 2):
-        """Total elastic energy, gradient (n, 3) and the Hessian as COO triplets (rows, cols, values)."""
-        em, gm, Hm = self.membrane(x, order)
+    def energy_grad_hess(self, x: np.ndarray, order: int = 2, inertia: np.ndarray | None = None):
+        """Total elastic energy, gradient (n, 3) and the Hessian as COO triplets (rows, cols, values);
+        inertia: see membrane."""
+        em, gm, Hm = self.membrane(x, order, inertia)
         eb, gb, Hb = self.bending(x, order)
         if self.quadratic is not None:
             Q = self.quadratic  # scalar (n, n) matrix acting on each coordinate

@@ -111,9 +111,19 @@ class ClothSolver(Solver):
 
     # ----------------------------------------------------------------- build
     def build(self) -> None:
+        import sys
+
         import ipctk
 
         from simcli.geometry.regions import points_in_regions
+
+        # ipctk's broad phase and CCD run on its own (TBB) threads: no more than the run's (sim.threads,
+        # clamped to what the machine allows, is what Taichi was given; docs/LIMITS.md). Without Taichi
+        # started (the solver used alone, as in the benchmarks) ipctk keeps its pool.
+        ti = sys.modules.get("taichi")  # (not imported: not started either)
+        if ti is not None and ti.lang.impl.get_runtime().prog is not None:
+            threads = getattr(ti.lang.impl.current_cfg(), "cpu_max_num_threads", 1)
+            ipctk.set_num_threads(max(1, int(threads or 1)))
 
         xs, ts, mu, lam, h, D, mass, fixed, offs = [], [], [], [], [], [], [], [], [0]
         so = []
@@ -155,6 +165,8 @@ class ClothSolver(Solver):
             pinned=np.concatenate(fixed),
         )
         self.mass = np.concatenate(mass)
+        self._valence = np.maximum(np.bincount(T.ravel(), minlength=len(X)), 1).astype(float)
+        self._inertia = None  # (set per substep)
         self._load_ramps = []  # (forces, ramp_time) of the tractions that grow with time
         self.fext = self._edge_loads(xs, ts, offs)
         self.fext_any = bool(np.any(self.fext)) or bool(self._load_ramps)
@@ -412,7 +424,7 @@ class ClothSolver(Solver):
         e += 0.5 * float(np.sum((self.damp * self.mass)[:, None] * step * step)) / dt
         if self.fext_any:  # dead loads: potential -f . x
             e -= float(np.sum(self.fext * x))
-        ee, ge, He = self.model.energy_grad_hess(x, order)
+        ee, ge, He = self.model.energy_grad_hess(x, order, self._inertia)
         e += ee
         eo, go, Hd, n_obst = self._obstacle_terms(x, order, self._fric, tau)
         e += eo
@@ -685,6 +697,9 @@ class ClothSolver(Solver):
         import ipctk
 
         self.dt = dt
+        # each vertex's inertia in the Newton matrix, shared among its triangles (model.membrane: the
+        # projection of compressed triangles keeps their negative curvature as far as this covers it)
+        self._inertia = self.mass * (1.0 / dt**2 + self.damp / dt) / self._valence
         self.xn = self.x.copy()
         free = ~self.fixed
         self.xhat = self.xn + dt * self.v + dt * dt * self.g
@@ -832,8 +847,10 @@ class ClothSolver(Solver):
             pmax = float(np.abs(pf).max(initial=0.0))
             if pb is not None:  # the bodies' step: the translation, and the rotation times the body's reach
                 pmax = max(pmax, rd.step_size(pb))
-            if not pending and pmax <= self.opts.newton_atol * dt * dt:
-                break  # the Newton step's acceleration |p| / dt^2 is below newton_atol: converged
+            if not pending and pmax <= max(self.opts.newton_atol * dt, self.opts.newton_vtol) * dt:
+                # converged: the Newton step's acceleration |p| / dt^2 is below newton_atol, or its
+                # velocity |p| / dt below newton_vtol (docs/FEM.md, Newton's stopping tests)
+                break
             if pb is not None:  # the bodies' vertices: on the chord to their pose at a = 1 (the CCD's path)
                 if self._po is None:
                     self._po = np.zeros((self.nm, 3))
