@@ -9,10 +9,10 @@ contact with CCD).
 
 Error: the sheet's mean height at the end (--duration) against each code's own converged limit, since the two
 models differ in their contact (VBD: a penalty on the shapes and a 2 mm self-contact offset; simcli: IPC's
-barrier within 2 mm): simcli's limit is FEM.Cloth at Newton's step of 1/600 s (--reference), Newton's its run
-at the most iterations listed. Also the intersections of the final mesh by simcli's independent
-edge-triangle test, for both. Speed: simulated seconds per wall second of stepping (the fair figure when
-the steps differ) and substeps per second.
+barrier within 2 mm): simcli's limit is FEM.Cloth at Newton's step of 1/600 s (skipped with
+--no-reference), Newton's its run at the most iterations listed. Also the intersections of the final mesh
+by simcli's independent edge-triangle test, for both. Speed: simulated seconds per wall second of stepping
+(the fair figure when the steps differ) and substeps per second.
 
 Newton (pip ``newton``, Warp on the CPU, one thread) runs in its own environment, in a subprocess::
 
@@ -33,7 +33,6 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import json  # noqa: E402
 import subprocess  # noqa: E402
-import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -141,7 +140,6 @@ def run_simcli(n: int, duration: float, dt: float, sets: list[str]) -> dict:
         ld = load_scene(p, sets)
     s = ClothSolver(ld.scene, [], scene_dir=None)
     s.build()
-    ipctk.set_num_threads(1)
     w0 = time.perf_counter()
     for _ in range(steps):
         s.substep(dt)
@@ -159,12 +157,6 @@ def run_simcli(n: int, duration: float, dt: float, sets: list[str]) -> dict:
         "z_mean": float(s.x[:, 2].mean()),
         "intersections": len(edge_triangle_intersections(s.x, s.tris)),
     }
-
-
-def machine() -> str:
-    from benchmarks.bench import machine as m
-
-    return m()
 
 
 def main() -> None:
@@ -186,6 +178,7 @@ def main() -> None:
         return
     import numpy as np
 
+    from benchmarks.bench import machine
     from simcli.solvers.fem.cloth.geometry import edge_triangle_intersections
 
     rows = []
@@ -250,12 +243,12 @@ def main() -> None:
         old = p.read_text() if p.exists() else "# FEM.Cloth performance\n\n"
         head = f"## FEM.Cloth beside Newton's VBD ({a.cells} x {a.cells} cells)"
         text = text.replace("## FEM.Cloth beside Newton's VBD", head, 1)
-        if head in old:  # replace this size's section, keep the others
+        if head in old:  # replace this size's section where it stands, keep the others
             pre, rest = old.split(head, 1)
             nxt = rest.find("\n## ")
-            old = pre + (rest[nxt + 1 :] if nxt >= 0 else "")
-        p.write_text(old.rstrip() + "\n\n" + text)
-    sys.exit(0)
+            p.write_text(pre + text + (rest[nxt:] if nxt >= 0 else ""))
+        else:
+            p.write_text(old.rstrip() + "\n\n" + text)
 
 
 if __name__ == "__main__":
