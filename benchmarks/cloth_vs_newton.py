@@ -21,6 +21,9 @@ Newton (pip ``newton``, Warp on the CPU, one thread) runs in its own environment
         --cells 32 --iterations 10,20,40,80 --out docs/PERFORMANCE_CLOTH.md
 
 simcli's host libraries are held to one thread (ipctk's pool, OMP / BLAS variables set before numpy loads).
+FEM.Cloth factors with what ``solvers.fem.linear_solver: auto`` picks (CHOLMOD where the ``cholmod`` extra is
+installed, else SuperLU; the row's label says which); ``--simcli-set solvers.fem.linear_solver=superlu``
+adds a SuperLU run.
 """
 
 from __future__ import annotations
@@ -146,7 +149,11 @@ def run_simcli(n: int, duration: float, dt: float, sets: list[str]) -> dict:
     wall = time.perf_counter() - w0
     st = s.info()
     return {
-        "code": "simcli FEM.Cloth" + (" " + " ".join(sets) if sets else ""),
+        # the factorisation solvers.fem.linear_solver chose (auto: CHOLMOD where the cholmod extra is there)
+        "code": "simcli FEM.Cloth ("
+        + st["factorization"].split()[0]
+        + ")"
+        + (" " + " ".join(sets) if sets else ""),
         "vertices": s.n,
         "dt": dt,
         "substeps": steps,

@@ -50,6 +50,13 @@ def check_entity(entity, dim: int, scene_dir=None) -> list[tuple[tuple, str]]:
     return []
 
 
+def cholmod_available() -> bool:
+    """Whether FEM.Cloth's optional CHOLMOD factorisation can run (simcli.solvers.fem.cloth.checks)."""
+    from simcli.solvers.fem.cloth.checks import cholmod_available as available
+
+    return available()
+
+
 def check_cloth_entity(entity, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
     """Scene-check findings for a FEM.Cloth entity (simcli.solvers.fem.cloth.checks)."""
     from simcli.solvers.fem.cloth.checks import check_entity

@@ -106,6 +106,15 @@ class FEMOptions(_Options):
         ge=1,
         description="Implicit: safety cap on PCG iterations per Newton step (hitting it is reported).",
     )
+    linear_solver: Literal["auto", "superlu", "cholmod"] = Field(
+        "auto",
+        description="FEM.Cloth: the sparse direct factorisation of Newton's matrix. superlu: scipy's SuperLU "
+        "(symmetric mode, minimum degree), always there. cholmod: CHOLMOD's supernodal Cholesky through the "
+        "optional package cvxopt (GPL-3; pip install 'simcli[cholmod]'), 5-7x faster to factor at 4k cloth "
+        "vertices (docs/FEM.md). auto (default): cholmod where cvxopt and threadpoolctl are installed, else "
+        "superlu. The two give the same Newton directions to round-off; run.json's fem_cloth info names the "
+        "one used.",
+    )
     preconditioner: Literal["block_jacobi", "rotated_rest"] = Field(
         "rotated_rest",
         description="Implicit: PCG preconditioner. block_jacobi: the exact 3x3 diagonal blocks of the "

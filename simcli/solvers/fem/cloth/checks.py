@@ -8,6 +8,14 @@ import numpy as np
 from simcli.solvers.fem.cloth.config import MORPHS
 
 
+def cholmod_available() -> bool:
+    """Whether the optional CHOLMOD backend (solvers.fem.linear_solver) can run: cvxopt (its CHOLMOD) and
+    threadpoolctl (to hold its BLAS to the run's threads)."""
+    import importlib.util
+
+    return all(importlib.util.find_spec(m) is not None for m in ("cvxopt", "threadpoolctl"))
+
+
 def check_entity(e, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
     """(path below the entity, message) per problem."""
     if dim != 3:

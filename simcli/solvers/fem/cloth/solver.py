@@ -30,12 +30,54 @@ from typing import Any
 import numpy as np
 
 from simcli.solvers.base import Body, FrameStats, Solver, upload_state_array
+from simcli.solvers.fem.cloth.checks import cholmod_available
 from simcli.solvers.fem.cloth.model import ShellModel
 from simcli.solvers.fem.cloth.obstacles import Obstacles
 from simcli.solvers.fem.cloth.topology import cloth_mesh
 
 EPS_V = 1.0e-3  # friction smoothing velocity [m/s]
 _DEBUG = bool(__import__("os").environ.get("SIMCLI_CLOTH_DEBUG"))
+
+
+class CholmodFactor:
+    """CHOLMOD's supernodal Cholesky factor of an SPD matrix (cvxopt.cholmod: symbolic analysis with its
+    default ordering, numeric LL^T), with ``solve(b)`` as SuperLU's factor has. Raises ArithmeticError when
+    the matrix is not positive definite. ``threads``: the BLAS threads it may use (None: the library's
+    own)."""
+
+    def __init__(self, H, threads: int | None = None) -> None:
+        import cvxopt
+        import cvxopt.cholmod as cm
+        import scipy.sparse as sp
+
+        self._cvx, self._cm, self._threads = cvxopt, cm, threads
+        low = sp.tril(H, format="csc")  # CHOLMOD reads the lower triangle (uplo L)
+        n = low.shape[0]
+        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(low.indptr))
+        A = cvxopt.spmatrix(
+            cvxopt.matrix(np.ascontiguousarray(low.data, dtype=np.float64)),
+            cvxopt.matrix(low.indices.astype(np.int64)),
+            cvxopt.matrix(cols),
+            (n, n),
+        )
+        with self._limit():
+            self._F = cm.symbolic(A, uplo="L")
+            cm.numeric(A, self._F)
+
+    def _limit(self):
+        import contextlib
+
+        if self._threads is None:
+            return contextlib.nullcontext()
+        from threadpoolctl import threadpool_limits
+
+        return threadpool_limits(limits=self._threads, user_api="blas")
+
+    def solve(self, b):
+        X = self._cvx.matrix(np.array(b, dtype=np.float64))  # a copy: solved in place
+        with self._limit():
+            self._cm.solve(self._F, X)
+        return np.asarray(X).ravel()
 
 
 def _barrier(s, sh):
@@ -135,9 +177,13 @@ class ClothSolver(Solver):
         # clamped to what the machine allows, is what Taichi was given; docs/LIMITS.md). Without Taichi
         # started (the solver used alone, as in the benchmarks) ipctk keeps its pool.
         ti = sys.modules.get("taichi")  # (not imported: not started either)
+        self._threads = None
         if ti is not None and ti.lang.impl.get_runtime().prog is not None:
             threads = getattr(ti.lang.impl.current_cfg(), "cpu_max_num_threads", 1)
-            ipctk.set_num_threads(max(1, int(threads or 1)))
+            self._threads = max(1, int(threads or 1))
+            ipctk.set_num_threads(self._threads)
+        choice = getattr(self.opts, "linear_solver", "auto")
+        self._cholmod = choice == "cholmod" or (choice == "auto" and cholmod_available())
 
         xs, ts, mu, lam, h, D, mass, fixed, offs = [], [], [], [], [], [], [], [], [0]
         so = []
@@ -619,8 +665,9 @@ class ClothSolver(Solver):
     def _linear_solve(self, H, rhs):
         """Newton direction from H p = rhs (H: free dofs, CSC, SPD by construction).
 
-        A sparse direct factorisation (SuperLU in symmetric mode, minimum-degree ordering on A^T + A, no
-        pivoting: the projected Hessian is SPD), kept through the substep: later Newton steps first run CG
+        A sparse direct factorisation (solvers.fem.linear_solver: CHOLMOD's supernodal Cholesky through
+        cvxopt, or SuperLU in symmetric mode, minimum-degree ordering on A^T + A, no pivoting: the projected
+        Hessian is SPD), kept through the substep: later Newton steps first run CG
         preconditioned by the previous factor (the Hessian changes little between Newton steps), to
         min(REUSE_CG_RTOL, 100 pcg_tol) within REUSE_CG_ITERS iterations (an inexact Newton step), and
         refactor when that fails. Jacobi-PCG is the fallback
@@ -646,17 +693,20 @@ class ClothSolver(Solver):
             if info == 0 and np.all(np.isfinite(pf)) and pf @ rhs > 0:
                 return pf
         try:
-            self._lu = spl.splu(
-                H,
-                permc_spec="MMD_AT_PLUS_A",
-                diag_pivot_thresh=0.0,
-                options={"SymmetricMode": True},
-            )
+            if self._cholmod:
+                self._lu = CholmodFactor(H, self._threads)
+            else:
+                self._lu = spl.splu(
+                    H,
+                    permc_spec="MMD_AT_PLUS_A",
+                    diag_pivot_thresh=0.0,
+                    options={"SymmetricMode": True},
+                )
             self.stats["factorizations"] += 1
             pf = self._lu.solve(rhs)
             if np.all(np.isfinite(pf)) and pf @ rhs > 0:
                 return pf
-        except RuntimeError:  # exactly singular (should not happen: SPD)
+        except (RuntimeError, ArithmeticError):  # singular or not positive definite (should not happen: SPD)
             pass
         self._lu = None
         Hr = H.tocsr()
@@ -1252,8 +1302,10 @@ class ClothSolver(Solver):
         s["newton_per_substep"] = s["newton_iterations"] / n
         s["contacts_per_substep"] = s["contacts"] / n
         return {
-            "method": "backward Euler, Newton + sparse LU (reused as CG preconditioner), IPC barrier (ipctk) "
-            "+ CCD line search (backtracking, or expanding a full step while the energy falls steeply)",
+            "method": "backward Euler, Newton + sparse direct factor (reused as CG preconditioner), IPC "
+            "barrier (ipctk) + CCD line search (backtracking, or expanding a full step while the energy "
+            "falls steeply)",
+            "factorization": "CHOLMOD supernodal Cholesky (cvxopt)" if self._cholmod else "SuperLU (scipy)",
             "bending": "shape operator (both curvature invariants)"
             if self.model.shape is not None
             else "quadratic (flat rest)"
