@@ -83,7 +83,6 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
 
     # entities
     seen: dict[str, int] = {}
-    seen_opts: set[str] = set()  # solver options checked once, at the first entity that uses them
     n_particles = 0
     n_sph = 0
     fem_v = fem_t = 0
@@ -110,16 +109,6 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
 
             for p, msg in cloth_check(e, dim, loaded.scene_dir, s):
                 err(base + p, msg)
-            if getattr(s.solvers.fem, "linear_solver", "auto") == "cholmod" and "cholmod" not in seen_opts:
-                seen_opts.add("cholmod")
-                from simcli.solvers.fem.checks import cholmod_available
-
-                if not cholmod_available():
-                    err(
-                        ("solvers", "fem", "linear_solver"),
-                        "linear_solver: cholmod needs the optional packages cvxopt and threadpoolctl "
-                        "(pip install 'simcli[cholmod]'); or use auto or superlu",
-                    )
             continue
         if m.type in ("Rectangle", "Line") and e.family != "PBD":
             err(
@@ -194,9 +183,10 @@ def check_scene(loaded: Any) -> list[str]:  # a simcli.scene.loader.LoadedScene 
             )
 
     _check_faces_and_sf(s, err)
-    from simcli.solvers.fem.checks import check_element  # solvers.fem.element: tet10 (FEM.Elastic only)
+    # solvers.fem.element: tet10 (FEM.Elastic only); solvers.fem.linear_solver: cholmod (FEM.Cloth)
+    from simcli.solvers.fem.checks import check_element, check_linear_solver
 
-    for p, msg in check_element(s):
+    for p, msg in check_element(s) + check_linear_solver(s):
         err(p, msg)
     if s.probes:
         from simcli.probes.config import check_probes

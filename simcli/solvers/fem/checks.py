@@ -50,11 +50,22 @@ def check_entity(entity, dim: int, scene_dir=None) -> list[tuple[tuple, str]]:
     return []
 
 
-def cholmod_available() -> bool:
-    """Whether FEM.Cloth's optional CHOLMOD factorisation can run (simcli.solvers.fem.cloth.checks)."""
-    from simcli.solvers.fem.cloth.checks import cholmod_available as available
+def check_linear_solver(scene) -> list[tuple[tuple, str]]:
+    """solvers.fem.linear_solver: cholmod needs the optional packages (simcli.solvers.fem.cloth.checks), in a
+    scene with FEM.Cloth entities (the only ones it serves)."""
+    from simcli.solvers.fem.cloth.checks import cholmod_available
 
-    return available()
+    if scene.solvers.fem.linear_solver != "cholmod" or cholmod_available():
+        return []
+    if not any(e.material.type == "FEM.Cloth" for e in scene.entities):
+        return []
+    return [
+        (
+            ("solvers", "fem", "linear_solver"),
+            "linear_solver: cholmod needs the optional packages cvxopt and threadpoolctl "
+            "(pip install 'simcli[cholmod]'); or use auto or superlu",
+        )
+    ]
 
 
 def check_cloth_entity(entity, dim: int, scene_dir, scene) -> list[tuple[tuple, str]]:
